@@ -40,7 +40,7 @@ def critical_a_star(nu, psi):
     if psi == 0.0:
         return 1.0
     return float(brentq(lambda s: float(normal_denominator(s, nu, psi)), 0.5, 1.0,
-                        xtol=1e-15, rtol=4e-16))
+                        xtol=1e-15, rtol=1e-15))
 
 
 def spring_constants(a, R, material: Material):
