@@ -9,6 +9,8 @@ import argparse
 import importlib
 import sys
 
+from solvers.petsc import is_option
+
 from .errors import AmfeError
 
 COMMANDS = ["pack", "homogenize"]
@@ -25,27 +27,60 @@ def build_parser():
     return parser
 
 
+def split_petsc_args(argv):
+    """Split argv into (amfe arguments, PETSc options).
+
+    A PETSc option is a single dash and a name (-ksp_monitor, -pc_type); the
+    token after it is its value unless it looks like an option itself. So
+    PETSc options go after amfe's own arguments: `amfe homogenize bed.h5
+    -ksp_monitor -pc_type hypre`. (Handing them to argparse would read
+    -options_left as -o ptions_left.)
+    """
+    ours, petsc, k = [], [], 0
+    while k < len(argv):
+        tok = argv[k]
+        if _is_petsc_option(tok):
+            petsc.append(tok)
+            if k + 1 < len(argv) and not is_option(argv[k + 1]):
+                petsc.append(argv[k + 1])
+                k += 1
+        else:
+            ours.append(tok)
+        k += 1
+    return ours, petsc
+
+
+def _is_petsc_option(tok):
+    return len(tok) > 2 and tok[0] == "-" and tok[1] != "-" and tok[1].isalpha()
+
+
 def main(argv=None):
     argv = sys.argv[1:] if argv is None else list(argv)
-    parser = build_parser()
-    # PETSc options (-ksp_monitor, -log_view, ...) pass through to PETSc untouched.
-    args, unknown = parser.parse_known_args(argv)
-    petsc_args = [a for a in unknown if a.startswith("-") and not a.startswith("--")]
-    stray = [a for a in unknown if a not in petsc_args and not _is_petsc_value(a, unknown)]
-    if stray:
-        parser.error(f"unrecognised arguments: {' '.join(stray)}")
-    args.petsc_args = [a for a in unknown]
+    ours, petsc = split_petsc_args(argv)
+    args = build_parser().parse_args(ours)
+    args.petsc_args = petsc
     try:
         return int(args.func(args) or 0)
     except AmfeError as exc:
-        print(f"amfe {args.command}: error: {exc}", file=sys.stderr)
+        # Raised alike on every rank: one message, then a clean non-zero exit everywhere.
+        if _world_rank() == 0:
+            print(f"amfe {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except BaseException:
+        # An unexpected error on one rank would leave the others waiting in a
+        # collective: abort the whole MPI job instead of hanging.
+        mpi = sys.modules.get("mpi4py.MPI")
+        if mpi is not None and mpi.COMM_WORLD.size > 1:
+            import traceback
+            traceback.print_exc()
+            sys.stderr.flush()
+            mpi.COMM_WORLD.Abort(1)
+        raise
 
 
-def _is_petsc_value(token, unknown):
-    """A token that follows a single-dash PETSc option is its value (-ksp_type cg)."""
-    k = unknown.index(token)
-    return k > 0 and unknown[k - 1].startswith("-") and not unknown[k - 1].startswith("--")
+def _world_rank():
+    mpi = sys.modules.get("mpi4py.MPI")
+    return mpi.COMM_WORLD.rank if mpi is not None else 0
 
 
 if __name__ == "__main__":

@@ -1,42 +1,33 @@
 """PETSc start-up: initialise petsc4py once, with command-line options if given."""
 import sys
 
-_initialised = False
-
 
 def init_petsc(argv=None):
-    """Initialise petsc4py (once) and return the PETSc module.
+    """Initialise petsc4py if needed and return the PETSc module.
 
-    ``argv``: PETSc options such as ["-ksp_monitor", "-log_view"]; they must
-    reach PetscInitialize for -log_view and friends to work, so pass them on
-    the first call. Later calls add them to the options database instead.
+    ``argv``: PETSc options such as ["-ksp_monitor", "-log_view"]. On the first
+    call they go to PetscInitialize (which -log_view needs); if PETSc is already
+    initialised they are added to its options database instead.
     """
-    global _initialised
-    import petsc4py
-    if not _initialised and "petsc4py.PETSc" not in sys.modules:
-        petsc4py.init([sys.argv[0] if sys.argv else "amfe"] + list(argv or []))
-    _initialised = True
+    argv = list(argv or [])
+    if "petsc4py.PETSc" not in sys.modules:
+        import petsc4py
+        petsc4py.init([sys.argv[0] if sys.argv and sys.argv[0] else "amfe"] + argv)
+        from petsc4py import PETSc
+        return PETSc
     from petsc4py import PETSc
-    if argv and not _initialised_with(argv):
-        opts = PETSc.Options()
-        for name, value in _pairs(argv):
-            opts.setValue(name, value)
+    opts = PETSc.Options()
+    for name, value in option_pairs(argv):
+        opts.setValue(name, value)
     return PETSc
 
 
-def _initialised_with(argv):
-    from petsc4py import PETSc
-    opts = PETSc.Options()
-    return all(opts.hasName(name) for name, _ in _pairs(argv))
-
-
-def _pairs(argv):
-    """[("-ksp_type", "cg"), ("-ksp_monitor", "")] from a flat option list."""
+def option_pairs(argv):
+    """[("ksp_type", "cg"), ("ksp_monitor", "")] from ["-ksp_type", "cg", "-ksp_monitor"]."""
     out, k = [], 0
     while k < len(argv):
-        name = argv[k].lstrip("-")
-        value = ""
-        if k + 1 < len(argv) and not _is_option(argv[k + 1]):
+        name, value = argv[k].lstrip("-"), ""
+        if k + 1 < len(argv) and not is_option(argv[k + 1]):
             value = argv[k + 1]
             k += 1
         out.append((name, value))
@@ -44,11 +35,12 @@ def _pairs(argv):
     return out
 
 
-def _is_option(token):
+def is_option(token):
+    """True for -name, False for a value such as 'cg', '1e-3' or '-2'."""
     if not token.startswith("-"):
         return False
     try:
         float(token)
-        return False  # a negative number is a value
+        return False
     except ValueError:
         return True

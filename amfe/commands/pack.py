@@ -1,0 +1,145 @@
+"""`amfe pack`: generate a powder bed (HCP + scan path) and write it to HDF5.
+
+Lengths on the command line are in mm (radii in um), as in the paper; the
+file is in SI (m). The Python equivalent is :func:`amfe.bed.generate_bed`
+followed by :func:`amfe.bedio.write_bed`.
+"""
+import math
+
+import numpy as np
+
+from ..bed import generate_bed
+from ..bedio import write_bed
+from ..bonds import find_bonds
+from ..errors import AmfeError
+from ..material import STEEL
+from ..scanpath import ScanPath
+from ..springs import critical_a_star
+
+MM = 1e-3
+UM = 1e-6
+
+# Defaults of the paper's figure-2 bed. Kept apart from argparse (whose
+# defaults are None) so that a later --scale option can supply its own set.
+DEFAULTS = {
+    "size": (0.25, 0.25, 0.1),        # mm
+    "mean_radius": 12.5,              # um
+    "enlargement": (1.05, 1.14),
+    "jitter": 0.025,
+    "layer_thickness": 0.1,           # mm
+    "seed": 0,
+    "a_star_max": 0.98,
+}
+
+SCAN_OPTIONS = ("track_width", "hatch_spacing", "angle", "layer_rotation",
+                "skip_fraction", "skip_length", "offset")
+
+
+def register(subparsers):
+    p = subparsers.add_parser(
+        "pack", help="generate a powder bed (HCP lattice + laser scan path) as HDF5",
+        description="Generate a powder bed: a jittered HCP lattice of enlarged spheres "
+                    "(paper section 4), cut by a raster scan path (paper figure 3), with every "
+                    "bond's a* kept at or below --a-star-max by shrinking radii. Default: the "
+                    "paper's figure-2 bed, 0.25 x 0.25 x 0.1 mm, fully scanned, seed 0. "
+                    "Lengths in mm.")
+    p.add_argument("-o", "--output", default="bed.h5", metavar="BED.h5",
+                   help="output HDF5 file (default: bed.h5)")
+    p.add_argument("--size", nargs=3, type=float, metavar=("LX", "LY", "LZ"),
+                   help="box size in mm (default: 0.25 0.25 0.1)")
+    p.add_argument("--seed", type=int, help="random seed, integer >= 0 (default: 0)")
+    p.add_argument("--mean-radius", type=float, metavar="UM",
+                   help="mean particle radius after enlargement in um (default: 12.5)")
+    p.add_argument("--enlargement", nargs=2, type=float, metavar=("LO", "HI"),
+                   help="range of the random radius factors (default: 1.05 1.14)")
+    p.add_argument("--jitter", type=float, metavar="J",
+                   help="centre jitter, +/- J R per axis (default: 0.025)")
+    p.add_argument("--layer-thickness", type=float, metavar="MM",
+                   help="powder layer thickness in mm, for the scan path (default: 0.1)")
+    p.add_argument("--a-star-max", type=float, metavar="A",
+                   help="largest a* of any bond; radii of bonds above it are shrunk "
+                        "(default: 0.98; must be below the critical 0.9934)")
+    g = p.add_argument_group("scan path (paper figure 3); give at least --track-width and "
+                             "--hatch-spacing, otherwise the bed is fully scanned")
+    g.add_argument("--track-width", type=float, metavar="MM", help="laser track width in mm")
+    g.add_argument("--hatch-spacing", type=float, metavar="MM",
+                   help="centre-to-centre distance of tracks in mm")
+    g.add_argument("--angle", type=float, metavar="DEG",
+                   help="track direction in the first powder layer, degrees from +x (default: 0)")
+    g.add_argument("--layer-rotation", type=float, metavar="DEG",
+                   help="rotation of the tracks per powder layer in degrees (default: 67)")
+    g.add_argument("--skip-fraction", type=float, metavar="F",
+                   help="probability that a piece of track is skipped, in [0, 1) (default: 0)")
+    g.add_argument("--skip-length", type=float, metavar="MM",
+                   help="length of the skipped pieces in mm (default: 0.25)")
+    g.add_argument("--offset", type=float, metavar="MM",
+                   help="position of track 0 across the tracks in mm (default: 0)")
+    p.set_defaults(func=run)
+    return p
+
+
+def _value(args, name):
+    v = getattr(args, name, None)
+    return DEFAULTS[name] if v is None else v
+
+
+def scan_from_args(args):
+    """The :class:`ScanPath` the options describe (SI), or None for a fully scanned bed."""
+    given = [n for n in SCAN_OPTIONS if getattr(args, n, None) is not None]
+    if not given:
+        return None
+    missing = [n for n in ("track_width", "hatch_spacing") if getattr(args, n) is None]
+    if missing:
+        raise AmfeError("a scan path needs " + " and ".join("--" + m.replace("_", "-")
+                                                          for m in missing)
+                        + f" (given: {', '.join('--' + n.replace('_', '-') for n in given)})")
+    kw = {"track_width": args.track_width * MM, "hatch_spacing": args.hatch_spacing * MM}
+    for name, scale in (("angle", 1.0), ("layer_rotation", 1.0), ("skip_fraction", 1.0),
+                        ("skip_length", MM), ("offset", MM)):
+        v = getattr(args, name)
+        if v is not None:
+            kw[name] = v * scale
+    return ScanPath(**kw)
+
+
+def run(args):
+    size = tuple(_value(args, "size"))
+    if not all(math.isfinite(s) and s > 0 for s in size):
+        raise AmfeError(f"--size must be three positive lengths in mm, got {' '.join(map(str, size))}")
+    lo, hi = _value(args, "enlargement")
+    if lo > hi:
+        raise AmfeError(f"--enlargement LO HI needs LO <= HI, got {lo} {hi}")
+    seed = _value(args, "seed")
+    if seed < 0:
+        raise AmfeError(f"--seed must be a non-negative integer, got {seed}")
+    a_star_max = _value(args, "a_star_max")
+    crit = critical_a_star(STEEL.nu, STEEL.psi)
+    if not 0.0 < a_star_max < crit:
+        raise AmfeError(f"--a-star-max must lie in (0, {crit:.6f}), the critical a* for "
+                        f"nu={STEEL.nu}, psi={STEEL.psi}; got {a_star_max}")
+    scan = scan_from_args(args)
+
+    bed = generate_bed(tuple(s * MM for s in size), mean_radius=_value(args, "mean_radius") * UM,
+                       enlargement=(lo, hi), jitter=_value(args, "jitter"),
+                       layer_thickness=_value(args, "layer_thickness") * MM, scan=scan,
+                       seed=seed, a_star_max=a_star_max, material=STEEL)
+    bonds = find_bonds(bed.centers, bed.radii)
+    write_bed(args.output, bed)
+
+    box = float(np.prod(np.array(size) * MM))
+    print(f"amfe pack: {size[0]:g} x {size[1]:g} x {size[2]:g} mm, seed {seed}, "
+          f"scan {bed.attrs['scan']}")
+    print(f"  particles         {bed.n} (of {bed.attrs['n_lattice']} lattice sites)")
+    print(f"  bonds             {len(bonds)}")
+    print(f"  mean radius       {bed.radii.mean() / UM:.4f} um")
+    print(f"  packing fraction  {bed.sphere_volume() / box:.4f} "
+          "(sphere volumes / box volume; overlaps counted twice)")
+    if len(bonds):
+        s = bonds.a_star
+        print(f"  a* min/mean/max   {s.min():.4f} / {s.mean():.4f} / {s.max():.4f} "
+              f"(max allowed {a_star_max:g})")
+    else:
+        print("  a* min/mean/max   - (no bonds)")
+    print(f"  shrunk particles  {bed.attrs['n_shrunk']} (radii reduced so that a* <= {a_star_max:g})")
+    print(f"  written           {args.output}")
+    return 0

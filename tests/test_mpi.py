@@ -1,0 +1,107 @@
+"""`amfe homogenize` under mpirun: rank-count invariance, PETSc options, VTU, errors."""
+import json
+import os
+
+import meshio
+import numpy as np
+import pytest
+
+from amfe.bed import generate_bed
+from amfe.bedio import write_bed
+
+from helpers import run_cli
+
+pytestmark = pytest.mark.mpi
+
+RESULT_KEYS = {"properties", "C", "S", "volume", "n_particles", "n_removed", "n_bonds", "bc",
+               "ranks", "solver"}
+PROPERTY_KEYS = {"Ex", "Ey", "Ez", "nu_yz", "nu_xz", "nu_xy", "G_yz", "G_xz", "G_xy"}
+
+
+@pytest.fixture(scope="module")
+def bed_file(tmp_path_factory):
+    path = tmp_path_factory.mktemp("bed") / "bed.h5"
+    write_bed(path, generate_bed(size=(120e-6, 100e-6, 60e-6), seed=11))
+    return str(path)
+
+
+@pytest.fixture(scope="module")
+def results(bed_file, tmp_path_factory):
+    out = tmp_path_factory.mktemp("runs")
+    res = {}
+    for ranks in (1, 2, 3):
+        path = out / f"r{ranks}.json"
+        proc = run_cli(["homogenize", bed_file, "-o", str(path), "--rtol", "1e-12"], ranks=ranks)
+        assert proc.returncode == 0, proc.stderr
+        res[ranks] = json.loads(path.read_text())
+    return res
+
+
+def test_same_constants_on_1_2_3_ranks(results):
+    C1 = np.array(results[1]["C"])
+    for ranks in (2, 3):
+        C = np.array(results[ranks]["C"])
+        assert np.abs(C - C1).max() <= 1e-9 * np.abs(C1).max()
+        assert results[ranks]["ranks"] == ranks
+
+
+def test_result_json_layout(results):
+    r = results[2]
+    assert set(r) == RESULT_KEYS
+    assert set(r["properties"]) == PROPERTY_KEYS
+    assert np.array(r["C"]).shape == (6, 6) and np.array(r["S"]).shape == (6, 6)
+    assert np.allclose(np.array(r["C"]) @ np.array(r["S"]), np.eye(6), atol=1e-10)
+    assert r["bc"] == "kubc"
+    s = r["solver"]
+    assert s["ksp_type"] == "cg" and s["pc_type"] == "gamg" and len(s["iterations"]) == 6
+    assert all(0 < it <= 30 for it in s["iterations"])
+    assert max(s["residuals"]) < 1e-10  # true residuals, not just preconditioned
+
+
+def test_petsc_options_reach_petsc(bed_file, results, tmp_path):
+    out = tmp_path / "hypre.json"
+    proc = run_cli(["homogenize", bed_file, "-o", str(out), "--rtol", "1e-10",
+                    "-pc_type", "hypre", "-ksp_monitor", "-log_view"], ranks=2)
+    assert proc.returncode == 0, proc.stderr
+    assert "KSP Residual norm" in proc.stdout
+    assert "Performance Summary" in proc.stdout  # -log_view
+    r = json.loads(out.read_text())
+    assert r["solver"]["pc_type"] == "hypre"
+    C, C1 = np.array(r["C"]), np.array(results[1]["C"])
+    assert np.abs(C - C1).max() <= 1e-7 * np.abs(C1).max()
+
+
+def test_vtu_written_once_and_complete_under_two_ranks(bed_file, tmp_path):
+    vtu = tmp_path / "vtu"
+    proc = run_cli(["homogenize", bed_file, "--vtu", str(vtu)], ranks=2)
+    assert proc.returncode == 0, proc.stderr
+    files = sorted(os.listdir(vtu))
+    assert files == sorted(["cases.pvd"] + [f"case_{k}_{n}.vtu" for k, n in
+                                            enumerate(["xx", "yy", "zz", "yz", "xz", "xy"])])
+    assert "Ex" in proc.stdout
+    m = meshio.read(vtu / "case_0_xx.vtu")
+    for name in ("displacement", "rotation", "radius"):
+        assert name in m.point_data
+    for name in ("axial_force", "shear_force", "moment"):
+        assert name in m.cell_data
+    # case xx, unit strain: boundary particles move by x - x_c along x
+    u = m.point_data["displacement"]
+    x = m.points
+    xc = (x.max(axis=0) + x.min(axis=0)) / 2
+    edge = np.isclose(x[:, 0], x[:, 0].min())
+    assert np.allclose(u[edge, 0], x[edge, 0] - xc[0], rtol=1e-9)
+
+
+def test_divergence_stops_every_rank_with_one_clear_error(bed_file, tmp_path):
+    out = tmp_path / "never.json"
+    proc = run_cli(["homogenize", bed_file, "-o", str(out), "-ksp_max_it", "1"], ranks=2, timeout=120)
+    assert proc.returncode != 0
+    assert proc.stderr.count("did not converge") == 1, proc.stderr
+    assert "DIVERGED_MAX_IT" in proc.stderr and "Traceback" not in proc.stderr
+    assert not out.exists()
+
+
+def test_missing_bed_is_a_clear_error(tmp_path):
+    proc = run_cli(["homogenize", str(tmp_path / "nope.h5")], ranks=2, timeout=120)
+    assert proc.returncode != 0 and "Traceback" not in proc.stderr
+    assert "nope.h5" in proc.stderr
