@@ -82,17 +82,19 @@ def largest_component(n, i, j):
     return labels == np.argmax(sizes)
 
 
-def build_frame(centers, radii, material: Material = STEEL, a_star_cap=None):
+def build_frame(centers, radii, material: Material = STEEL, a_star_cap=None, nondimensional=True):
     """The largest connected, non-dimensionalised frame of a bed.
 
     centers (N,3) [m], radii (N,) [m]. Raises AmfeError for invalid particles,
     degenerate contacts, a bed without bonds, a load-carrying part too small to
     span a volume, or (unless ``a_star_cap`` is given) bonds at or past the
     critical a* (see :func:`amfe.bonds.bond_springs`).
+    ``nondimensional=False`` keeps SI units (length_scale = force_scale = 1):
+    only for showing what the scaling buys.
     """
     centers, radii = validate_particles(centers, radii)
     n_input = centers.shape[0]
-    length = float(radii.mean())
+    length = float(radii.mean()) if nondimensional else 1.0
     x = centers / length
     r = radii / length
 
@@ -115,8 +117,9 @@ def build_frame(centers, radii, material: Material = STEEL, a_star_cap=None):
     order = np.lexsort((hi, lo))
     x, r = x[kept], r[kept]
     bonds = contact_geometry(x, r, lo[order], hi[order])
-    unit = Material(E=1.0, nu=material.nu, psi=material.psi, density=material.density)
+    E = 1.0 if nondimensional else material.E
+    unit = Material(E=E, nu=material.nu, psi=material.psi, density=material.density)
     k_n, k_t, kappa_n, kappa_t, n_capped = bond_springs(bonds, unit, a_star_cap)
     return Frame(centers=x, radii=r, kept=kept, bonds=bonds, k_n=k_n, k_t=k_t,
                  kappa_n=kappa_n, kappa_t=kappa_t, n_input=n_input, n_capped=n_capped,
-                 length_scale=length, force_scale=material.E * length**2, material=material)
+                 length_scale=length, force_scale=material.E / E * length**2, material=material)

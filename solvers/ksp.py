@@ -9,14 +9,29 @@ beds measured (see the benchmark), three orders below the spread between beds,
 at about one extra GAMG iteration per decade."""
 
 
-def make_ksp(PETSc, A, rtol=DEFAULT_RTOL, ksp_type="cg", pc_type="gamg", max_it=None):
-    """A KSP on A: CG + GAMG by default; PETSc options (-ksp_*, -pc_*) override."""
+def make_ksp(PETSc, A, rtol=DEFAULT_RTOL, ksp_type="cg", pc_type="gamg", max_it=None,
+             options=None):
+    """A KSP on A: CG + GAMG by default.
+
+    The command line's PETSc options (-ksp_*, -pc_*) override the defaults, and
+    ``options`` (a dict such as {"pc_type": "cholesky"}) overrides both; it is
+    removed from the options database again afterwards.
+    """
     ksp = PETSc.KSP().create(A.getComm())
     ksp.setOperators(A)
     ksp.setType(ksp_type)
     ksp.getPC().setType(pc_type)
     ksp.setTolerances(rtol=rtol, max_it=max_it)
-    ksp.setFromOptions()
+    db = PETSc.Options()
+    options = {k.lstrip("-"): ("" if v is None else str(v)) for k, v in (options or {}).items()}
+    saved = {k: db.getString(k) if db.hasName(k) else None for k in options}
+    for k, v in options.items():
+        db.setValue(k, v)
+    try:
+        ksp.setFromOptions()
+    finally:
+        for k, v in saved.items():
+            db.delValue(k) if v is None else db.setValue(k, v)
     return ksp
 
 

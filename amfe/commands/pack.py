@@ -5,6 +5,7 @@ file is in SI (m). The Python equivalent is :func:`amfe.bed.generate_bed`
 followed by :func:`amfe.bedio.write_bed`.
 """
 import math
+from decimal import Decimal
 
 import numpy as np
 
@@ -16,8 +17,19 @@ from ..material import STEEL
 from ..scanpath import ScanPath
 from ..springs import critical_a_star
 
-MM = 1e-3
-UM = 1e-6
+MM = -3   # decimal exponents of the command-line units
+UM = -6
+
+
+def si(value, exponent):
+    """value * 10**exponent, rounded once from the decimal the user typed.
+
+    float(Decimal(repr(x)).scaleb(e)) is the double nearest to e.g. 0.15e-3,
+    so ``amfe pack --size 0.15 ...`` builds exactly the bed of
+    ``generate_bed((0.15e-3, ...))``; multiplying by 1e-3 can be an ulp off,
+    and an ulp in r0 changes every radius.
+    """
+    return float(Decimal(repr(float(value))).scaleb(exponent))
 
 # Defaults of the paper's figure-2 bed. Kept apart from argparse (whose
 # defaults are None) so that a later --scale option can supply its own set.
@@ -93,12 +105,12 @@ def scan_from_args(args):
         raise AmfeError("a scan path needs " + " and ".join("--" + m.replace("_", "-")
                                                           for m in missing)
                         + f" (given: {', '.join('--' + n.replace('_', '-') for n in given)})")
-    kw = {"track_width": args.track_width * MM, "hatch_spacing": args.hatch_spacing * MM}
-    for name, scale in (("angle", 1.0), ("layer_rotation", 1.0), ("skip_fraction", 1.0),
-                        ("skip_length", MM), ("offset", MM)):
+    kw = {"track_width": si(args.track_width, MM), "hatch_spacing": si(args.hatch_spacing, MM)}
+    for name, exponent in (("angle", 0), ("layer_rotation", 0), ("skip_fraction", 0),
+                           ("skip_length", MM), ("offset", MM)):
         v = getattr(args, name)
         if v is not None:
-            kw[name] = v * scale
+            kw[name] = si(v, exponent) if exponent else float(v)
     return ScanPath(**kw)
 
 
@@ -119,19 +131,20 @@ def run(args):
                         f"nu={STEEL.nu}, psi={STEEL.psi}; got {a_star_max}")
     scan = scan_from_args(args)
 
-    bed = generate_bed(tuple(s * MM for s in size), mean_radius=_value(args, "mean_radius") * UM,
+    bed = generate_bed(tuple(si(s, MM) for s in size),
+                       mean_radius=si(_value(args, "mean_radius"), UM),
                        enlargement=(lo, hi), jitter=_value(args, "jitter"),
-                       layer_thickness=_value(args, "layer_thickness") * MM, scan=scan,
+                       layer_thickness=si(_value(args, "layer_thickness"), MM), scan=scan,
                        seed=seed, a_star_max=a_star_max, material=STEEL)
     bonds = find_bonds(bed.centers, bed.radii)
     write_bed(args.output, bed)
 
-    box = float(np.prod(np.array(size) * MM))
+    box = float(np.prod([si(s, MM) for s in size]))
     print(f"amfe pack: {size[0]:g} x {size[1]:g} x {size[2]:g} mm, seed {seed}, "
           f"scan {bed.attrs['scan']}")
     print(f"  particles         {bed.n} (of {bed.attrs['n_lattice']} lattice sites)")
     print(f"  bonds             {len(bonds)}")
-    print(f"  mean radius       {bed.radii.mean() / UM:.4f} um")
+    print(f"  mean radius       {bed.radii.mean() * 1e6:.4f} um")
     print(f"  packing fraction  {bed.sphere_volume() / box:.4f} "
           "(sphere volumes / box volume; overlaps counted twice)")
     if len(bonds):
