@@ -1,4 +1,6 @@
 """KSP/PC set-up and the convergence check every solve goes through."""
+from contextlib import contextmanager
+
 from amfe.errors import AmfeError
 
 DEFAULT_RTOL = 1e-8
@@ -9,30 +11,39 @@ beds measured (see the benchmark), three orders below the spread between beds,
 at about one extra GAMG iteration per decade."""
 
 
-def make_ksp(PETSc, A, rtol=DEFAULT_RTOL, ksp_type="cg", pc_type="gamg", max_it=None,
-             options=None):
-    """A KSP on A: CG + GAMG by default.
+def make_ksp(PETSc, A, P=None, rtol=DEFAULT_RTOL, ksp_type="cg", pc_type="gamg", max_it=None):
+    """A KSP with operator A and preconditioner matrix P (default A).
 
-    The command line's PETSc options (-ksp_*, -pc_*) override the defaults, and
-    ``options`` (a dict such as {"pc_type": "cholesky"}) overrides both; it is
-    removed from the options database again afterwards.
+    CG + GAMG by default; the PETSc options database overrides.
+
+    Wrap the creation and ksp.setUp() in :func:`petsc_options` to add options
+    for one solve only (GAMG reads its level smoothers' options at set-up).
     """
     ksp = PETSc.KSP().create(A.getComm())
-    ksp.setOperators(A)
+    ksp.setOperators(A, A if P is None else P)
     ksp.setType(ksp_type)
     ksp.getPC().setType(pc_type)
     ksp.setTolerances(rtol=rtol, max_it=max_it)
+    ksp.setFromOptions()
+    return ksp
+
+
+@contextmanager
+def petsc_options(PETSc, options=None):
+    """Temporarily set PETSc options ({"pc_type": "cholesky", "ksp_monitor": None})."""
     db = PETSc.Options()
     options = {k.lstrip("-"): ("" if v is None else str(v)) for k, v in (options or {}).items()}
     saved = {k: db.getString(k) if db.hasName(k) else None for k in options}
     for k, v in options.items():
         db.setValue(k, v)
     try:
-        ksp.setFromOptions()
+        yield
     finally:
         for k, v in saved.items():
-            db.delValue(k) if v is None else db.setValue(k, v)
-    return ksp
+            if v is None:
+                db.delValue(k)
+            else:
+                db.setValue(k, v)
 
 
 def reason_name(PETSc, reason):
