@@ -43,20 +43,50 @@ def local_block_rows(frame, r0, r1):
     return indptr, cols[order], blocks[order]
 
 
+def aij_from_blocks(PETSc, comm, n, r0, r1, indptr, cols, blocks):
+    """Rows [6 r0, 6 r1) of a (6n, 6n) AIJ matrix with block size 6, from block CSR."""
+    nloc = r1 - r0
+    csr = sp.bsr_matrix((blocks, cols, indptr), shape=(6 * nloc, 6 * n)).tocsr()
+    csr.sort_indices()
+    it = PETSc.IntType
+    A = PETSc.Mat().createAIJ(size=((6 * nloc, 6 * n), (6 * nloc, 6 * n)), bsize=6,
+                              csr=(csr.indptr.astype(it), csr.indices.astype(it), csr.data),
+                              comm=comm)
+    A.setOption(PETSc.Mat.Option.NO_OFF_PROC_ENTRIES, True)
+    A.assemble()
+    return A
+
+
+def sbaij_operator(PETSc, comm, n, r0, r1, indptr, cols, blocks, fixed, diag):
+    """The constrained operator as SBAIJ (upper 6x6 blocks), straight from block CSR.
+
+    fixed (n,) bool: particles whose translations are prescribed; their
+    translation rows and columns are zeroed and get ``diag`` on the diagonal,
+    as MatZeroRowsColumns does to the AIJ matrix (MPISBAIJ has no
+    MatZeroRowsColumns in PETSc 3.18, and converting AIJ costs seconds).
+    """
+    nloc = r1 - r0
+    rows = np.repeat(np.arange(r0, r1), np.diff(indptr))
+    up = cols >= rows
+    rows, ucols, ublocks = rows[up], cols[up], blocks[up].copy()
+    ublocks[fixed[rows], :3, :] = 0.0
+    ublocks[fixed[ucols], :, :3] = 0.0
+    on_diag = np.flatnonzero((rows == ucols) & fixed[rows])
+    for d in range(3):
+        ublocks[on_diag, d, d] = diag
+    uptr = np.concatenate([[0], np.cumsum(np.bincount(rows - r0, minlength=nloc))])
+    it = PETSc.IntType
+    S = PETSc.Mat().createSBAIJ(size=((6 * nloc, 6 * n), (6 * nloc, 6 * n)), bsize=6,
+                                csr=(uptr.astype(it), ucols.astype(it), ublocks.ravel()),
+                                comm=comm)
+    S.setOption(PETSc.Mat.Option.NO_OFF_PROC_ENTRIES, True)
+    S.assemble()
+    return S
+
+
 def assemble_stiffness(PETSc, frame, comm, r0, r1):
     """The global stiffness as a distributed PETSc AIJ matrix with block size 6.
 
     Rank owns particles [r0, r1), i.e. rows [6 r0, 6 r1).
     """
-    indptr, cols, blocks = local_block_rows(frame, r0, r1)
-    nloc, n = r1 - r0, frame.n_particles
-    bsr = sp.bsr_matrix((blocks, cols, indptr), shape=(6 * nloc, 6 * n))
-    csr = bsr.tocsr()
-    csr.sort_indices()
-    itype = PETSc.IntType
-    A = PETSc.Mat().createAIJ(size=((6 * nloc, 6 * n), (6 * nloc, 6 * n)), bsize=6,
-                              csr=(csr.indptr.astype(itype), csr.indices.astype(itype), csr.data),
-                              comm=comm)
-    A.setOption(PETSc.Mat.Option.NO_OFF_PROC_ENTRIES, True)
-    A.assemble()
-    return A
+    return aij_from_blocks(PETSc, comm, frame.n_particles, r0, r1, *local_block_rows(frame, r0, r1))

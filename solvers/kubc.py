@@ -5,7 +5,7 @@ all other DOFs stay free. The prescribed translations are imposed with
 MatZeroRowsColumns (identity rows and columns, the prescribed values lifted
 into each right-hand side), which keeps the AIJ block size 6 and the
 near null space, so one GAMG set-up serves all six solves. PETSc option
--amfe_operator_type aij|baij|sbaij (default sbaij) picks the storage of the
+-amfe_operator_type aij|sbaij (default sbaij) picks the storage of the
 operator CG multiplies with; the preconditioner is always built from AIJ.
 """
 import time
@@ -13,7 +13,7 @@ import time
 import numpy as np
 
 from amfe.homogenize import bagi_stress, boundary_particles, box_center, unit_strains
-from .assembly import assemble_stiffness
+from .assembly import aij_from_blocks, local_block_rows, sbaij_operator
 from .ksp import DEFAULT_RTOL, check_converged, make_ksp, petsc_options
 from .nullspace import near_nullspace
 from .partition import row_ranges
@@ -37,7 +37,8 @@ def solve_kubc(PETSc, frame, comm, rtol=DEFAULT_RTOL, max_it=None, ksp_options=N
     r0, r1 = int(ranges[rank]), int(ranges[rank + 1])
 
     t0 = time.perf_counter()
-    A = assemble_stiffness(PETSc, frame, comm, r0, r1)
+    block_rows = local_block_rows(frame, r0, r1)
+    A = aij_from_blocks(PETSc, comm, frame.n_particles, r0, r1, *block_rows)
     t_assembly = time.perf_counter() - t0
 
     x = frame.centers
@@ -75,12 +76,12 @@ def solve_kubc(PETSc, frame, comm, rtol=DEFAULT_RTOL, max_it=None, ksp_options=N
     # a third of AIJ's bytes and halves the solve time. GAMG keeps building its
     # hierarchy from the AIJ matrix (it cannot use (S)BAIJ in PETSc 3.18).
     t0 = time.perf_counter()
-    op_type = PETSc.Options().getString("amfe_operator_type", "sbaij")
-    if op_type == "aij":
+    if PETSc.Options().getString("amfe_operator_type", "sbaij") == "aij":
         A_op = A
     else:
-        A.setOption(PETSc.Mat.Option.SYMMETRIC, True)
-        A_op = A.convert(op_type, PETSc.Mat())  # a new matrix: convert() alone works in place
+        A_op = sbaij_operator(PETSc, comm, frame.n_particles, r0, r1, *block_rows,
+                              fixed=boundary, diag=dscale)
+    del block_rows
     t_assembly += time.perf_counter() - t0
 
     with petsc_options(PETSc, ksp_options):

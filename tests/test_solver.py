@@ -101,3 +101,24 @@ def test_floating_particles_removed_and_counted():
     assert res["n_removed"] == 3 and res["n_particles"] == len(x) + 3
     for key, value in ref["properties"].items():
         assert res["properties"][key] == pytest.approx(value, rel=1e-10, abs=1e-12)
+
+
+def test_sbaij_operator_equals_constrained_aij(hcp_bed):
+    from solvers.assembly import aij_from_blocks, local_block_rows, sbaij_operator
+    from amfe.homogenize import boundary_particles
+    frame = build_frame(hcp_bed.centers, hcp_bed.radii)
+    n = frame.n_particles
+    blocks = local_block_rows(frame, 0, n)
+    fixed = boundary_particles(frame.centers, frame.radii)
+    A = aij_from_blocks(PETSc, PETSc.COMM_WORLD, n, 0, n, *blocks)
+    dofs = (6 * np.flatnonzero(fixed)[:, None] + np.arange(3)).ravel().astype(PETSc.IntType)
+    A.zeroRowsColumns(dofs, diag=2.5)
+    S = sbaij_operator(PETSc, PETSc.COMM_WORLD, n, 0, n, *blocks, fixed=fixed, diag=2.5)
+    dense_A = A.convert("dense").getDenseArray()
+    x, y = A.createVecs()
+    y2 = y.duplicate()
+    for seed in range(3):
+        x.setArray(np.random.default_rng(seed).normal(size=6 * n))
+        A.mult(x, y)
+        S.mult(x, y2)
+        assert np.allclose(y2.getArray(), y.getArray(), rtol=0, atol=1e-13 * np.abs(dense_A).max())
