@@ -23,7 +23,8 @@ def homogenize_bed(centers, radii, material=STEEL, *, a_star_cap=None, rtol=DEFA
                    nondimensional=True):
     """Effective elastic constants of a bed of bonded spheres under KUBC.
 
-    centers (N,3) [m], radii (N,) [m]; every rank passes the same arrays.
+    centers (N,3) [m], radii (N,) [m]; every rank of ``comm`` (a PETSc or
+    mpi4py communicator, default COMM_WORLD) passes the same arrays.
     Returns the result dict of DESIGN section 6 (the same on every rank):
     properties (SI: Pa and -), C and S (6x6, Voigt xx, yy, zz, yz, xz, xy,
     engineering shear; Pa and 1/Pa), volume [m^3], n_particles (input),
@@ -37,7 +38,10 @@ def homogenize_bed(centers, radii, material=STEEL, *, a_star_cap=None, rtol=DEFA
     Raises AmfeError on every rank for bad input or a failed solve.
     """
     PETSc = init_petsc(petsc_args)
-    comm = PETSc.COMM_WORLD if comm is None else comm
+    if comm is None:
+        comm = PETSc.COMM_WORLD
+    elif not isinstance(comm, PETSc.Comm):
+        comm = PETSc.Comm(comm)  # an mpi4py communicator, e.g. a batch group
     mpi = comm.tompi4py()
     t0 = time.perf_counter()
     frame = build_frame(centers, radii, material, a_star_cap, nondimensional=nondimensional)

@@ -105,3 +105,31 @@ def test_missing_bed_is_a_clear_error(tmp_path):
     proc = run_cli(["homogenize", str(tmp_path / "nope.h5")], ranks=2, timeout=120)
     assert proc.returncode != 0 and "Traceback" not in proc.stderr
     assert "nope.h5" in proc.stderr
+
+
+def test_groups_of_a_split_communicator_solve_their_own_beds(tmp_path):
+    """COMM_WORLD split in two groups of one rank: each solves a different bed alone."""
+    script = tmp_path / "split.py"
+    script.write_text(
+        "import json, sys\n"
+        "from mpi4py import MPI\n"
+        "from amfe.bed import generate_bed\n"
+        "from solvers.driver import homogenize_bed\n"
+        "w = MPI.COMM_WORLD\n"
+        "g = w.Split(color=w.rank, key=0)\n"
+        "bed = generate_bed(size=(100e-6, 100e-6, 60e-6), seed=20 + w.rank)\n"
+        "r = homogenize_bed(bed.centers, bed.radii, comm=g, rtol=1e-12)\n"
+        "alone = homogenize_bed(bed.centers, bed.radii, comm=MPI.COMM_SELF, rtol=1e-12)\n"
+        "out = w.gather((r['ranks'], r['properties']['Ex'], alone['properties']['Ex']), root=0)\n"
+        "if w.rank == 0: print(json.dumps(out))\n")
+    import subprocess
+    import sys
+    from helpers import MPI_ENV, ROOT
+    proc = subprocess.run(["mpirun", "-n", "2", sys.executable, str(script)], capture_output=True,
+                          text=True, cwd=ROOT, env=MPI_ENV, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    out = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert [o[0] for o in out] == [1, 1]
+    assert out[0][1] != out[1][1]  # different beds
+    for ranks, ex, ex_alone in out:
+        assert ex == pytest.approx(ex_alone, rel=1e-10)
