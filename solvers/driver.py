@@ -13,22 +13,32 @@ from amfe.frame import build_frame
 from amfe.homogenize import (asymmetry, bagi_strain, compliance_and_constants, hull_of,
                              stiffness, symmetric, voigt, voigt_strain)
 from amfe.material import STEEL
-from .kubc import CASE_NAMES, solve_kubc
 from .ksp import DEFAULT_RTOL
+from .kubc import CASE_NAMES, kubc_groups
+from .loadcases import solve_load_cases
+from .mixed import mixed_groups
 from .petsc import init_petsc
+
+BOUNDARY_CONDITIONS = {"kubc": kubc_groups, "mixed": mixed_groups}
 
 
 def homogenize_bed(centers, radii, material=STEEL, *, a_star_cap=None, rtol=DEFAULT_RTOL,
                    max_it=None, vtu_dir=None, comm=None, petsc_args=None, ksp_options=None,
-                   nondimensional=True):
-    """Effective elastic constants of a bed of bonded spheres under KUBC.
+                   nondimensional=True, bc="kubc", diagnose=False):
+    """Effective elastic constants of a bed of bonded spheres.
+
+    bc: "kubc" (default; six unit macro-strains on the boundary, one operator)
+    or "mixed" (the paper's figure-2 experiments, six operators; see
+    :mod:`solvers.mixed`). diagnose: add a ``diagnostics`` list (per case:
+    iterations, true residual, eigenvalue estimates of the preconditioned
+    operator and their ratio, GAMG levels and complexities).
 
     centers (N,3) [m], radii (N,) [m]; every rank of ``comm`` (a PETSc or
     mpi4py communicator, default COMM_WORLD) passes the same arrays.
     Returns the result dict of DESIGN section 6 (the same on every rank):
     properties (SI: Pa and -), C and S (6x6, Voigt xx, yy, zz, yz, xz, xy,
     engineering shear; Pa and 1/Pa), volume [m^3], n_particles (input),
-    n_removed, n_bonds, bc, ranks, solver (ksp_type, pc_type, rtol,
+    n_removed, n_bonds, bc ("kubc" or "mixed"), ranks, solver (ksp_type, pc_type, rtol,
     iterations [6], setup_seconds, solve_seconds, plus residuals and the
     stress and C asymmetries); with ``a_star_cap``, also n_capped. With
     ``vtu_dir``, rank 0 writes one VTU per load case and cases.pvd there.
@@ -37,6 +47,9 @@ def homogenize_bed(centers, radii, material=STEEL, *, a_star_cap=None, rtol=DEFA
     assembles in SI units (for the benchmark that shows why scaling matters).
     Raises AmfeError on every rank for bad input or a failed solve.
     """
+    if bc not in BOUNDARY_CONDITIONS:
+        raise AmfeError(f"unknown boundary condition {bc!r}; choose one of "
+                        + ", ".join(BOUNDARY_CONDITIONS))
     PETSc = init_petsc(petsc_args)
     if comm is None:
         comm = PETSc.COMM_WORLD
@@ -46,12 +59,14 @@ def homogenize_bed(centers, radii, material=STEEL, *, a_star_cap=None, rtol=DEFA
     t0 = time.perf_counter()
     frame = build_frame(centers, radii, material, a_star_cap, nondimensional=nondimensional)
     t_frame = time.perf_counter() - t0
-    sol = solve_kubc(PETSc, frame, comm, rtol=rtol, max_it=max_it, ksp_options=ksp_options)
+    groups = BOUNDARY_CONDITIONS[bc](frame)
+    sol = solve_load_cases(PETSc, frame, comm, groups, rtol=rtol, max_it=max_it,
+                           ksp_options=ksp_options, diagnose=diagnose)
 
     payload = None
     if mpi.rank == 0:
         try:
-            payload = _average(frame, sol, a_star_cap, mpi.size, t_frame, vtu_dir)
+            payload = _average(frame, sol, bc, a_star_cap, mpi.size, t_frame, vtu_dir)
         except AmfeError as exc:
             payload = exc
     payload = mpi.bcast(payload, root=0)
@@ -60,7 +75,7 @@ def homogenize_bed(centers, radii, material=STEEL, *, a_star_cap=None, rtol=DEFA
     return payload
 
 
-def _average(frame, sol, a_star_cap, ranks, t_frame, vtu_dir):
+def _average(frame, sol, bc, a_star_cap, ranks, t_frame, vtu_dir):
     """Rank 0: Bagi averages, C, S, constants, the result dict (and the VTU files)."""
     t0 = time.perf_counter()
     hull = hull_of(frame.centers)
@@ -82,7 +97,7 @@ def _average(frame, sol, a_star_cap, ranks, t_frame, vtu_dir):
         "n_particles": int(frame.n_input),
         "n_removed": int(frame.n_removed),
         "n_bonds": int(len(frame.bonds)),
-        "bc": "kubc",
+        "bc": bc,
         "ranks": int(ranks),
         "solver": {
             "ksp_type": sol["ksp_type"], "pc_type": sol["pc_type"], "rtol": float(sol["rtol"]),
@@ -98,6 +113,8 @@ def _average(frame, sol, a_star_cap, ranks, t_frame, vtu_dir):
     }
     if a_star_cap is not None:
         result["n_capped"] = int(frame.n_capped)
+    if "diagnostics" in sol:
+        result["diagnostics"] = sol["diagnostics"]
     if vtu_dir is not None:
         write_frame_vtu(vtu_dir, frame, sol["u"])
     return result

@@ -27,6 +27,14 @@ def register(sub):
     p.add_argument("--cap-a-star", type=float, default=None, metavar="A",
                    help="evaluate bonds with a* > A at a* = A (A below the critical a*) "
                         "instead of refusing them; the JSON reports n_capped")
+    p.add_argument("--bc", choices=["kubc", "mixed"], default="kubc",
+                   help="kubc: six unit macro-strains on the boundary, one operator (default); "
+                        "mixed: the paper's figure-2 experiments, prescribed displacements on "
+                        "one pair of faces, traction-free elsewhere, six operators")
+    p.add_argument("--diagnose", action="store_true",
+                   help="report per load case the iterations, true residual, eigenvalue "
+                        "estimates of the preconditioned operator and GAMG complexities "
+                        "(also in the JSON under 'diagnostics')")
     p.set_defaults(func=run)
 
 
@@ -54,7 +62,7 @@ def run(args):
     result = homogenize_bed(bed.centers, bed.radii, bed.material(),
                             a_star_cap=args.cap_a_star,
                             rtol=DEFAULT_RTOL if args.rtol is None else args.rtol,
-                            vtu_dir=args.vtu)
+                            vtu_dir=args.vtu, bc=args.bc, diagnose=args.diagnose)
     if comm.rank == 0:
         if args.output:
             write_json(args.output, result)
@@ -70,15 +78,34 @@ def summary(result, bed_path, output=None, vtu=None):
              f"not load-carrying), {result['n_bonds']} bonds, V = {result['volume']:.4g} m^3, "
              f"{result['ranks']} rank(s)",
              f"solver: {s['ksp_type']}+{s['pc_type']} rtol {s['rtol']:g}, iterations "
-             f"{s['iterations']}, set-up {s['setup_seconds']:.3g} s, solves {s['solve_seconds']:.3g} s"]
+             f"{s['iterations']}, set-up {s['setup_seconds']:.3g} s, solves {s['solve_seconds']:.3g} s",
+             f"boundary conditions: {result['bc']}; asymmetry of stress {s['stress_asymmetry']:.1e}, "
+             f"of C {s['C_asymmetry']:.1e}"]
     if "n_capped" in result:
         lines.append(f"a* capped on {result['n_capped']} bonds")
     props = result["properties"]
     for key, unit in PROPERTY_UNITS:
         value = props[key] / 1e9 if unit == "GPa" else props[key]
         lines.append(f"  {key:6s} {value:12.6g} {unit}")
+    if "diagnostics" in result:
+        lines.append(diagnostics_table(result["diagnostics"]))
     if output:
         lines.append(f"wrote {output}")
     if vtu:
         lines.append(f"wrote {os.path.join(vtu, 'cases.pvd')} (6 load cases, per unit macro-strain)")
+    return "\n".join(lines)
+
+
+def diagnostics_table(diag):
+    """Per-case solver diagnostics as text (see docs/diagnostics.md)."""
+    lines = ["diagnostics (see docs/diagnostics.md):",
+             f"  {'case':4s} {'its':>4s} {'true resid':>10s} {'eig min':>9s} {'eig max':>9s} "
+             f"{'cond':>9s} {'grid cx':>7s} {'op cx':>6s}  levels"]
+    for d in diag:
+        def g(key, fmt):
+            return format(d[key], fmt) if key in d else "-"
+        lines.append(f"  {d['case']:4s} {d['iterations']:4d} {d['residual']:10.2e} "
+                     f"{g('eig_min', '9.3g')} {g('eig_max', '9.3g')} {g('condition', '9.3g')} "
+                     f"{g('grid_complexity', '7.3f')} {g('operator_complexity', '6.3f')}  "
+                     f"{d.get('levels', '-')}")
     return "\n".join(lines)
