@@ -33,6 +33,8 @@ extras=""
 stamp=".venv/.amfe-installed$extras"
 want="$(sha256sum pyproject.toml | cut -c1-64)"
 if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
-    .venv/bin/python -m pip install -q --disable-pip-version-check -e ".$extras"
+    # (grep drops this machine's pip-config noise about absent local package folders)
+    .venv/bin/python -m pip install -q --disable-pip-version-check -e ".$extras" 2>&1 \
+        | { grep -v "^WARNING: Location 'file:" || true; }
     echo "$want" > "$stamp"
 fi
