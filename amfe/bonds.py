@@ -11,7 +11,7 @@ from scipy.spatial import cKDTree
 
 from .errors import AmfeError, _list_items
 from .material import Material
-from .springs import critical_a_star, spring_constants
+from .springs import A_STAR_MARGIN, critical_a_star, spring_constants
 
 
 def validate_particles(centers, radii):
@@ -124,7 +124,7 @@ def find_bonds(centers, radii):
     return contact_geometry(centers, radii, i, j)
 
 
-def bond_springs(bonds: Bonds, material: Material, a_star_cap=None):
+def bond_springs(bonds: Bonds, material: Material, a_star_cap=None, labels=None):
     """Springs of every bond: (k_n, k_t, kappa_n, kappa_t, n_capped).
 
     Units follow the inputs: with lengths in m and E in Pa, k in N/m and kappa
@@ -132,19 +132,26 @@ def bond_springs(bonds: Bonds, material: Material, a_star_cap=None):
     eq. 1 vanishes, 0.9934 for the paper's nu and psi) has no physical spring:
     by default that is an error naming the bonds. With ``a_star_cap`` (< the
     critical value) such bonds, and any above the cap, are evaluated at
-    a* = a_star_cap instead, and their number is returned as n_capped.
+    a* = a_star_cap instead, and their number is returned as n_capped; bonds
+    with a* >= 1 (overlaps too deep for a neck: nearly coincident spheres)
+    stay errors. ``labels`` (N,) names particles in messages (default: their
+    index in the arrays the bonds refer to).
     """
     crit = critical_a_star(material.nu, material.psi)
+    limit = crit - A_STAR_MARGIN  # closer than this no solve keeps accuracy
     a_star = bonds.a_star
+    name = (lambda k: k) if labels is None else (lambda k: labels[k])  # noqa: E731
     if a_star_cap is None:
-        bad = np.flatnonzero(a_star >= crit)
+        bad = np.flatnonzero(a_star >= limit)
         if bad.size:
             worst = bad[np.argsort(-a_star[bad])]
             raise AmfeError(
                 f"{bad.size} bonds reach a* >= {crit:.6f}, where the k_n and kappa_t "
-                f"denominators of paper eqs. 1 and 4 vanish (nu={material.nu}, psi={material.psi}); "
-                "their stiffness would be infinite or negative. Bonds (i, j, a*): "
-                + _list_items(f"({bonds.i[k]}, {bonds.j[k]}, {a_star[k]:.6f})" for k in worst)
+                f"denominators of paper eqs. 1 and 4 vanish (nu={material.nu}, psi={material.psi}; "
+                f"refused from {A_STAR_MARGIN:g} below it); their stiffness would be infinite, "
+                "negative or beyond any solver's accuracy. Bonds (i, j, a*): "
+                + _list_items(f"({name(bonds.i[k])}, {name(bonds.j[k])}, {a_star[k]:.6f})"
+                              for k in worst)
                 + ". Reduce the particle overlaps, or cap a* explicitly "
                 "(--cap-a-star A with A < the critical value; the count of capped bonds is reported)."
             )
@@ -152,9 +159,19 @@ def bond_springs(bonds: Bonds, material: Material, a_star_cap=None):
         s = a_star
     else:
         a_star_cap = float(a_star_cap)
-        if not (0.0 < a_star_cap < crit):
-            raise AmfeError(f"the a* cap must lie in (0, {crit:.6f}) (the critical a* for "
-                            f"nu={material.nu}, psi={material.psi}), got {a_star_cap}")
+        if not (0.0 < a_star_cap < limit):
+            raise AmfeError(f"the a* cap must lie in (0, {limit:.10f}) ({A_STAR_MARGIN:g} below "
+                            f"the critical a* {crit:.10f} for nu={material.nu}, psi={material.psi}), "
+                            f"got {a_star_cap}")
+        deep = np.flatnonzero(a_star >= 1.0)
+        if deep.size:
+            raise AmfeError(
+                f"{deep.size} bonds have a* >= 1, overlaps too deep for a sintered neck (nearly "
+                "coincident spheres; eqs. 1-4 are imaginary there), which no a* cap covers. "
+                "Bonds (i, j, a*): "
+                + _list_items(f"({name(bonds.i[k])}, {name(bonds.j[k])}, {a_star[k]:.6f})"
+                              for k in deep[np.argsort(-a_star[deep])])
+                + ". Remove the duplicated particles.")
         capped = a_star > a_star_cap
         s = np.minimum(a_star, a_star_cap)
     k_n, k_t, kappa_n, kappa_t = spring_constants(s * bonds.r_eff, bonds.r_eff, material)

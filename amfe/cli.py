@@ -13,7 +13,7 @@ from solvers.petsc import is_option
 
 from .errors import AmfeError
 
-COMMANDS = ["pack", "homogenize"]
+COMMANDS = ["pack", "homogenize", "dataset"]
 
 
 def build_parser():

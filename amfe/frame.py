@@ -116,10 +116,18 @@ def build_frame(centers, radii, material: Material = STEEL, a_star_cap=None, non
     lo, hi = np.minimum(bi, bj), np.maximum(bi, bj)
     order = np.lexsort((hi, lo))
     x, r = x[kept], r[kept]
+    extent = (x.max(axis=0) - x.min(axis=0)) / r.mean()  # in mean radii
+    if extent.min() < 1.0:
+        axis = "xyz"[int(np.argmin(extent))]
+        raise AmfeError(
+            f"the load-carrying particles form a sheet or a line: their centres span only "
+            f"{extent.min():.3g} mean radii along {axis}, less than one radius, so they span "
+            "no volume to average over; a bed needs at least two particle layers in every "
+            "direction")
     bonds = contact_geometry(x, r, lo[order], hi[order])
     E = 1.0 if nondimensional else material.E
     unit = Material(E=E, nu=material.nu, psi=material.psi, density=material.density)
-    k_n, k_t, kappa_n, kappa_t, n_capped = bond_springs(bonds, unit, a_star_cap)
+    k_n, k_t, kappa_n, kappa_t, n_capped = bond_springs(bonds, unit, a_star_cap, labels=kept)
     return Frame(centers=x, radii=r, kept=kept, bonds=bonds, k_n=k_n, k_t=k_t,
                  kappa_n=kappa_n, kappa_t=kappa_t, n_input=n_input, n_capped=n_capped,
                  length_scale=length, force_scale=material.E / E * length**2, material=material)

@@ -35,6 +35,13 @@ The distribution (both scales; lengths in mm, angles in degrees):
 - skipped track pieces: none for half the beds, otherwise a skip fraction
   ~ U(0.05, 0.3) with piece length ~ U(0.1, 0.3) mm.
 
+Images: ``amfe.images.pixelate(bed, cell, layer_thickness, box=[0, size],
+spacing=image_spacing)`` with a sample spacing of 3 um (R/4, 10 x 10 sample
+lines per 0.03 mm cell) instead of pixelate's default R/6: pixels within
+about 1 % of a cell volume of the converged values (DESIGN section 7 asks for
+about 1 %), mean density within 0.03 %, at 2.5x less time (0.15 s instead of
+0.4 s per small bed, which would otherwise be a tenth of the run).
+
 Packing density, as stored in a data set: the mean of the bed's image, i.e.
 the volume fraction of the box [0, Lx] x [0, Ly] x [0, Lz] filled by the
 union of the spheres (overlaps counted once; DESIGN section 7). With the
@@ -84,6 +91,7 @@ class Scale:
     size: tuple                      # (Lx, Ly, Lz) of the box
     layer_thickness: float = 0.1 * MM
     cell: tuple = (30 * UM, 30 * UM)  # image cell (x, y); z: one powder layer
+    image_spacing: float = 3 * UM    # in-plane sample spacing of amfe.images.pixelate
     mean_radius: float = 12.5 * UM
     jitter: float = 0.025
     a_star_max: float = 0.98

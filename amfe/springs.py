@@ -31,6 +31,13 @@ def normal_denominator(a_star, nu, psi):
     return np.sqrt(1.0 - a_star**2) - psi * (a_star + a_star**2 * _bracket(a_star, nu))
 
 
+A_STAR_MARGIN = 1e-10
+"""Bonds closer than this to the critical a* are refused like those past it:
+k_n there exceeds ~5e8 times a typical bond's, and the constants' error grows
+as rtol times that contrast (measured: 7e-5 at crit - 1e-13 with rtol 1e-8,
+where even a direct solve keeps only ~3e-7); see docs/hard_cases.md."""
+
+
 @lru_cache(maxsize=64)
 def critical_a_star(nu, psi):
     """The a* in (0, 1) where the k_n / kappa_t denominator reaches zero.

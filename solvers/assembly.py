@@ -57,23 +57,24 @@ def aij_from_blocks(PETSc, comm, n, r0, r1, indptr, cols, blocks):
     return A
 
 
-def sbaij_operator(PETSc, comm, n, r0, r1, indptr, cols, blocks, fixed, diag):
+def sbaij_operator(PETSc, comm, n, r0, r1, indptr, cols, blocks, fixed):
     """The constrained operator as SBAIJ (upper 6x6 blocks), straight from block CSR.
 
-    fixed (n,6) bool: prescribed DOFs; their rows and columns are zeroed and
-    get ``diag`` on the diagonal, as MatZeroRowsColumns does to the AIJ matrix
-    (MPISBAIJ has no MatZeroRowsColumns in PETSc 3.18, and converting AIJ
-    costs seconds).
+    fixed (n,6) bool: prescribed DOFs; their rows and columns are zeroed except
+    the diagonal entry, which keeps its value (as MatZeroRowsColumns followed
+    by restoring the diagonal does to the AIJ matrix; MPISBAIJ has no
+    MatZeroRowsColumns in PETSc 3.18, and converting AIJ costs seconds).
     """
     nloc = r1 - r0
     rows = np.repeat(np.arange(r0, r1), np.diff(indptr))
     up = cols >= rows
     rows, ucols, ublocks = rows[up], cols[up], blocks[up].copy()
+    on_diag = np.flatnonzero(rows == ucols)
+    keep = np.diagonal(ublocks[on_diag], axis1=1, axis2=2).copy()
     ublocks *= ~fixed[rows][:, :, None]
     ublocks *= ~fixed[ucols][:, None, :]
-    on_diag = np.flatnonzero(rows == ucols)
     b, d = np.nonzero(fixed[rows[on_diag]])
-    ublocks[on_diag[b], d, d] = diag
+    ublocks[on_diag[b], d, d] = keep[b, d]
     uptr = np.concatenate([[0], np.cumsum(np.bincount(rows - r0, minlength=nloc))])
     it = PETSc.IntType
     S = PETSc.Mat().createSBAIJ(size=((6 * nloc, 6 * n), (6 * nloc, 6 * n)), bsize=6,

@@ -111,6 +111,8 @@ def _average(frame, sol, bc, a_star_cap, ranks, t_frame, vtu_dir):
             "C_asymmetry": float(c_asym),
         },
     }
+    if sol["notes"]:
+        result["solver"]["notes"] = sol["notes"]
     if a_star_cap is not None:
         result["n_capped"] = int(frame.n_capped)
     if "diagnostics" in sol:

@@ -52,13 +52,18 @@ def reason_name(PETSc, reason):
     return names.get(reason, str(reason))
 
 
+class IndefinitePreconditioner(AmfeError):
+    """CG met a negative curvature in the preconditioner (DIVERGED_INDEFINITE_PC)."""
+
+
 def check_converged(PETSc, ksp, label):
     """Raise AmfeError (on every rank alike: the reason is collective) unless converged."""
     reason = ksp.getConvergedReason()
     if reason > 0:
         return
     rtol, atol, dtol, max_it = ksp.getTolerances()
-    raise AmfeError(
+    indefinite = reason == PETSc.KSP.ConvergedReason.DIVERGED_INDEFINITE_PC
+    raise (IndefinitePreconditioner if indefinite else AmfeError)(
         f"{label}: the {ksp.getType().upper()} solve with {ksp.getPC().getType()} did not converge: "
         f"{reason_name(PETSc, reason)} after {ksp.getIterationNumber()} iterations, residual norm "
         f"{ksp.getResidualNorm():.3e} (rtol {rtol:g}, max_it {max_it}). The frame may be "

@@ -14,6 +14,7 @@ from ..bedio import write_bed
 from ..bonds import find_bonds
 from ..errors import AmfeError
 from ..material import STEEL
+from ..scales import SCALES
 from ..scanpath import ScanPath
 from ..springs import critical_a_star
 
@@ -45,6 +46,9 @@ DEFAULTS = {
 
 SCAN_OPTIONS = ("track_width", "hatch_spacing", "angle", "layer_rotation",
                 "skip_fraction", "skip_length", "offset")
+# Options that set the bed's generation parameters: --scale draws them all instead.
+GENERATION_OPTIONS = ("size", "mean_radius", "enlargement", "jitter", "layer_thickness",
+                      "a_star_max") + SCAN_OPTIONS
 
 
 def register(subparsers):
@@ -59,7 +63,13 @@ def register(subparsers):
                    help="output HDF5 file (default: bed.h5)")
     p.add_argument("--size", nargs=3, type=float, metavar=("LX", "LY", "LZ"),
                    help="box size in mm (default: 0.25 0.25 0.1)")
-    p.add_argument("--seed", type=int, help="random seed, integer >= 0 (default: 0)")
+    p.add_argument("--seed", type=int, help="random seed, integer >= 0 (default: 0); with "
+                   "--scale, the bed seed (a data-set record's /seed)")
+    p.add_argument("--scale", choices=list(SCALES),
+                   help="draw every generation parameter from this data-set scale's "
+                        "distribution (amfe.scales), seeded by --seed: `amfe pack --scale S "
+                        "--seed <a record's seed>` regenerates that record's bed exactly; no "
+                        "other generation option may be given with it")
     p.add_argument("--mean-radius", type=float, metavar="UM",
                    help="mean particle radius after enlargement in um (default: 12.5)")
     p.add_argument("--enlargement", nargs=2, type=float, metavar=("LO", "HI"),
@@ -115,6 +125,8 @@ def scan_from_args(args):
 
 
 def run(args):
+    if getattr(args, "scale", None):
+        return run_scale(args)
     size = tuple(_value(args, "size"))
     if not all(math.isfinite(s) and s > 0 for s in size):
         raise AmfeError(f"--size must be three positive lengths in mm, got {' '.join(map(str, size))}")
@@ -136,12 +148,37 @@ def run(args):
                        enlargement=(lo, hi), jitter=_value(args, "jitter"),
                        layer_thickness=si(_value(args, "layer_thickness"), MM), scan=scan,
                        seed=seed, a_star_max=a_star_max, material=STEEL)
-    bonds = find_bonds(bed.centers, bed.radii)
-    write_bed(args.output, bed)
+    report(bed, args.output, f"amfe pack: {size[0]:g} x {size[1]:g} x {size[2]:g} mm, seed "
+                             f"{seed}, scan {bed.attrs['scan']}")
+    return 0
 
-    box = float(np.prod([si(s, MM) for s in size]))
-    print(f"amfe pack: {size[0]:g} x {size[1]:g} x {size[2]:g} mm, seed {seed}, "
-          f"scan {bed.attrs['scan']}")
+
+def run_scale(args):
+    """`amfe pack --scale SCALE --seed SEED`: the bed of a data-set record (amfe.scales)."""
+    from ..scales import sample_bed_params
+
+    given = [n for n in GENERATION_OPTIONS if getattr(args, n, None) is not None]
+    if given:
+        raise AmfeError(f"--scale {args.scale} draws every generation parameter from the "
+                        "scale's distribution; it cannot be combined with "
+                        + ", ".join("--" + n.replace("_", "-") for n in given))
+    seed = 0 if args.seed is None else args.seed
+    if seed < 0:
+        raise AmfeError(f"--seed must be a non-negative integer, got {seed}")
+    bed = generate_bed(**sample_bed_params(args.scale, seed))
+    size = [s * 1e3 for s in bed.attrs["size"]]
+    report(bed, args.output, f"amfe pack: scale {args.scale}, bed seed {seed}: {size[0]:g} x "
+                             f"{size[1]:g} x {size[2]:g} mm, scan {bed.attrs['scan']}")
+    return 0
+
+
+def report(bed, output, title):
+    """Write ``bed`` to ``output`` and print its summary under ``title``."""
+    bonds = find_bonds(bed.centers, bed.radii)
+    write_bed(output, bed)
+    a_star_max = bed.attrs["a_star_max"]
+    box = float(np.prod(bed.attrs["size"]))
+    print(title)
     print(f"  particles         {bed.n} (of {bed.attrs['n_lattice']} lattice sites)")
     print(f"  bonds             {len(bonds)}")
     print(f"  mean radius       {bed.radii.mean() * 1e6:.4f} um")
@@ -154,5 +191,4 @@ def run(args):
     else:
         print("  a* min/mean/max   - (no bonds)")
     print(f"  shrunk particles  {bed.attrs['n_shrunk']} (radii reduced so that a* <= {a_star_max:g})")
-    print(f"  written           {args.output}")
-    return 0
+    print(f"  written           {output}")

@@ -1,0 +1,141 @@
+"""Data-set benchmark (issue item 6): beds per hour per core, batch overhead, one paper bed.
+
+    python run/bench_dataset.py                  # small scale, 20 beds on 1 and on 2 ranks
+    python run/bench_dataset.py --count 40 --ranks 2
+    python run/bench_dataset.py --paper          # + one bed of the paper scale (1 rank)
+
+Each run is ``mpirun -n N python run/bench_dataset.py --worker ...``, which
+calls solvers.batch.run_dataset exactly as ``amfe dataset`` does (fresh
+temporary directory, groups of one rank) and reports its timing record. The
+parent measures the whole command's wall time. All times are rank-seconds
+(wall x ranks), split into:
+
+- solver: inside homogenize_bed (frame, assembly, GAMG set-up, six solves,
+  averaging) -- the work;
+- generate, image: making the bed and its image (amfe.bed, amfe.images);
+- records: the rest of each record's time (hand-out, part file with fsync,
+  agreement in the group);
+- tail: ranks idle at the end, waiting for the last beds of the others
+  (about half a bed per rank, whatever the count: it vanishes for long runs);
+- setup+merge: run_dataset before and after the hand-out loop (checks,
+  window, merge into DATA.h5, final check);
+- start-up: interpreter, mpi4py, PETSc imports and mpirun.
+
+"machinery" = records + tail + setup+merge + start-up: everything that is
+neither the solve nor the data (generation, image). "steady" leaves out the
+one-off terms (start-up, setup+merge, tail) that do not grow with the count.
+The machine may be shared: the load average before each run is printed.
+"""
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, ROOT)
+ENV = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
+           OMPI_MCA_rmaps_base_oversubscribe="1", OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1")
+MARK = "BENCH-RESULT "
+
+
+def worker(args):
+    from solvers.petsc import init_petsc
+    init_petsc([])
+    import h5py
+    from solvers.batch import run_dataset
+    res = run_dataset(args.output, args.count, seed=args.seed, scale=args.scale,
+                      progress=False, out=open(os.devnull, "w"))
+    if res is not None:
+        with h5py.File(args.output, "r") as f:
+            n = f["n_particles"][()]
+            bonds = f["n_bonds"][()]
+            sec = f["seconds"][()]
+            status = f["status"][()]
+        res = {k: v for k, v in res.items() if k not in ("failures", "lines")}
+        res.update(n_mean=float(n[n > 0].mean()), n_min=int(n[n > 0].min()), n_max=int(n.max()),
+                   bonds_mean=float(bonds[bonds > 0].mean()), ok=int((status == 0).sum()),
+                   solve_mean=float(sec[:, 2].mean()), solve_min=float(sec[:, 2].min()),
+                   solve_max=float(sec[:, 2].max()), gen_mean=float(sec[:, 0].mean()),
+                   image_mean=float(sec[:, 1].mean()))
+        print(MARK + json.dumps(res), flush=True)
+
+
+def run(scale, count, ranks, seed, workdir):
+    out = os.path.join(workdir, f"{scale}_{ranks}.h5")
+    cmd = [sys.executable, os.path.abspath(__file__), "--worker", "--output", out,
+           "--count", str(count), "--seed", str(seed), "--scale", scale]
+    if ranks > 1:
+        cmd = ["mpirun", "-n", str(ranks), *cmd]
+    load = os.getloadavg()[0]
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, cwd=ROOT, env=ENV, capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    lines = [ln for ln in proc.stdout.splitlines() if ln.startswith(MARK)]
+    if proc.returncode != 0 or not lines:
+        sys.exit(f"failed: {' '.join(cmd)}\n{proc.stdout[-2000:]}\n{proc.stderr[-3000:]}")
+    r = json.loads(lines[0][len(MARK):])
+    r.update(wall=wall, load=load)
+    return r
+
+
+def report(scale, count, ranks, r):
+    total = r["wall"] * ranks
+    solve, gen, img = r["solve_rank_seconds"], r["generate_rank_seconds"], r["image_rank_seconds"]
+    records = r["busy_rank_seconds"] - solve - gen - img
+    tail = r["work_seconds"] * ranks - r["busy_rank_seconds"]
+    setup_merge = (r["seconds"] - r["work_seconds"]) * ranks
+    startup = total - r["seconds"] * ranks
+    machinery = records + tail + setup_merge + startup
+    rate = count / r["wall"] * 3600
+
+    def pc(x, of=total):
+        return f"{100 * x / of:.1f} %"
+
+    print(f"{scale} scale, {ranks} rank(s), {count} beds ({r['ok']} ok), load average before "
+          f"{r['load']:.2f}")
+    print(f"  particles mean {r['n_mean']:.0f} (min {r['n_min']}, max {r['n_max']}), bonds mean "
+          f"{r['bonds_mean']:.0f}")
+    print(f"  per bed: generate {r['gen_mean']:.3f} s, image {r['image_mean']:.3f} s, homogenize "
+          f"{r['solve_mean']:.3f} s (min {r['solve_min']:.3f}, max {r['solve_max']:.3f})")
+    print(f"  whole command {r['wall']:.1f} s -> {rate:.0f} beds/hour = {rate / ranks:.0f} "
+          f"beds/hour/core; 2000 beds: {2000 / rate:.2f} h")
+    print(f"  rank time {total:.1f} s: solver {pc(solve)}, generate {pc(gen)}, image {pc(img)}, "
+          f"records {pc(records)}, tail {pc(tail)}, setup+merge {pc(setup_merge)}, start-up "
+          f"{pc(startup)}")
+    steady = solve + gen + img + records
+    print(f"  overhead (all but the solver) {pc(total - solve)}; batch machinery {pc(machinery)}; "
+          f"steady state (per record, no one-off terms): all but the solver "
+          f"{pc(steady - solve, steady)}, machinery {pc(records, steady)}")
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--count", type=int, default=20)
+    ap.add_argument("--ranks", default="1,2", help="comma list of rank counts (default 1,2)")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--paper", action="store_true", help="also time one paper-scale bed")
+    ap.add_argument("--no-small", action="store_true", help="skip the small-scale runs")
+    ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument("--output", help=argparse.SUPPRESS)
+    ap.add_argument("--scale", default="small", help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.worker:
+        return worker(args)
+    with tempfile.TemporaryDirectory(prefix="amfe-bench-") as d:
+        if not args.no_small:
+            for ranks in (int(x) for x in args.ranks.split(",")):
+                report("small", args.count, ranks, run("small", args.count, ranks, args.seed, d))
+        if args.paper:
+            r = run("paper", 1, 1, args.seed, d)
+            print(f"paper scale, 1 bed on 1 rank: {r['n_max']} particles, "
+                  f"{r['bonds_mean']:.0f} bonds, {'ok' if r['ok'] else 'FAILED'}, load average "
+                  f"before {r['load']:.2f}")
+            print(f"  generate {r['gen_mean']:.1f} s, image {r['image_mean']:.1f} s, homogenize "
+                  f"{r['solve_mean']:.1f} s; whole command {r['wall']:.1f} s")
+
+
+if __name__ == "__main__":
+    main()
