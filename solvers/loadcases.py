@@ -40,13 +40,15 @@ class Group:
     case (entries outside ``fixed`` are ignored); names: case names;
     null_modes: (m, n, 6) rigid modes the constraints leave free (the
     operator is then singular and CG works in their orthogonal complement;
-    the right-hand sides are consistent because K annihilates them).
+    the right-hand sides are consistent because K annihilates them);
+    guesses: optional list of (n,6) initial guesses, one per case.
     """
 
     fixed: np.ndarray
     values: list
     names: list
     null_modes: np.ndarray = field(default=None)
+    guesses: list = field(default=None)
 
 
 def solve_group(PETSc, frame, comm, r0, r1, block_rows, group, center, *, rtol, max_it=None,
@@ -121,8 +123,12 @@ def solve_group(PETSc, frame, comm, r0, r1, block_rows, group, center, *, rtol, 
     f = A_r.createVecLeft()
     scatter, u0 = PETSc.Scatter.toZero(xs[0])
     cases = []
-    for name, bk in zip(group.names, bs):
+    guesses = group.guesses or [None] * len(bs)
+    ksp.setInitialGuessNonzero(group.guesses is not None)
+    for name, bk, guess in zip(group.names, bs, guesses):
         uk = A.createVecRight()
+        if guess is not None:
+            uk.setArray(guess[r0:r1].ravel())
         t0 = time.perf_counter()
         ksp.solve(bk, uk)
         seconds = time.perf_counter() - t0
