@@ -36,33 +36,38 @@ The distribution (both scales; lengths in mm, angles in degrees):
   ~ U(0.05, 0.3) with piece length ~ U(0.1, 0.3) mm.
 
 Images: ``amfe.images.pixelate(bed, cell, layer_thickness, box=[0, size],
-spacing=image_spacing)`` with a sample spacing of 3 um (R/4, 10 x 10 sample
-lines per 0.03 mm cell) instead of pixelate's default R/6: pixels within
-about 1 % of a cell volume of the converged values (DESIGN section 7 asks for
-about 1 %), mean density within 0.03 %, at 2.5x less time (0.15 s instead of
-0.4 s per small bed, which would otherwise be a tenth of the run).
+spacing=image_spacing)`` with a sample spacing of 2.5 um (R/5, 12 x 12 sample
+lines per 0.03 mm cell) instead of pixelate's default R/6 (about 2.1 um, 15 x
+15): measured on 12 small beds against a converged reference (spacing
+0.75 um), the worst pixel is off by 0.66 % of a cell volume (default: 0.64 %;
+DESIGN section 7 asks for about 1 %) and the density by 0.03 %, at 0.10 s
+per bed instead of 0.14 s.
 
 Packing density, as stored in a data set: the mean of the bed's image, i.e.
 the volume fraction of the box [0, Lx] x [0, Ly] x [0, Lz] filled by the
 union of the spheres (overlaps counted once; DESIGN section 7). With the
-ranges above it spans about 0.25 to 0.9 (see ``amfe dataset``'s histogram).
+ranges above it spans 0.2 to 0.8 on the small scale (300 beds: min 0.22, 5 %
+0.28, median 0.49, 95 % 0.74, max 0.78; a fully scanned bed is about 0.78),
+spread roughly evenly (``amfe dataset`` prints the histogram).
 
 Scales:
 
 - ``paper``: the paper's 3 mm x 3 mm base, 0.3 mm high (three 0.1 mm layers),
   images 3 x 100 x 100 (cells of 0.03 x 0.03 x 0.1 mm, paper section 6).
-  About 320 000 lattice sites before the scan path: for clusters.
-- ``small``: 0.6 mm x 0.6 mm x 0.3 mm (the same three layers, a fifth of the
-  base), images 3 x 20 x 20 with the paper's cells. Chosen by measurement
-  on the 2-core development machine: a fully scanned bed has about 8 500
-  particles and 41 000 bonds, and generation + six CG/GAMG solves + image take
-  about 1-2 s on one core (scanned beds are smaller and faster), so 2 000 beds
-  take well under an hour on 2 cores (``run/bench_dataset.py``). The cells
+  About 290 000 lattice sites before the scan path (a nearly fully scanned
+  bed: 257 000 particles, 1.4 million bonds, 75 s on one core): for clusters.
+- ``small``: 0.6 mm x 0.6 mm x 0.3 mm (the same three layers, a fifth of the side of
+  the paper's base), images 3 x 20 x 20 with its cells. Chosen by measurement
+  on the 2-core development machine (``run/bench_dataset.py``, 40 beds, the
+  machine shared with other jobs): beds of 3 800-10 700 particles (mean
+  7 100, 35 000 bonds), 0.02 s generation + 0.05 s image + 1.4 s
+  homogenization per bed on one core; 2 400 beds/hour on 1 rank, 3 500 on
+  2 ranks, so 2 000 beds take about 35 minutes on 2 cores. The cells
   and layers are the paper's, so a ``small`` image is a 20 x 20 crop of what
   a ``paper`` image looks like, and 20 x 20 still survives the Custom Net's
   four 2 x 2 poolings; a 0.3 mm base (10 x 10) would not, and 0.9 mm
-  (30 x 30) costs about 2.5x more per bed. Tracks of up to 0.15 mm still fit
-  four or more times across the base.
+  (30 x 30) has 2.25x the particles, so about 2.3x the time per bed.
+  Tracks of up to 0.15 mm still fit four or more times across the base.
 - ``tiny``: for the test suite only: 0.15 mm x 0.15 mm x 0.1 mm (one
   layer, images 1 x 5 x 5, a few hundred particles) and a fifth of its beds
   deliberately empty (the hatch lies outside the box, so generate_bed refuses
@@ -91,7 +96,7 @@ class Scale:
     size: tuple                      # (Lx, Ly, Lz) of the box
     layer_thickness: float = 0.1 * MM
     cell: tuple = (30 * UM, 30 * UM)  # image cell (x, y); z: one powder layer
-    image_spacing: float = 3 * UM    # in-plane sample spacing of amfe.images.pixelate
+    image_spacing: float = 2.5 * UM  # in-plane sample spacing of amfe.images.pixelate
     mean_radius: float = 12.5 * UM
     jitter: float = 0.025
     a_star_max: float = 0.98

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from amfe.errors import AmfeError
 from amfe.homogenize import bagi_stress
 from .assembly import aij_from_blocks, sbaij_operator
 from .ksp import IndefinitePreconditioner, check_converged, make_ksp, petsc_options
@@ -123,8 +124,10 @@ def solve_group(PETSc, frame, comm, r0, r1, block_rows, group, center, *, rtol, 
     f = A_r.createVecLeft()
     scatter, u0 = PETSc.Scatter.toZero(xs[0])
     cases = []
-    guesses = group.guesses or [None] * len(bs)
-    ksp.setInitialGuessNonzero(group.guesses is not None)
+    # (a direct solve, KSP preonly, takes no initial guess)
+    use_guess = group.guesses is not None and ksp.getType() != "preonly"
+    guesses = group.guesses if use_guess else [None] * len(bs)
+    ksp.setInitialGuessNonzero(use_guess)
     for name, bk, guess in zip(group.names, bs, guesses):
         uk = A.createVecRight()
         if guess is not None:
@@ -213,6 +216,11 @@ def solve_load_cases(PETSc, frame, comm, groups, *, rtol, max_it=None, ksp_optio
         try:
             c, rec = solve_group(PETSc, frame, comm, r0, r1, block_rows, group, center,
                                  ksp_options=ksp_options, **kwargs)
+        except PETSc.Error as exc:
+            # e.g. an option PETSc cannot use (-pc_type unknown); PETSc printed the details
+            raise AmfeError(f"PETSc stopped with {exc} while solving cases "
+                            f"{', '.join(group.names)}; its message is above. Check the PETSc "
+                            "options given.") from None
         except IndefinitePreconditioner as exc:
             if "pc_gamg_esteig_ksp_max_it" in (ksp_options or {}):
                 raise
