@@ -55,14 +55,14 @@ Scales:
 - ``paper``: the paper's 3 mm x 3 mm base, 0.3 mm high (three 0.1 mm layers),
   images 3 x 100 x 100 (cells of 0.03 x 0.03 x 0.1 mm, paper section 6).
   About 290 000 lattice sites before the scan path (a nearly fully scanned
-  bed: 257 000 particles, 1.4 million bonds, 75 s on one core): for clusters.
+  bed: 257 000 particles, 1.4 million bonds, 65-75 s on one core): for clusters.
 - ``small``: 0.6 mm x 0.6 mm x 0.3 mm (the same three layers, a fifth of the side of
   the paper's base), images 3 x 20 x 20 with its cells. Chosen by measurement
   on the 2-core development machine (``run/bench_dataset.py``, 40 beds, the
   machine shared with other jobs): beds of 3 800-10 700 particles (mean
-  7 100, 35 000 bonds), 0.02 s generation + 0.05 s image + 1.4 s
-  homogenization per bed on one core; 2 400 beds/hour on 1 rank, 3 500 on
-  2 ranks, so 2 000 beds take about 35 minutes on 2 cores. The cells
+  7 100, 35 000 bonds), 0.02 s generation + 0.06 s image + 1.4 s
+  homogenization per bed on one core; 2 400 beds/hour on 1 rank, 3 900 on
+  2 ranks, so 2 000 beds take about half an hour on 2 cores. The cells
   and layers are the paper's, so a ``small`` image is a 20 x 20 crop of what
   a ``paper`` image looks like, and 20 x 20 still survives the Custom Net's
   four 2 x 2 poolings; a 0.3 mm base (10 x 10) would not, and 0.9 mm
