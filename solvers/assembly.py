@@ -25,15 +25,17 @@ def local_block_rows(frame, r0, r1):
     bi, bj = b.i[idx], b.j[idx]
     Kii, Kij, Kjj = element_blocks(b.normal[idx], b.d_i[idx], b.d_j[idx], frame.k_n[idx],
                                    frame.k_t[idx], frame.kappa_n[idx], frame.kappa_t[idx])
-    own_i = (bi >= r0) & (bi < r1)
-    own_j = (bj >= r0) & (bj < r1)
+    own_i = np.flatnonzero((bi >= r0) & (bi < r1))
+    own_j = np.flatnonzero((bj >= r0) & (bj < r1))
+
+    def summed(rows, K):
+        """sum of the blocks K[k] into row rows[k] - r0, as a sparse product (no add.at)."""
+        inc = sp.csr_matrix((np.ones(rows.size), (rows - r0, np.arange(rows.size))),
+                            shape=(nloc, rows.size))
+        return inc @ K.reshape(-1, 36)
 
     # Diagonal blocks: sum of K_ii over bonds at i and K_jj over bonds at j.
-    side_rows = np.concatenate([bi[own_i], bj[own_j]]) - r0
-    side_blocks = np.concatenate([Kii[own_i], Kjj[own_j]]).reshape(-1, 36)
-    incidence = sp.csr_matrix((np.ones(side_rows.size), (side_rows, np.arange(side_rows.size))),
-                              shape=(nloc, side_rows.size))
-    diag = (incidence @ side_blocks).reshape(nloc, 6, 6)
+    diag = (summed(bi[own_i], Kii[own_i]) + summed(bj[own_j], Kjj[own_j])).reshape(nloc, 6, 6)
 
     rows = np.concatenate([np.arange(nloc), bi[own_i] - r0, bj[own_j] - r0])
     cols = np.concatenate([np.arange(r0, r1), bj[own_i], bi[own_j]])
@@ -43,7 +45,7 @@ def local_block_rows(frame, r0, r1):
     # then permuted.
     slot = np.empty_like(order)
     slot[order] = np.arange(order.size)
-    n_i = int(own_i.sum())
+    n_i = own_i.size
     blocks = np.empty((order.size, 6, 6))
     blocks[slot[:nloc]] = diag
     blocks[slot[nloc:nloc + n_i]] = Kij[own_i]
