@@ -13,13 +13,13 @@ beds in this way): attributes are optional, integer and float32 data are
 converted to float64.
 """
 import os
-import tempfile
 
 import h5py
 import numpy as np
 
 from .bed import Bed
 from .bonds import validate_particles
+from .atomicio import atomic_write
 from .errors import AmfeError
 
 CENTERS = "particles/centers"
@@ -69,17 +69,8 @@ def write_bed(path, bed: Bed):
     directory = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(directory):
         raise AmfeError(f"cannot write {path}: directory {directory} does not exist")
-    try:
-        fd, tmp = tempfile.mkstemp(dir=directory, prefix="." + os.path.basename(path) + ".",
-                                   suffix=".tmp")
-    except OSError as exc:
-        raise AmfeError(f"cannot write {path}: {exc.strerror}") from None
-    try:
-        os.close(fd)
-        # mkstemp makes the file private (0600); give it the usual umask permissions.
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
+
+    def write(tmp):
         with h5py.File(tmp, "w") as f:
             grp = f.create_group("particles")
             c = grp.create_dataset("centers", data=np.ascontiguousarray(bed.centers, np.float64))
@@ -88,15 +79,11 @@ def write_bed(path, bed: Bed):
             r.attrs["units"] = "m"
             for k, v in attrs.items():
                 f.attrs[k] = v
-        os.replace(tmp, path)
-    except BaseException as exc:
-        try:
-            os.remove(tmp)
-        except FileNotFoundError:
-            pass
-        if isinstance(exc, OSError):
-            raise AmfeError(f"cannot write {path}: {exc}") from exc
-        raise
+
+    try:
+        atomic_write(path, write, by_name=True)
+    except OSError as exc:
+        raise AmfeError(f"cannot write {path}: {exc.strerror or exc}") from None
 
 
 def _read_array(f, name, path):

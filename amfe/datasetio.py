@@ -44,11 +44,11 @@ import json
 import os
 import re
 import shutil
-import tempfile
 
 import numpy as np
 
 from . import __version__
+from .atomicio import atomic_write
 from .errors import AmfeError
 from .scales import PARAM_NAMES, PARAM_UNITS, get_scale, record_seed
 
@@ -77,47 +77,6 @@ def run_params(scale, seed, count, rtol):
     return {"format": FORMAT, "format_version": FORMAT_VERSION, "scale": str(scale),
             "seed": int(seed), "count": int(count), "rtol": float(rtol),
             "amfe_version": __version__}
-
-
-def _fsync_dir(directory):
-    try:
-        fd = os.open(directory, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
-
-
-def _atomic(path, write, by_name=False):
-    """Write ``path`` through a temporary file in its directory, fsync it, os.replace it.
-
-    write(fh) gets the open binary file, or with ``by_name`` write(tmp_path)
-    gets the temporary file's name (for h5py).
-    """
-    directory = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(dir=directory, prefix="." + os.path.basename(path) + ".",
-                               suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            if by_name:
-                write(tmp)
-            else:
-                write(fh)
-                fh.flush()
-            os.fsync(fh.fileno())
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.remove(tmp)
-        except FileNotFoundError:
-            pass
-        raise
-    _fsync_dir(directory)
 
 
 def remove_stale_tmp(directory, prefix):
@@ -168,7 +127,7 @@ def write_part(parts, rec):
         "params": np.asarray(rec["params"], np.float64).reshape(len(PARAM_NAMES)),
     }
     path = part_path(parts, rec["index"])
-    _atomic(path, lambda fh: np.savez(fh, **arrays))
+    atomic_write(path, lambda fh: np.savez(fh, **arrays))
     return path
 
 
@@ -215,7 +174,7 @@ def read_params_json(parts):
 
 def write_params_json(parts, params):
     data = json.dumps(params, indent=2).encode() + b"\n"
-    _atomic(os.path.join(parts, PARAMS_JSON), lambda fh: fh.write(data))
+    atomic_write(os.path.join(parts, PARAMS_JSON), lambda fh: fh.write(data))
 
 
 def describe_params(p):
@@ -305,7 +264,7 @@ def merge_parts(output, parts, params):
                 "status_codes": "0 ok, 1 failed (see reason)",
             })
 
-    _atomic(output, write, by_name=True)
+    atomic_write(output, write, by_name=True)
     shutil.rmtree(parts, ignore_errors=True)
 
 

@@ -1,24 +1,12 @@
-"""Atomic JSON output: a crash never leaves a half-written result."""
+"""JSON output, written atomically (amfe.atomicio)."""
 import json
 import os
-import tempfile
+
+from .atomicio import atomic_write
 
 
 def write_json(path, data):
-    """Write ``data`` as indented JSON to ``path`` via a temporary file and os.replace."""
-    path = os.fspath(path)
-    folder = os.path.dirname(os.path.abspath(path))
-    os.makedirs(folder, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".json", dir=folder)
-    try:
-        with os.fdopen(fd, "w") as fh:
-            json.dump(data, fh, indent=2)
-            fh.write("\n")
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    """Write ``data`` as indented JSON to ``path``; creates the directory if needed."""
+    os.makedirs(os.path.dirname(os.path.abspath(os.fspath(path))), exist_ok=True)
+    text = json.dumps(data, indent=2) + "\n"
+    atomic_write(path, lambda fh: fh.write(text.encode()))

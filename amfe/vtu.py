@@ -52,6 +52,7 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 
 from .bonds import validate_particles
+from .atomicio import fsync_dir
 from .errors import AmfeError, _list_items
 
 VOIGT_NAMES = ("xx", "yy", "zz", "yz", "xz", "xy")
@@ -156,7 +157,7 @@ def write_load_cases(directory, centers, radii, bonds, cases, names=None):
             os.fsync(f.fileno())
         os.replace(tmp, pvd_path)
         temps = []
-        _fsync_dir(directory)
+        fsync_dir(directory)
     except BaseException as exc:
         for tmp in temps:
             try:
@@ -382,19 +383,6 @@ def _make_temp(directory, final_name):
 def _fsync_file(path):
     with open(path, "rb+") as f:
         os.fsync(f.fileno())
-
-
-def _fsync_dir(directory):
-    try:
-        fd = os.open(directory, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
 
 
 def _pvd_text(files, names):
