@@ -1,5 +1,4 @@
 """Bed files: round trip, atomic writes, and a clear error for each malformed file."""
-import os
 
 import h5py
 import numpy as np
