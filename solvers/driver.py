@@ -3,6 +3,7 @@
 bed -> frame (largest component, non-dimensional) -> six KUBC solves ->
 Bagi stress and strain -> C, S -> Ex, Ey, Ez, nu_yz, nu_xz, nu_xy, G_yz, G_xz, G_xy.
 """
+import sys
 import time
 
 import numpy as np
@@ -24,7 +25,7 @@ BOUNDARY_CONDITIONS = {"kubc": kubc_groups, "mixed": mixed_groups}
 
 def homogenize_bed(centers, radii, material=STEEL, *, a_star_cap=None, rtol=DEFAULT_RTOL,
                    max_it=None, vtu_dir=None, comm=None, petsc_args=None, ksp_options=None,
-                   nondimensional=True, bc="kubc", diagnose=False):
+                   nondimensional=True, bc="kubc", diagnose=False, progress=False):
     """Effective elastic constants of a bed of bonded spheres.
 
     bc: "kubc" (default; six unit macro-strains on the boundary, one operator)
@@ -45,6 +46,7 @@ def homogenize_bed(centers, radii, material=STEEL, *, a_star_cap=None, rtol=DEFA
     ``ksp_options`` (dict) sets PETSc options for this solve only, e.g.
     {"ksp_type": "preonly", "pc_type": "cholesky"}; ``nondimensional=False``
     assembles in SI units (for the benchmark that shows why scaling matters).
+    ``progress=True`` prints one line per phase and load case to stderr on rank 0.
     Raises AmfeError on every rank for bad input or a failed solve.
     """
     if bc not in BOUNDARY_CONDITIONS:
@@ -57,10 +59,14 @@ def homogenize_bed(centers, radii, material=STEEL, *, a_star_cap=None, rtol=DEFA
         comm = PETSc.Comm(comm)  # an mpi4py communicator, e.g. a batch group
     mpi = comm.tompi4py()
     t0 = time.perf_counter()
+    log = _stderr_log(mpi.rank) if progress else None
     frame = build_frame(centers, radii, material, a_star_cap, nondimensional=nondimensional)
     t_frame = time.perf_counter() - t0
     groups = BOUNDARY_CONDITIONS[bc](frame)
-    sol = solve_load_cases(PETSc, frame, comm, groups, rtol=rtol, max_it=max_it,
+    if log:
+        log(f"frame: {frame.n_particles} load-carrying particles ({frame.n_removed} removed), "
+            f"{len(frame.bonds)} bonds in {t_frame:.2f} s; {bc}, {mpi.size} rank(s)")
+    sol = solve_load_cases(PETSc, frame, comm, groups, rtol=rtol, max_it=max_it, log=log,
                            ksp_options=ksp_options, diagnose=diagnose)
 
     payload = None
@@ -73,6 +79,15 @@ def homogenize_bed(centers, radii, material=STEEL, *, a_star_cap=None, rtol=DEFA
     if isinstance(payload, AmfeError):
         raise AmfeError(str(payload))
     return payload
+
+
+def _stderr_log(rank):
+    start = time.perf_counter()
+
+    def log(line):
+        if rank == 0:
+            print(f"[{time.perf_counter() - start:7.2f} s] {line}", file=sys.stderr, flush=True)
+    return log
 
 
 def _average(frame, sol, bc, a_star_cap, ranks, t_frame, vtu_dir):

@@ -53,7 +53,7 @@ class Group:
 
 
 def solve_group(PETSc, frame, comm, r0, r1, block_rows, group, center, *, rtol, max_it=None,
-                ksp_options=None, diagnose=False, gather=True):
+                ksp_options=None, diagnose=False, gather=True, log=None):
     """Solve one group's cases. Returns a list of per-case dicts and a set-up record.
 
     Per case: u (n,6) on rank 0 (None elsewhere) if ``gather``; moment (3,3) =
@@ -114,6 +114,9 @@ def solve_group(PETSc, frame, comm, r0, r1, block_rows, group, center, *, rtol, 
         t0 = time.perf_counter()
         ksp.setUp()
         t_setup = time.perf_counter() - t0
+    if log:
+        log(f"operator for {', '.join(group.names)}: assembled in {t_assembly:.2f} s, "
+            f"{ksp.getPC().getType()} set up in {t_setup:.2f} s")
     record = {"setup_seconds": t_setup, "assembly_seconds": t_assembly,
               "ksp_type": ksp.getType(), "pc_type": ksp.getPC().getType(),
               "rtol": ksp.getTolerances()[0]}
@@ -136,6 +139,8 @@ def solve_group(PETSc, frame, comm, r0, r1, block_rows, group, center, *, rtol, 
         ksp.solve(bk, uk)
         seconds = time.perf_counter() - t0
         check_converged(PETSc, ksp, f"load case {name}")
+        if log:
+            log(f"load case {name}: {ksp.getIterationNumber()} iterations, {seconds:.2f} s")
         A.mult(uk, r)
         r.aypx(-1.0, bk)
         bnorm = bk.norm()  # zero when a case prescribes nothing but zeros
@@ -188,7 +193,7 @@ def _pc_complexity(PETSc, ksp):
 
 
 def solve_load_cases(PETSc, frame, comm, groups, *, rtol, max_it=None, ksp_options=None,
-                     diagnose=False, center=None):
+                     diagnose=False, center=None, log=None):
     """Solve every group of load cases on ``frame``; merge the per-case results.
 
     Returns a dict (the same on every rank except u): u (cases, n, 6) on rank 0,
@@ -197,7 +202,8 @@ def solve_load_cases(PETSc, frame, comm, groups, *, rtol, max_it=None, ksp_optio
     group's matrices), setup_seconds (all preconditioner set-ups),
     solve_seconds; ksp_type, pc_type, rtol; and with ``diagnose`` a list of
     per-case diagnostics (iterations, true residual, eigenvalue estimates,
-    GAMG complexities).
+    GAMG complexities). ``log``: called with a progress line per operator and
+    per case (on every rank; the caller decides who prints).
     """
     from amfe.homogenize import box_center
     from .assembly import local_block_rows
@@ -212,7 +218,7 @@ def solve_load_cases(PETSc, frame, comm, groups, *, rtol, max_it=None, ksp_optio
     t_blocks = time.perf_counter() - t0
     cases, records, group_records, notes = [], [], [], []
     for group in groups:
-        kwargs = dict(rtol=rtol, max_it=max_it, diagnose=diagnose)
+        kwargs = dict(rtol=rtol, max_it=max_it, diagnose=diagnose, log=log)
         try:
             c, rec = solve_group(PETSc, frame, comm, r0, r1, block_rows, group, center,
                                  ksp_options=ksp_options, **kwargs)

@@ -35,6 +35,8 @@ def register(sub):
                    help="report per load case the iterations, true residual, eigenvalue "
                         "estimates of the preconditioned operator and GAMG complexities "
                         "(also in the JSON under 'diagnostics')")
+    p.add_argument("--quiet", action="store_true",
+                   help="no progress lines on stderr (one per phase and load case)")
     p.set_defaults(func=run)
 
 
@@ -62,7 +64,8 @@ def run(args):
     result = homogenize_bed(bed.centers, bed.radii, bed.material(),
                             a_star_cap=args.cap_a_star,
                             rtol=DEFAULT_RTOL if args.rtol is None else args.rtol,
-                            vtu_dir=args.vtu, bc=args.bc, diagnose=args.diagnose)
+                            vtu_dir=args.vtu, bc=args.bc, diagnose=args.diagnose,
+                            progress=not args.quiet)
     if comm.rank == 0:
         if args.output:
             write_json(args.output, result)
