@@ -13,7 +13,7 @@ from solvers.petsc import is_option
 
 from .errors import AmfeError
 
-COMMANDS = ["pack", "homogenize", "dataset"]
+COMMANDS = ["pack", "homogenize", "dataset", "train", "predict"]
 
 
 def build_parser():
