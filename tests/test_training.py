@@ -1,0 +1,328 @@
+"""The CNN surrogate: data set, networks, training, checkpoints, amfe train / predict."""
+import json
+import os
+import re
+
+import h5py
+import numpy as np
+import pytest
+import torch
+
+from amfe.errors import AmfeError
+from helpers import run_cli
+from training import ARCH_NAMES
+from training.checkpoint import load_checkpoint, save_checkpoint
+from training.data import (BedDataset, Normalizer, augment_batch, dataset_hash, dataset_info,
+                           read_rows, split_indices, transpose_labels)
+from training.nets import build_net, count_parameters
+from training.predict import Surrogate, summarize_members
+from training.train import TrainConfig, train_member, train_model
+
+torch.set_num_threads(1)
+
+SMALL = (3, 20, 20)
+TINY_ATTRS = {"scale": "tiny", "bed_size": [0.15e-3, 0.15e-3, 0.1e-3],
+              "image_cell": [30e-6, 30e-6, 0.1e-3], "layer_thickness": 0.1e-3,
+              "image_spacing": 2.5e-6}
+SMALL_ATTRS = {"scale": "small", "bed_size": [0.6e-3, 0.6e-3, 0.3e-3],
+               "image_cell": [30e-6, 30e-6, 0.1e-3], "layer_thickness": 0.1e-3,
+               "image_spacing": 2.5e-6}
+
+
+def write_synthetic(path, n=60, shape=SMALL, attrs=SMALL_ATTRS, seed=0, failed=(3, 7)):
+    """An amfe data-set file whose labels are smooth functions of the images."""
+    rng = np.random.default_rng(seed)
+    L, H, W = shape
+    base = rng.uniform(0.2, 0.8, (n, 1, 1, 1))
+    ramp = rng.uniform(-0.2, 0.2, (n, 1, 1, 1)) * np.linspace(-1, 1, W)[None, None, None, :]
+    images = np.clip(base + ramp + 0.05 * rng.standard_normal((n, L, H, W)), 0, 1).astype(np.float32)
+    d = images.mean(axis=(1, 2, 3))
+    aniso = images[..., : W // 2].mean(axis=(1, 2, 3)) - images[..., W // 2:].mean(axis=(1, 2, 3))
+    labels = np.stack([1e11 * np.exp(2 * d) * (1 + aniso), 1e11 * np.exp(2 * d),
+                       1.2e11 * np.exp(1.5 * d), 0.05 + 0.02 * d, 0.05 + 0.03 * d,
+                       0.1 + 0.1 * d], axis=1)
+    status = np.zeros(n, np.uint8)
+    for k in failed:
+        status[k] = 1
+        labels[k] = np.nan
+    with h5py.File(path, "w") as f:
+        f["images"] = images
+        f["labels"] = labels
+        f["status"] = status
+        f["density"] = d
+        f["index"] = np.arange(n)
+        f["seed"] = np.arange(n) + 1000
+        f.attrs.update(dict(attrs, seed=seed, count=n, image_shape=list(shape)))
+    return path
+
+
+@pytest.fixture(scope="module")
+def synth(tmp_path_factory):
+    return str(write_synthetic(tmp_path_factory.mktemp("synth") / "synth.h5"))
+
+
+@pytest.fixture(scope="module")
+def ensemble(synth):
+    cfg = TrainConfig(arch="custom", epochs=2, batch_size=16, members=2, seed=3)
+    return train_model(synth, cfg, progress=False, log=lambda line: None)
+
+
+# ---------------------------------------------------------------- networks
+
+def _conv(cin, cout, k=3):
+    return cin * cout * k * k + cout
+
+
+def _fc(a, b):
+    return a * b + b
+
+
+def _custom_count(layers, flat_hw):
+    conv = _conv(layers, 16) + _conv(16, 32) + _conv(32, 64) + _conv(64, 128)
+    return conv + _fc(128 * flat_hw, 512) + _fc(512, 256) + _fc(256, 128) + _fc(128, 6)
+
+
+def test_custom_net_parameter_counts():
+    # valid padding on 100 x 100: 100 -> 98/49 -> 47/23 -> 21/10 -> 8/4: 128 x 4 x 4 features.
+    assert _custom_count(1, 4 * 4) == 1_311_238          # the paper's "1.31 million" (1 x 100 x 100)
+    assert count_parameters(build_net("custom", (1, 100, 100))) == 1_311_238
+    assert count_parameters(build_net("custom", (3, 100, 100))) == _custom_count(3, 16) == 1_311_526
+    # same padding on 20 x 20 (valid would reach 0): 20 -> 10 -> 5 -> 2 -> 1: 128 features.
+    net = build_net("custom", SMALL)
+    assert net.padding == "same"
+    assert count_parameters(net) == _custom_count(3, 1) == 328_486
+    assert build_net("custom", (3, 100, 100)).padding == "valid"
+
+
+@pytest.mark.parametrize("arch", ARCH_NAMES)
+@pytest.mark.parametrize("shape", [SMALL, (3, 100, 100)])
+def test_architectures_output_six(arch, shape):
+    torch.manual_seed(0)
+    net = build_net(arch, shape).eval()
+    with torch.inference_mode():
+        y = net(torch.rand(2, *shape))
+    assert y.shape == (2, 6)
+    assert torch.all(torch.isfinite(y))
+
+
+def test_unknown_architecture_and_argument():
+    with pytest.raises(AmfeError, match="unknown architecture"):
+        build_net("resnet", SMALL)
+    with pytest.raises(AmfeError, match="takes no argument"):
+        build_net("custom", SMALL, {"width": 2})
+
+
+# ---------------------------------------------------------------- data
+
+def test_split_is_deterministic_by_seed(synth):
+    ok = dataset_info(synth)["ok"]
+    assert ok.size == 58 and 3 not in ok and 7 not in ok
+    tr, va = split_indices(ok, 0.2, seed=5)
+    tr2, va2 = split_indices(ok, 0.2, seed=5)
+    assert np.array_equal(tr, tr2) and np.array_equal(va, va2)
+    assert len(va) == round(0.2 * 58) and len(tr) + len(va) == 58
+    assert np.array_equal(np.sort(np.concatenate([tr, va])), ok)
+    tr3, _ = split_indices(ok, 0.2, seed=6)
+    assert not np.array_equal(tr, tr3)
+
+
+def test_dataset_is_lazy_and_works_with_workers(synth):
+    ok = dataset_info(synth)["ok"]
+    ds = BedDataset(synth, ok[:20])
+    assert ds._file is None                    # nothing opened until an item is read
+    x0, y0 = ds[0]                             # main process opens its handle
+    assert ds._file is not None
+    images, labels = read_rows(synth, ok[:20])
+    assert np.array_equal(x0.numpy(), images[0]) and np.array_equal(y0.numpy(), labels[0])
+    loader = torch.utils.data.DataLoader(ds, batch_size=7, num_workers=2)
+    xs, ys = zip(*loader)
+    assert np.array_equal(torch.cat(xs).numpy(), images)
+    assert np.array_equal(torch.cat(ys).numpy(), labels)
+    with pytest.raises(AmfeError, match="failed records"):
+        BedDataset(synth, [3])
+
+
+def test_dataset_hash_names_the_data(synth, tmp_path):
+    other = write_synthetic(tmp_path / "other.h5", seed=1)
+    assert dataset_hash(synth) == dataset_hash(synth)
+    assert dataset_hash(synth) != dataset_hash(other)
+
+
+def test_normalizer_round_trip():
+    y = np.array([[1e11, 2e11, 3e11, 0.05, 0.06, 0.1], [2e11, 1e11, 1e11, 0.04, 0.07, 0.2]])
+    norm = Normalizer.fit(y)
+    back = Normalizer.from_dict(norm.to_dict()).decode(norm.encode(y))
+    assert np.allclose(back.numpy(), y, rtol=1e-6)
+
+
+def test_symmetries():
+    y = torch.tensor([[1e11, 2e11, 3e11, 0.05, 0.06, 0.1]], dtype=torch.float64)
+    t = transpose_labels(y)
+    assert torch.allclose(t, torch.tensor([[2e11, 1e11, 3e11, 0.06, 0.05, 0.2]],
+                                          dtype=torch.float64))
+    assert torch.allclose(transpose_labels(t), y)          # an involution
+    x = torch.rand(8, *SMALL)
+    ys = y.repeat(8, 1)
+    xf, yf = augment_batch(x, ys, "flips", torch.Generator().manual_seed(0))
+    assert torch.equal(yf, ys)                             # mirrors keep every label
+    for k in range(8):                                     # each image is one of its mirrors
+        assert any(torch.equal(xf[k], m) for m in (x[k], x[k].flip(-1), x[k].flip(-2),
+                                                    x[k].flip(-1).flip(-2)))
+
+
+# ---------------------------------------------------------------- training and checkpoints
+
+def test_training_lowers_the_loss(synth):
+    cfg = TrainConfig(arch="lenet5", epochs=6, batch_size=16, lr=3e-3)
+    ok = dataset_info(synth)["ok"]
+    ds = BedDataset(synth, ok, in_memory=True)
+    images, labels = read_rows(synth, ok)
+    norm = Normalizer.fit(labels)
+    torch.manual_seed(11)                                  # the same initial weights as below
+    initial = build_net("lenet5", SMALL).eval()
+    x, z = torch.from_numpy(images), norm.encode(labels)
+    with torch.inference_mode():
+        before = float(torch.mean((initial(x) - z) ** 2))
+    net, hist = train_member(ds, images[:0], labels[:0], norm, cfg, SMALL, seed=11,
+                             progress=False, log=None)
+    with torch.inference_mode():
+        after = float(torch.mean((net(x) - z) ** 2))
+    assert after < 0.85 * before
+    assert hist["train_loss"][-1] < hist["train_loss"][0]
+
+
+def test_checkpoint_round_trip_identical_predictions(ensemble, synth, tmp_path):
+    path = tmp_path / "m.pt"
+    save_checkpoint(path, ensemble)
+    images, _ = read_rows(synth)
+    before = Surrogate(ensemble).member_outputs(images)
+    loaded = Surrogate.load(path)
+    assert np.array_equal(loaded.member_outputs(images), before)
+    ck = load_checkpoint(path)
+    assert ck["arch"] == "custom" and ck["image_shape"] == list(SMALL)
+    assert ck["arch_args"] == {"padding": "same"} and ck["member_seeds"] == [3, 4]
+    assert ck["dataset"]["sha256"] == dataset_hash(synth)
+    assert ck["pixelation"]["image_spacing"] == 2.5e-6
+    assert ck["spread"]["threshold"] > 0
+
+
+def test_mismatched_image_shape_refused(ensemble):
+    sur = Surrogate(ensemble, "m.pt")
+    with pytest.raises(AmfeError, match=r"3x10x10.*3x20x20"):
+        sur.predict(np.zeros((2, 3, 10, 10), np.float32))
+
+
+class _Payload:
+    """An object whose unpickling would create a file: a weights-only load must never run it."""
+
+    def __init__(self, marker):
+        self.marker = marker
+
+    def __reduce__(self):
+        return (open, (self.marker, "w"))
+
+
+def test_pickled_object_checkpoint_refused(ensemble, tmp_path):
+    marker = tmp_path / "unpickled"
+    bad = dict(ensemble, format="amfe.surrogate", extra=_Payload(str(marker)))
+    path = tmp_path / "evil.pt"
+    torch.save(bad, path)
+    with pytest.raises(AmfeError, match="refuses to load.*not a plain amfe checkpoint"):
+        load_checkpoint(path)
+    assert not marker.exists()
+    junk = tmp_path / "junk.pt"
+    junk.write_bytes(b"not a checkpoint")
+    with pytest.raises(AmfeError, match="not a plain amfe checkpoint"):
+        load_checkpoint(junk)
+    with pytest.raises(AmfeError, match="not plain data"):
+        save_checkpoint(tmp_path / "x.pt", dict(ensemble, extra=object()))
+
+
+def test_ensemble_spread_zero_when_members_identical(ensemble, synth):
+    same = dict(ensemble, members=[ensemble["members"][0]] * 3)
+    res = Surrogate(same).predict(read_rows(synth)[0])
+    assert np.all(res["spread"] == 0) and np.all(res["score"] == 0)
+    assert not res["flagged"].any()
+    m = np.ones((4, 2, 6))
+    m[0, 1, 0] = 2.0
+    s = summarize_members(m, threshold=0.1)
+    assert s["flagged"].tolist() == [False, True]
+
+
+def test_default_model_missing_says_how_to_train(monkeypatch, tmp_path):
+    import training.predict as tp
+    monkeypatch.setattr(tp, "default_model_path", lambda: tmp_path / "none.pt")
+    with pytest.raises(AmfeError, match="train_surrogate"):
+        tp.Surrogate.load(None)
+
+
+def test_cli_defaults_match_train_config():
+    from amfe.commands.train import DEFAULTS
+    cfg = TrainConfig()
+    for k, v in vars(DEFAULTS).items():
+        assert getattr(cfg, k) == v, k
+
+
+# ---------------------------------------------------------------- command line
+
+def _tiny_bed(path):
+    from amfe.bed import generate_bed
+    from amfe.bedio import write_bed
+    from amfe.scales import record_seed, sample_bed_params
+    for k in range(20):
+        params = sample_bed_params("tiny", record_seed(0, k))
+        try:
+            bed = generate_bed(**params)
+        except AmfeError:
+            continue
+        write_bed(path, bed)
+        return path
+    raise AssertionError("no tiny bed")
+
+
+def test_train_and_predict_check_cli(tmp_path):
+    data = write_synthetic(tmp_path / "tiny.h5", n=40, shape=(1, 5, 5), attrs=TINY_ATTRS)
+    model = tmp_path / "tiny.pt"
+    proc = run_cli(["train", str(data), "--arch", "custom", "-o", str(model), "--epochs", "2",
+                    "--members", "2", "--batch-size", "8", "--threads", "1"])
+    assert proc.returncode == 0, proc.stderr
+    assert "epoch   2/2" in proc.stderr and "val err %" in proc.stderr
+    assert model.is_file() and (tmp_path / "tiny.png").is_file()
+    bed = _tiny_bed(tmp_path / "bed.h5")
+    out = tmp_path / "p.json"
+    proc = run_cli(["predict", str(bed), "--model", str(model), "--check", "-o", str(out),
+                    "--threads", "1"])
+    assert proc.returncode == 0, proc.stderr
+    res = json.loads(out.read_text())
+    assert res["source"] == "surrogate" and res["image_shape"] == [1, 5, 5]
+    assert set(res["properties"]) == {"Ex", "Ey", "Ez", "nu_yz", "nu_xz", "nu_xy"}
+    for key in res["properties"]:
+        m = re.search(rf"^\s+{key}\s+(\S+)(?: GPa)?\s+\S+%\s+(\S+)(?: GPa)?\s+(\S+)%$",
+                      proc.stdout, re.M)
+        assert m, proc.stdout
+        scale = 1e9 if key.startswith("E") else 1.0
+        sur, sol, diff = (float(g) for g in m.groups())
+        assert sur == pytest.approx(res["properties"][key] / scale, rel=1e-5)
+        assert sol == pytest.approx(res["check"]["solver"][key] / scale, rel=1e-5)
+        assert diff == pytest.approx(100 * res["check"]["relative_difference"][key], abs=0.006)
+        rel = (res["properties"][key] - res["check"]["solver"][key]) / abs(res["check"]["solver"][key])
+        assert rel == pytest.approx(res["check"]["relative_difference"][key])
+    # --fallback: a bed over the threshold is solved by PETSc, one under it is not
+    proc = run_cli(["predict", str(bed), "--model", str(model), "--fallback", "--threshold", "0",
+                    "-o", str(out), "--threads", "1"])
+    assert proc.returncode == 0, proc.stderr
+    res = json.loads(out.read_text())
+    assert res["flagged"] and res["source"] == "solver" and "source: solver" in proc.stdout
+    assert set(res["properties"]) >= {"Ex", "nu_xy", "G_xy"} and "surrogate" in res
+    proc = run_cli(["predict", str(bed), "--model", str(model), "--fallback", "--threshold",
+                    "1e9", "-o", str(out), "--threads", "1"])
+    res = json.loads(out.read_text())
+    assert not res["flagged"] and res["source"] == "surrogate" and "solve" not in res["timings"]
+    # the same model refuses a bed whose image has another shape
+    from amfe.bed import generate_bed
+    from amfe.bedio import write_bed
+    big = tmp_path / "big.h5"
+    write_bed(big, generate_bed(size=(0.3e-3, 0.15e-3, 0.1e-3), seed=0))
+    proc = run_cli(["predict", str(big), "--model", str(model)])
+    assert proc.returncode == 2
+    assert "1x5x10" in proc.stderr and "1x5x5" in proc.stderr

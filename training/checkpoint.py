@@ -1,0 +1,164 @@
+"""Surrogate checkpoints: plain data only, loaded with ``torch.load(weights_only=True)``.
+
+A checkpoint is ``torch.save`` of one dict that holds nothing but tensors,
+ints, floats, bools, strings, None, lists and dicts:
+
+    format "amfe.surrogate", format_version 1
+    arch, arch_args          network name and the keyword arguments that rebuild it
+    members                  list of state dicts (one per ensemble member; 1 for a single net)
+    member_seeds             their training seeds
+    normalizer               {mean, std, log, labels} (training.data.Normalizer)
+    image_shape              [layers, H, W]
+    pixelation               {scale, bed_size, image_cell, layer_thickness, image_spacing}:
+                             how amfe predict pixelates a bed exactly as the training data
+    material                 {E, nu, psi, density} of the training beds' particles
+    dataset                  {path, sha256, rows, seed, scale}
+    training                 {epochs, batch_size, lr, ...} and per-member history
+    tta                      average over the four mirror images at inference
+    spread                   {scale [6], threshold, definition} of the ensemble flag, or None
+    metrics                  validation metrics (and held-out ones if evaluated)
+    amfe_version, torch_version, created
+
+Loading never unpickles code: a file that holds any other object is refused
+with :class:`amfe.errors.AmfeError` ("... not a plain amfe checkpoint"), as
+is one whose image shape does not match the images it is asked to predict
+(:func:`check_image_shape`).
+"""
+import datetime
+import os
+import pickle
+from collections import OrderedDict
+
+import numpy as np
+import torch
+
+from amfe import __version__
+from amfe.atomicio import atomic_write
+from amfe.errors import AmfeError
+
+from .nets import ARCHITECTURES, build_net
+
+FORMAT = "amfe.surrogate"
+FORMAT_VERSION = 1
+REQUIRED = ("format", "format_version", "arch", "arch_args", "members", "normalizer",
+            "image_shape", "pixelation")
+
+
+def save_checkpoint(path, ckpt):
+    """Write ``ckpt`` (a dict of plain data, see the module docstring) atomically to ``path``."""
+    ckpt = dict(ckpt)
+    ckpt.setdefault("format", FORMAT)
+    ckpt.setdefault("format_version", FORMAT_VERSION)
+    ckpt.setdefault("amfe_version", __version__)
+    ckpt.setdefault("torch_version", str(torch.__version__))
+    ckpt.setdefault("created", datetime.datetime.now(datetime.timezone.utc).isoformat(
+        timespec="seconds"))
+    ckpt = _plain(ckpt, "checkpoint")
+    directory = os.path.dirname(os.path.abspath(os.fspath(path)))
+    os.makedirs(directory, exist_ok=True)
+    atomic_write(path, lambda fh: torch.save(ckpt, fh))
+    return path
+
+
+def _plain(obj, where):
+    """``obj`` as builtin plain data (numpy scalars and str subclasses converted); else AmfeError.
+
+    A weights-only load reads back nothing else: a str subclass such as
+    torch.__version__ or a numpy float would be a pickled class.
+    """
+    if isinstance(obj, torch.Tensor):
+        return obj.detach().cpu()
+    if obj is None or type(obj) in (bool, int, float, str):
+        return obj
+    if isinstance(obj, (bool, np.bool_)):
+        return bool(obj)
+    if isinstance(obj, (int, np.integer)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        return float(obj)
+    if isinstance(obj, str):
+        return str(obj)
+    if isinstance(obj, dict):
+        out = type(obj)() if isinstance(obj, OrderedDict) else {}
+        for k, v in obj.items():
+            if not isinstance(k, str):
+                raise AmfeError(f"{where}: key {k!r} is not a string")
+            out[str(k)] = _plain(v, f"{where}.{k}")
+        return out
+    if isinstance(obj, (list, tuple)):
+        return [_plain(v, f"{where}[{i}]") for i, v in enumerate(obj)]
+    if isinstance(obj, np.ndarray) and obj.dtype.kind in "biuf":
+        return obj.tolist()
+    raise AmfeError(f"{where}: {type(obj).__name__} is not plain data (tensors, numbers, "
+                    "strings, lists, dicts); a checkpoint holds nothing else")
+
+
+def load_checkpoint(path):
+    """The checkpoint dict at ``path``, read with weights_only=True and validated.
+
+    AmfeError for a missing file, a file torch cannot read, a file that holds
+    pickled Python objects other than plain data (refused, never executed),
+    and a dict that is not an amfe surrogate checkpoint.
+    """
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise AmfeError(f"model file {path} does not exist")
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as exc:
+        raise AmfeError(f"amfe refuses to load {path}: it holds pickled Python objects that a "
+                        f"weights-only load will not execute ({_unpickler_reason(exc)}); not a "
+                        "plain amfe checkpoint") from None
+    except Exception as exc:  # noqa: BLE001 - a damaged or foreign file, reported the same way
+        raise AmfeError(f"cannot read {path} as a model ({type(exc).__name__}: "
+                        f"{str(exc).splitlines()[0] if str(exc) else ''}); not a plain amfe "
+                        "checkpoint") from None
+    if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
+        raise AmfeError(f"{path} is not a plain amfe checkpoint (no format {FORMAT!r})")
+    if int(ckpt.get("format_version", -1)) > FORMAT_VERSION:
+        raise AmfeError(f"{path} has checkpoint format version {ckpt['format_version']}; this "
+                        f"amfe reads up to {FORMAT_VERSION}: update amfe")
+    missing = [k for k in REQUIRED if k not in ckpt]
+    if missing:
+        raise AmfeError(f"{path} is not a complete amfe checkpoint: missing {', '.join(missing)}")
+    if ckpt["arch"] not in ARCHITECTURES:
+        raise AmfeError(f"{path}: unknown architecture {ckpt['arch']!r}")
+    if not isinstance(ckpt["members"], list) or not ckpt["members"]:
+        raise AmfeError(f"{path}: the checkpoint holds no network weights")
+    return ckpt
+
+
+def _unpickler_reason(exc):
+    """The line of torch's weights-only error that names the refused object."""
+    lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
+    for ln in lines:
+        if "WeightsUnpickler error" in ln:
+            return ln.split("Please use")[0].strip()
+    return lines[0] if lines else type(exc).__name__
+
+
+def build_members(ckpt, path="checkpoint"):
+    """The ensemble's networks, weights loaded, in eval mode."""
+    nets = []
+    for k, state in enumerate(ckpt["members"]):
+        net = build_net(ckpt["arch"], ckpt["image_shape"], ckpt["arch_args"])
+        try:
+            net.load_state_dict(state)
+        except RuntimeError as exc:
+            raise AmfeError(f"{path}: the weights of member {k} do not fit a {ckpt['arch']} net "
+                            f"for images {tuple(ckpt['image_shape'])}: "
+                            f"{str(exc).splitlines()[0]}") from None
+        net.eval()
+        nets.append(net)
+    return nets
+
+
+def check_image_shape(ckpt, shape, what="the image", path="the model"):
+    """AmfeError naming both shapes unless ``shape`` (layers, H, W) is the checkpoint's."""
+    want = tuple(int(s) for s in ckpt["image_shape"])
+    got = tuple(int(s) for s in shape)
+    if got != want:
+        raise AmfeError(f"{what} has shape {'x'.join(map(str, got))} but {path} was trained on "
+                        f"images of shape {'x'.join(map(str, want))} (scale "
+                        f"{ckpt.get('pixelation', {}).get('scale')}); use a model trained on "
+                        "this image shape")

@@ -1,0 +1,194 @@
+"""Inference: a checkpoint's ensemble on images or beds, with the out-of-distribution flag.
+
+:class:`Surrogate` holds the members of one checkpoint (a single network is
+an ensemble of one). Each member's prediction is optionally averaged over the
+bed's symmetric images (test-time augmentation, ``tta`` in the checkpoint:
+the four mirror images, or all eight symmetries of the square with the
+labels of the x<->y swapped ones mapped back), in Pa and -. The ensemble
+mean is the prediction; the spread per property is the members' standard
+deviation over |mean| (relative); the flag score is max over properties of
+(relative spread / that property's median relative spread on the
+validation beds), and a bed is flagged when the score exceeds the
+checkpoint's threshold (the 95th percentile of the score on the validation
+beds, so about 1 in 20 in-distribution beds is flagged).
+"""
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from amfe.datasetio import LABEL_NAMES
+from amfe.errors import AmfeError
+
+from .checkpoint import build_members, check_image_shape, load_checkpoint
+from .data import Normalizer, flip_images, transpose_labels
+
+DEFAULT_MODEL_NAME = "custom_small.pt"
+TRAIN_HINT = ("train it with `python run/train_surrogate.py` (see docs/surrogate.md) or pass "
+              "--model MODEL.pt from `amfe train`")
+
+
+def default_model_path():
+    """The model shipped in the package: amfe/models/custom_small.pt."""
+    import amfe
+    return Path(amfe.__file__).resolve().parent / "models" / DEFAULT_MODEL_NAME
+
+
+class Surrogate:
+    """The networks, normalisation and flag threshold of one checkpoint."""
+
+    def __init__(self, ckpt, path="model"):
+        self.ckpt = ckpt
+        self.path = os.fspath(path)
+        self.nets = build_members(ckpt, self.path)
+        self.norm = Normalizer.from_dict(ckpt["normalizer"])
+        self.image_shape = tuple(int(s) for s in ckpt["image_shape"])
+        self.tta = tta_mode(ckpt.get("tta", "none"))
+        spread = ckpt.get("spread") or {}
+        self.spread_scale = np.asarray(spread.get("scale", np.ones(6)), np.float64)
+        self.threshold = spread.get("threshold")
+
+    @classmethod
+    def load(cls, path=None):
+        if path is None:
+            path = default_model_path()
+            if not path.is_file():
+                raise AmfeError(f"the default model {path} is not installed; {TRAIN_HINT}")
+        return cls(load_checkpoint(path), path)
+
+    @property
+    def n_members(self):
+        return len(self.nets)
+
+    def member_outputs(self, images, batch_size=1024):
+        """Raw predictions of every member, float64 array (members, n, 6)."""
+        x = torch.as_tensor(np.asarray(images, np.float32))
+        if x.ndim == 3:
+            x = x.unsqueeze(0)
+        if x.ndim != 4:
+            raise AmfeError(f"images must be (n, layers, H, W), got shape {tuple(x.shape)}")
+        check_image_shape(self.ckpt, x.shape[1:], "the image", self.path)
+        out = np.empty((self.n_members, x.shape[0], 6))
+        for k, net in enumerate(self.nets):
+            out[k] = predict_raw(net, x, self.norm, self.tta, batch_size).numpy()
+        return out
+
+    def predict(self, images, batch_size=1024):
+        """{mean (n, 6), spread (n, 6) relative, score (n,), flagged (n,) bool} of images."""
+        members = self.member_outputs(images, batch_size)
+        return summarize_members(members, self.spread_scale, self.threshold)
+
+    def predict_bed(self, bed):
+        """Pixelate ``bed`` as the training data was and predict: (result dict, image, seconds)."""
+        t0 = time.perf_counter()
+        image = pixelate_like_training(bed, self.ckpt, self.path)
+        t1 = time.perf_counter()
+        res = self.predict(image[None])
+        t2 = time.perf_counter()
+        return res, image, {"pixelate": t1 - t0, "predict": t2 - t1}
+
+
+TTA_MODES = ("none", "flips", "d4")
+
+
+def tta_mode(value):
+    """A checkpoint's test-time augmentation: "none", "flips" (4 mirrors) or "d4" (8 symmetries)."""
+    if value is True:
+        return "flips"
+    if value in (False, None):
+        return "none"
+    if value not in TTA_MODES:
+        raise AmfeError(f"unknown test-time augmentation {value!r}; choose one of "
+                        f"{', '.join(TTA_MODES)}")
+    return value
+
+
+def symmetries(mode, square=True):
+    """(flip_x, flip_y, transpose) of the label-preserving symmetries a TTA mode averages over."""
+    if mode == "none":
+        return [(False, False, False)]
+    mirrors = [(False, False), (True, False), (False, True), (True, True)]
+    out = [(fx, fy, False) for fx, fy in mirrors]
+    if mode == "d4" and square:
+        out += [(fx, fy, True) for fx, fy in mirrors]
+    return out
+
+
+def predict_raw(net, images, norm, tta="none", batch_size=1024):
+    """Raw predictions (n, 6) float64 of one network, averaged over the TTA symmetries.
+
+    A mirrored image has the same six labels; an x<->y transposed one has
+    them permuted (training.data.transpose_labels, an involution), so its
+    prediction is mapped back before averaging (in raw units).
+    """
+    net.eval()
+    syms = symmetries(tta_mode(tta), images.shape[-1] == images.shape[-2])
+    out = []
+    with torch.inference_mode():
+        for s in range(0, images.shape[0], batch_size):
+            xb = images[s:s + batch_size]
+            acc = 0.0
+            for fx, fy, tr in syms:
+                y = norm.decode(net(flip_images(xb, fx, fy, tr)))
+                acc = acc + (transpose_labels(y) if tr else y)
+            out.append(acc / len(syms))
+    return torch.cat(out) if out else torch.zeros(0, 6, dtype=torch.float64)
+
+
+def summarize_members(members, spread_scale=None, threshold=None):
+    """Ensemble mean, relative spread, flag score and flag from (members, n, 6) predictions."""
+    members = np.asarray(members, np.float64)
+    mean = members.mean(axis=0)
+    std = (members - members[:1]).std(axis=0)   # shift-invariant; exactly 0 for equal members
+    rel = std / np.maximum(np.abs(mean), np.finfo(float).tiny)
+    scale = np.ones(6) if spread_scale is None else np.asarray(spread_scale, np.float64)
+    score = np.max(rel / scale, axis=1)
+    flagged = (score > threshold) if threshold is not None else np.zeros(mean.shape[0], bool)
+    return {"mean": mean, "spread": rel, "score": score, "flagged": flagged}
+
+
+def pixelate_like_training(bed, ckpt, path="the model"):
+    """The image of ``bed`` made exactly as the training data's (cells, layers, sample spacing).
+
+    The box is [0, the bed's recorded size] when it records one (generated
+    beds), else [0, the training beds' size]. AmfeError if the image's shape
+    is not the model's.
+    """
+    from amfe.images import pixelate
+
+    px = ckpt["pixelation"]
+    size = bed.attrs.get("size") if hasattr(bed, "attrs") else None
+    if size is None:
+        size = px["bed_size"]
+    image = pixelate(bed, cell=tuple(px["image_cell"][:2]),
+                     layer_thickness=float(px["layer_thickness"]),
+                     box=((0.0, 0.0, 0.0), tuple(float(s) for s in size)),
+                     spacing=float(px["image_spacing"]))
+    check_image_shape(ckpt, image.shape, f"the bed's image ({_mm(size)} mm)", path)
+    return np.asarray(image, np.float32)
+
+
+def _mm(size):
+    return " x ".join(f"{float(s) * 1e3:g}" for s in size)
+
+
+def check_material(bed, ckpt, path="the model"):
+    """AmfeError if the bed's particle material is not the one the model was trained on."""
+    want = ckpt.get("material")
+    if not want:
+        return
+    have = bed.material().asdict()
+    off = [k for k in ("E", "nu", "psi") if abs(float(have[k]) - float(want[k]))
+           > 1e-9 * max(1.0, abs(float(want[k])))]
+    if off:
+        raise AmfeError(f"the bed's particles ({', '.join(f'{k}={have[k]:g}' for k in off)}) are "
+                        f"not the material {path} was trained on "
+                        f"({', '.join(f'{k}={float(want[k]):g}' for k in off)}); use amfe "
+                        "homogenize")
+
+
+def as_properties(row):
+    """A (6,) prediction as {Ex, Ey, Ez, nu_yz, nu_xz, nu_xy} floats."""
+    return {name: float(v) for name, v in zip(LABEL_NAMES, row)}

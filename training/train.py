@@ -1,0 +1,291 @@
+"""Training: one network or a seeded ensemble on an amfe data set, into a checkpoint dict.
+
+The paper's recipe (section 7): Adam, batch 100, 80 epochs, MSE of the six
+outputs on normalised targets, an 80/20 train/validation split. Everything is
+seeded: the split by ``split_seed`` (the same for every ensemble member, so
+no member sees the validation beds), a member's initial weights, batch order
+and augmentation by its own seed (``seed + k`` for member k).
+
+Options beyond the paper (all recorded in the checkpoint): log-standardised
+moduli, label-preserving mirror/transpose augmentation, a cosine learning-rate
+schedule, test-time averaging over the bed's symmetric images, and ensembles
+whose spread flags beds outside the training distribution (the threshold is
+a percentile of the spread score on the validation beds).
+"""
+import math
+import sys
+import time
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+import torch
+
+from amfe.datasetio import LABEL_NAMES
+from amfe.errors import AmfeError
+from amfe.material import STEEL
+
+from . import AUGMENTATIONS, SCHEDULES
+from .checkpoint import check_image_shape
+from .data import (BedDataset, Normalizer, augment_batch, dataset_hash,
+                   dataset_info, read_rows, split_indices)
+from .metrics import metrics_line, property_metrics
+from .nets import build_net, count_parameters, resolved_args
+from .predict import predict_raw, tta_mode
+
+MEMORY_LIMIT = 1 << 30   # train from memory when the selected images take less (bytes)
+
+
+@dataclass
+class TrainConfig:
+    arch: str = "custom"
+    arch_args: dict = field(default_factory=dict)
+    epochs: int = 80
+    batch_size: int = 100
+    lr: float = 1e-3
+    weight_decay: float = 0.0
+    schedule: str = "constant"
+    seed: int = 0
+    members: int = 1
+    split_seed: int = 0
+    val_fraction: float = 0.2
+    log_moduli: bool = True
+    augment: str = "none"
+    tta: str = "none"
+    flag_percentile: float = 95.0
+    workers: int = 0
+    max_train: int = 0          # use at most this many training beds (0: all); for tests
+
+    def check(self):
+        if self.epochs < 1 or self.batch_size < 1 or self.members < 1:
+            raise AmfeError("epochs, batch size and members must be positive")
+        if not (self.lr > 0):
+            raise AmfeError(f"learning rate must be positive, got {self.lr}")
+        if self.schedule not in SCHEDULES:
+            raise AmfeError(f"unknown schedule {self.schedule!r}; choose one of "
+                            f"{', '.join(SCHEDULES)}")
+        if self.augment not in AUGMENTATIONS:
+            raise AmfeError(f"unknown augmentation {self.augment!r}; choose one of "
+                            f"{', '.join(AUGMENTATIONS)}")
+        self.tta = tta_mode(self.tta)
+        if not (0 < self.flag_percentile < 100):
+            raise AmfeError("the flag percentile must lie in (0, 100)")
+
+
+def _batches(ds, batch_size, generator, workers):
+    """Shuffled (images, labels) batches of a BedDataset: from memory, or a DataLoader."""
+    if ds.in_memory:
+        images, labels = ds.arrays()
+        images, labels = torch.from_numpy(images), torch.from_numpy(labels)
+        perm = torch.randperm(len(ds), generator=generator)
+        for s in range(0, len(ds), batch_size):
+            idx = perm[s:s + batch_size]
+            yield images[idx], labels[idx]
+        return
+    loader = torch.utils.data.DataLoader(ds, batch_size=batch_size, shuffle=True,
+                                         num_workers=workers, generator=generator)
+    yield from loader
+
+
+def predict_normalised(net, images, batch_size=1024):
+    """Normalised outputs of ``net`` (eval mode) on an image tensor."""
+    net.eval()
+    with torch.inference_mode():
+        out = [net(images[s:s + batch_size]) for s in range(0, images.shape[0], batch_size)]
+    return torch.cat(out) if out else torch.zeros(0, 6)
+
+
+def train_member(train_ds, val_images, val_labels, norm, cfg, image_shape, seed, progress=True,
+                 log=print, label=""):
+    """Train one network; returns (net in eval mode, history dict)."""
+    torch.manual_seed(seed)
+    net = build_net(cfg.arch, image_shape, cfg.arch_args)
+    opt = torch.optim.Adam(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    n_batches = math.ceil(len(train_ds) / cfg.batch_size)
+    sched = None
+    if cfg.schedule == "cosine":
+        sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=cfg.epochs * n_batches)
+    gen = torch.Generator().manual_seed(int(seed))
+    vx = torch.from_numpy(val_images)
+    vz = norm.encode(val_labels) if len(val_labels) else None
+    hist = {"seed": int(seed), "train_loss": [], "val_loss": [], "val_mre": [], "batch_loss": [],
+            "epoch_seconds": []}
+    bar = None
+    if progress:
+        from tqdm import tqdm
+        bar = tqdm(total=cfg.epochs, desc=label or cfg.arch, unit="epoch", leave=False,
+                   dynamic_ncols=True, file=sys.stderr)
+    t_start = time.perf_counter()
+    try:
+        for epoch in range(cfg.epochs):
+            t0 = time.perf_counter()
+            net.train()
+            total, count = 0.0, 0
+            for xb, yb in _batches(train_ds, cfg.batch_size, gen, cfg.workers):
+                xb, yb = augment_batch(xb.float(), yb.double(), cfg.augment, gen)
+                loss = torch.nn.functional.mse_loss(net(xb), norm.encode(yb))
+                opt.zero_grad(set_to_none=True)
+                loss.backward()
+                opt.step()
+                if sched is not None:
+                    sched.step()
+                lv = loss.item()
+                hist["batch_loss"].append(lv)
+                total += lv * xb.shape[0]
+                count += xb.shape[0]
+            hist["train_loss"].append(total / max(count, 1))
+            if vz is not None:
+                z = predict_normalised(net, vx)
+                hist["val_loss"].append(float(torch.mean((z - vz) ** 2)))
+                pred = (predict_raw(net, vx, norm, cfg.tta) if cfg.tta != "none"
+                        else norm.decode(z))
+                m = property_metrics(pred.numpy(), val_labels)
+                hist["val_mre"].append([m[n]["mre"] for n in LABEL_NAMES])
+            hist["epoch_seconds"].append(time.perf_counter() - t0)
+            line = f"epoch {epoch + 1:3d}/{cfg.epochs} loss {hist['train_loss'][-1]:.4g}"
+            if vz is not None:
+                line += (f" val {hist['val_loss'][-1]:.4g} | val err % " + " ".join(
+                    f"{n} {100 * e:.2f}" for n, e in zip(LABEL_NAMES, hist["val_mre"][-1])))
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix_str(f"loss {hist['train_loss'][-1]:.3g}" + (
+                    f" val {hist['val_loss'][-1]:.3g}" if vz is not None else ""))
+                bar.write(f"{label + ': ' if label else ''}{line}", file=sys.stderr)
+            elif log is not None:
+                log(f"{label + ': ' if label else ''}{line}")
+    finally:
+        if bar is not None:
+            bar.close()
+    hist["seconds"] = time.perf_counter() - t_start
+    net.eval()
+    return net, hist
+
+
+def train_model(data_path, cfg, progress=True, log=print):
+    """Train ``cfg.members`` networks on the data set ``data_path``: the checkpoint dict.
+
+    The dict is what :func:`training.checkpoint.save_checkpoint` writes; it
+    also holds "history" (per member) and "metrics" {"validation": ...}.
+    """
+    cfg.check()
+    info = dataset_info(data_path)
+    image_shape = tuple(info["image_shape"])
+    ok = info["ok"]
+    if ok.size < 2:
+        raise AmfeError(f"{data_path}: {ok.size} usable record(s); training needs more")
+    train_rows, val_rows = split_indices(ok, cfg.val_fraction, cfg.split_seed)
+    if cfg.max_train:
+        train_rows = train_rows[:cfg.max_train]
+    in_memory = len(train_rows) * int(np.prod(image_shape)) * 4 < MEMORY_LIMIT
+    train_ds = BedDataset(data_path, train_rows, in_memory=in_memory)
+    _, train_labels = read_rows(data_path, train_rows)
+    val_images, val_labels = read_rows(data_path, val_rows)
+    log_flags = (cfg.log_moduli,) * 3 + (False,) * 3
+    norm = Normalizer.fit(train_labels, log=log_flags)
+    log(f"{data_path}: {info['n_rows']} records, {ok.size} ok; train {len(train_rows)}, "
+        f"validation {len(val_rows)} (split seed {cfg.split_seed}); images "
+        f"{'x'.join(map(str, image_shape))}; {cfg.arch}, {cfg.members} member(s), "
+        f"{cfg.epochs} epochs, batch {cfg.batch_size}, lr {cfg.lr:g} ({cfg.schedule}), "
+        f"augment {cfg.augment}, tta {cfg.tta}, log moduli {cfg.log_moduli}")
+
+    nets, hists = [], []
+    seeds = [cfg.seed + k for k in range(cfg.members)]
+    for k, seed in enumerate(seeds):
+        label = f"{cfg.arch} seed {seed}" + (f" ({k + 1}/{cfg.members})" if cfg.members > 1 else "")
+        net, hist = train_member(train_ds, val_images, val_labels, norm, cfg, image_shape, seed,
+                                 progress=progress, log=log, label=label)
+        nets.append(net)
+        hists.append(hist)
+        msg = f"{label}: trained in {hist['seconds']:.1f} s"
+        if hist["val_mre"]:
+            msg += " | val err % " + " ".join(f"{n} {100 * e:.2f}"
+                                              for n, e in zip(LABEL_NAMES, hist["val_mre"][-1]))
+        log(msg)
+
+    ckpt = {
+        "arch": cfg.arch,
+        "arch_args": resolved_args(cfg.arch, nets[0], cfg.arch_args),
+        "members": [net.state_dict() for net in nets],
+        "member_seeds": seeds,
+        "n_parameters": count_parameters(nets[0]),
+        "normalizer": norm.to_dict(),
+        "image_shape": list(image_shape),
+        "pixelation": pixelation_of(info),
+        "material": {k: float(v) for k, v in STEEL.asdict().items()},
+        "dataset": {"path": str(data_path), "sha256": dataset_hash(data_path, ok),
+                    "seed": info.get("seed"), "scale": info.get("scale"),
+                    "n_ok": int(ok.size), "n_train": int(len(train_rows)),
+                    "n_validation": int(len(val_rows)),
+                    "validation_rows": [int(r) for r in val_rows]},
+        "training": {k: v for k, v in asdict(cfg).items() if k not in ("arch", "arch_args")},
+        "history": hists,
+        "tta": cfg.tta,
+        "spread": None,
+        "metrics": {},
+    }
+    ckpt["training"]["seconds"] = float(sum(h["seconds"] for h in hists))
+    if len(val_rows):
+        from .predict import Surrogate
+        sur = Surrogate(ckpt, "the new model")
+        members = sur.member_outputs(val_images)
+        if cfg.members > 1:
+            ckpt["spread"] = calibrate_spread(members, cfg.flag_percentile)
+        sur = Surrogate(ckpt, "the new model")
+        res = sur.predict(val_images)
+        ckpt["metrics"]["validation"] = property_metrics(res["mean"], val_labels)
+        ckpt["metrics"]["validation"]["flagged_fraction"] = float(np.mean(res["flagged"]))
+        log("validation (ensemble mean): mean rel. error % "
+            + metrics_line(ckpt["metrics"]["validation"]) + " | R^2 "
+            + metrics_line(ckpt["metrics"]["validation"], "r2", 1.0, "{:.4f}"))
+    return ckpt
+
+
+def calibrate_spread(members, percentile=95.0):
+    """The flag of :mod:`training.predict` fitted on validation predictions (members, n, 6).
+
+    scale: the median relative spread per property; threshold: the
+    ``percentile`` of the score max_p(spread_p / scale_p) over the beds.
+    """
+    from .predict import summarize_members
+    rel = summarize_members(members)["spread"]
+    scale = np.median(rel, axis=0)
+    scale = np.where(scale > 0, scale, 1.0)
+    score = np.max(rel / scale, axis=1)
+    return {"scale": [float(s) for s in scale],
+            "threshold": float(np.percentile(score, percentile)),
+            "percentile": float(percentile),
+            "definition": "score = max over properties of (std over members / |ensemble mean|) / "
+                          "(median of that on the validation beds); flagged when score > "
+                          "threshold = the percentile of the score on the validation beds"}
+
+
+def pixelation_of(info):
+    """How the data set's images were made (from its root attributes), for amfe predict."""
+    need = ("bed_size", "image_cell", "layer_thickness", "image_spacing")
+    missing = [k for k in need if k not in info]
+    if missing:
+        raise AmfeError(f"{info['path']} lacks the root attribute(s) {', '.join(missing)} that say "
+                        "how its images were made (see amfe.datasetio)")
+    return {"scale": info.get("scale"), "bed_size": [float(s) for s in info["bed_size"]],
+            "image_cell": [float(s) for s in info["image_cell"]],
+            "layer_thickness": float(info["layer_thickness"]),
+            "image_spacing": float(info["image_spacing"])}
+
+
+def evaluate_file(surrogate, path):
+    """Metrics of ``surrogate`` on every ok record of the data set ``path``.
+
+    Returns (metrics dict with flagged_fraction, n, and ms_per_bed of the
+    batched prediction; result dict of Surrogate.predict; true labels).
+    """
+    info = dataset_info(path)
+    check_image_shape(surrogate.ckpt, info["image_shape"], f"the data set {path}",
+                      surrogate.path)
+    images, labels = read_rows(path, info["ok"])
+    t0 = time.perf_counter()
+    res = surrogate.predict(images)
+    dt = time.perf_counter() - t0
+    m = property_metrics(res["mean"], labels)
+    m["flagged_fraction"] = float(np.mean(res["flagged"]))
+    m["n"] = int(labels.shape[0])
+    m["ms_per_bed"] = 1e3 * dt / max(1, labels.shape[0])
+    return m, res, labels
