@@ -352,7 +352,7 @@ def write_docs(args, runs, results, ckpts, ood, bench, elapsed, floor, groups):
           + " | " + " | ".join(f"{m[p]['r2']:.3f}" for p in LABEL_NAMES) + " |")
     w("")
     w("Targets of the issue: under 2 % for each modulus and under 3 % for each Poisson ratio. "
-      "**They are not met** (see 'Why' below). The paper reports under 4 % on average with "
+      "**They are not met** (see 'Why' below and [surrogate_diagnosis.md](surrogate_diagnosis.md)). The paper reports under 4 % on average with "
       "Custom Net on its own data set.")
     w("")
     w("### What helped (held-out mean relative error %, same test beds)")

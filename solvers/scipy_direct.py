@@ -12,7 +12,8 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from amfe.element import element_matrices
-from amfe.homogenize import bagi_stress, boundary_particles, box_center, hull_of, unit_strains, voigt
+from amfe.homogenize import (bagi_strain, bagi_stress, boundary_particles, box_center, hull_of,
+                             stiffness, unit_strains, voigt, voigt_strain)
 
 
 def global_stiffness(frame):
@@ -26,10 +27,15 @@ def global_stiffness(frame):
     return sp.csr_matrix((K12.ravel(), (rows, cols)), shape=(n, n))
 
 
-def kubc_stiffness_scipy(frame):
+def kubc_stiffness_scipy(frame, strain="applied"):
     """(C (6,6) non-dimensional, seconds dict) of a frame under KUBC by SuperLU.
 
-    Voigt strains are the unit vectors, so C's columns are the Bagi stresses.
+    strain="applied": the Voigt strains are the unit vectors, so C's columns
+    are the Bagi stresses. strain="bagi": C = Sig Eps^-1 with Eps the Bagi
+    strains of the solved displacements on the hull, as amfe.homogenize does;
+    the two agree when every hull vertex is a prescribed boundary particle
+    and differ when a hull vertex is not (a scan track ending short of a
+    face), where "bagi" is the definition amfe's labels use.
     """
     t0 = time.perf_counter()
     K = global_stiffness(frame)
@@ -52,4 +58,10 @@ def kubc_stiffness_scipy(frame):
     volume = hull_of(x).volume
     C = np.array([voigt(bagi_stress(F[:, k].reshape(-1, 3), x[bnd], xc, volume))
                   for k in range(6)]).T
+    if strain == "bagi":
+        hull = hull_of(x)
+        eps = [voigt_strain(bagi_strain(hull, U[:, k].reshape(-1, 6)[:, :3])) for k in range(6)]
+        C = stiffness(np.array(eps), C.T)[0]
+    elif strain != "applied":
+        raise ValueError(f"strain must be 'applied' or 'bagi', got {strain!r}")
     return C, {"setup": t1 - t0, "factor": t2 - t1, "solve": t3 - t2}

@@ -1,0 +1,121 @@
+"""Speed against error: regenerate docs/report.md and its plots from scratch (issue 7).
+
+    source run/env.sh
+    .venv/bin/python run/report.py            # full report, about 10-15 min on 2 cores
+    .venv/bin/python run/report.py --quick    # the same sections on smaller beds, < 5 min
+
+Sections (every number is measured by this run, on this machine):
+
+1. solver accuracy against cost on a realistic bed: CG + GAMG / hypre
+   BoomerAMG / Jacobi at rtol 1e-2 ... 1e-10, PETSc Cholesky (MUMPS; CHOLMOD
+   where PETSc has it) and scipy SuperLU, max relative error of the nine
+   constants against CG + GAMG at rtol 1e-12; Pareto plot and the
+   recommended default;
+2. scaling of fully scanned 0.3 mm high beds from about 1 000 particles to
+   the paper's full bed (3 x 3 x 0.3 mm): time per phase and iterations,
+   fitted exponent, cost of a solve in fine-level matrix-vector products,
+   1 and ``--ranks`` ranks (each run is an ``mpirun`` of this script);
+3. representative volume: the constants of one scan pattern against the
+   base size, with their cost;
+4. surrogate against solver on the held-out data set (``--test``) with the
+   networks found in ``--models`` (run/train_surrogate.py's checkpoints) or
+   the shipped model; skipped, and said so, when neither is there;
+5. against the paper's figures.
+
+Writes OUT/report.md, OUT/report_*.png and OUT/report.json (all numbers),
+each atomically. ``--tiny`` shrinks everything further (for the test suite).
+"""
+import argparse
+import json
+import os
+import sys
+import tempfile
+import time
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, ROOT)
+sys.path.insert(0, os.path.join(ROOT, "run"))
+
+import report_measure as M  # noqa: E402
+
+def parse(argv):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--quick", action="store_true", help="smaller beds: under 5 minutes")
+    ap.add_argument("--tiny", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument("--out", default=os.path.join(ROOT, "docs"), help="output folder (docs/)")
+    ap.add_argument("--ranks", type=int, default=2, help="the second rank count of section 2")
+    ap.add_argument("--sections", default="1,2,3,4,5", help="comma list of sections to run")
+    ap.add_argument("--test", default="/work/data/small_test.h5",
+                    help="held-out data set of section 4")
+    ap.add_argument("--models", default="/work/data/surrogate",
+                    help="folder of run/train_surrogate.py's checkpoints (section 4)")
+    ap.add_argument("--worker", choices=("scaling", "rve"), help=argparse.SUPPRESS)
+    ap.add_argument("--items", help=argparse.SUPPRESS)
+    ap.add_argument("--worker-out", help=argparse.SUPPRESS)
+    return ap.parse_args(argv)
+
+
+def main(argv=None):
+    args = parse(argv)
+    if args.worker:
+        items = json.loads(args.items)
+        M.worker(args.worker, [tuple(i) if isinstance(i, list) else i for i in items],
+                 args.worker_out)
+        return 0
+    quick = args.quick or args.tiny
+    sections = {int(s) for s in args.sections.split(",")}
+    os.makedirs(args.out, exist_ok=True)
+    t_start = time.perf_counter()
+
+    def log(msg):
+        print(msg, flush=True)
+
+    data = {"machine": M.machine(), "quick": quick, "tiny": args.tiny}
+    log(f"amfe report ({'tiny' if args.tiny else 'quick' if quick else 'full'}) on "
+        f"{data['machine']['cores']} cores, PETSc {data['machine']['petsc']}")
+    with tempfile.TemporaryDirectory() as tmp:
+        if 1 in sections:
+            log("[1] solver accuracy against cost")
+            bed, desc = M.pareto_bed(quick)
+            rtols = [1e-2, 1e-4, 1e-6, 1e-8, 1e-10] if quick else [10.0**-k for k in range(2, 11)]
+            acc = M.accuracy_vs_cost(bed, rtols, log)
+            acc["bed"] = desc
+            acc["recommended"] = M.recommend(acc)
+            growth = [0.18, 0.35] if args.tiny else [0.35, 0.7] if quick else [0.35, 0.7, 1.0, 1.4]
+            acc["growth"] = M.direct_vs_iterative(growth, log)
+            data["accuracy"] = acc
+        if 2 in sections:
+            log("[2] scaling")
+            sizes = M.scaling_sizes(quick, args.tiny)
+            rows = []
+            for ranks in sorted({1, args.ranks}):
+                rows += M.run_worker("scaling", sizes, ranks, os.path.join(tmp, f"s{ranks}.json"),
+                                     log)
+            data["scaling"] = rows
+        if 3 in sections:
+            log("[3] representative volume")
+            rows = M.run_worker("rve", M.rve_plan(quick, args.tiny), args.ranks,
+                                os.path.join(tmp, "rve.json"), log)
+            table, rve = M.rve_summary(rows)
+            data["rve"] = {"rows": rows, "table": table, "rve_side_mm": rve, "scan": M.RVE_SCAN}
+        if 4 in sections:
+            log("[4] surrogate against solver")
+            if os.path.exists(args.test) and M.find_models(args.models):
+                n = 3 if quick else 20
+                rt = [1e-2, 1e-4, 1e-8] if quick else [1e-1, 1e-2, 1e-3, 1e-4, 1e-8]
+                data["surrogate"] = M.surrogate_vs_solver(args.test, args.models, n, rt, log)
+                data["surrogate"]["test"] = args.test
+            else:
+                data["surrogate"] = None
+                log(f"  skipped: no held-out data set at {args.test} or no trained model "
+                    "(run/train_surrogate.py makes both; see docs/surrogate.md)")
+    data["elapsed_seconds"] = time.perf_counter() - t_start
+    from report_write import write_report
+    paths = write_report(data, args.out, sections)
+    log(f"wrote {', '.join(os.path.relpath(p) for p in paths)} in "
+        f"{data['elapsed_seconds']:.0f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,427 @@
+"""Measurements of the speed-against-error report (run/report.py); one function per section.
+
+Every function returns plain data (dicts and lists of floats) that
+run/report.py turns into tables, plots and report.json. Times are wall-clock
+seconds on the machine the report runs on; errors are relative and
+dimensionless. The beds are generated here from fixed seeds, so a rerun
+measures the same beds.
+"""
+import math
+import os
+import platform
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+CONSTANTS = ("Ex", "Ey", "Ez", "nu_yz", "nu_xz", "nu_xy", "G_yz", "G_xz", "G_xy")
+LABELS = CONSTANTS[:6]
+MUMPS = {"ksp_type": "preonly", "pc_type": "cholesky", "pc_factor_mat_solver_type": "mumps"}
+CHOLMOD = {"ksp_type": "preonly", "pc_type": "cholesky", "pc_factor_mat_solver_type": "cholmod"}
+ITERATIVE = {  # name: PETSc options over amfe's CG + GAMG default
+    "CG + GAMG": {},
+    "CG + hypre BoomerAMG": {"pc_type": "hypre", "pc_hypre_type": "boomeramg"},
+    "CG + Jacobi": {"pc_type": "jacobi"},
+}
+MPI_ENV = {"OMPI_ALLOW_RUN_AS_ROOT": "1", "OMPI_ALLOW_RUN_AS_ROOT_CONFIRM": "1",
+           "OMPI_MCA_rmaps_base_oversubscribe": "1", "OMP_NUM_THREADS": "1",
+           "OPENBLAS_NUM_THREADS": "1"}
+
+
+def max_rel_error(props, ref, keys=CONSTANTS):
+    """max over ``keys`` of |props[k] / ref[k] - 1| (the nine constants by default)."""
+    return float(max(abs(props[k] / ref[k] - 1.0) for k in keys))
+
+
+def machine():
+    """What the report ran on: CPU, cores, memory, library versions, date, commit."""
+    from petsc4py import PETSc
+
+    import torch
+    cpu = platform.processor() or "unknown CPU"
+    try:
+        with open("/proc/cpuinfo") as fh:
+            cpu = next(ln.split(":", 1)[1].strip() for ln in fh if ln.startswith("model name"))
+    except (OSError, StopIteration):
+        pass
+    mem = float("nan")
+    try:
+        with open("/proc/meminfo") as fh:
+            mem = int(next(ln.split()[1] for ln in fh if ln.startswith("MemTotal"))) / 2**20
+    except (OSError, StopIteration):
+        pass
+    try:
+        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, text=True,
+                                capture_output=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        commit = "unknown"
+    return {"cpu": cpu, "cores": os.cpu_count(), "memory_gib": round(mem, 1),
+            "petsc": ".".join(map(str, PETSc.Sys.getVersion())), "torch": torch.__version__,
+            "numpy": np.__version__, "python": platform.python_version(),
+            "date": time.strftime("%Y-%m-%d %H:%M %Z"), "commit": commit}
+
+
+# ------------------------------------------------------------ 1. accuracy vs cost
+
+def pareto_bed(quick):
+    """The realistic bed of section 1: a `small` data-set bed (or a smaller one for --quick)."""
+    from amfe.bed import generate_bed
+    from amfe.scales import bed_for, sample_bed_params
+    if quick:
+        p = sample_bed_params("small", 7)
+        p["size"] = (0.3e-3, 0.3e-3, 0.2e-3)
+        return generate_bed(**p), "a 0.3 x 0.3 x 0.2 mm bed with the scan path of `small` bed seed 7"
+    return bed_for("small", 7), "`amfe pack --scale small --seed 7` (a data-set bed)"
+
+
+def _solve(bed, comm, **kw):
+    from solvers.driver import homogenize_bed
+    t0 = time.perf_counter()
+    r = homogenize_bed(bed.centers, bed.radii, bed.material(), comm=comm, **kw)
+    r["wall"] = time.perf_counter() - t0
+    return r
+
+
+def accuracy_vs_cost(bed, rtols, log=print, scipy_max=20_000):
+    """Section 1: {reference, runs: [{method, rtol, seconds, iterations, error}], unavailable}.
+
+    seconds = preconditioner or factor set-up + the six solves (the bonds and
+    the assembly, the same for every method, are reported apart). The
+    reference is CG + GAMG at rtol 1e-12; MUMPS is checked against it.
+    """
+    from petsc4py import PETSc
+
+    from amfe.errors import AmfeError
+    comm = PETSc.COMM_SELF
+    ref = _solve(bed, comm, rtol=1e-12)
+    out = {"n_particles": ref["n_particles"], "n_bonds": ref["n_bonds"],
+           "reference": ref["properties"], "runs": [], "unavailable": {},
+           "common_seconds": ref["solver"]["frame_seconds"] + ref["solver"]["assembly_seconds"]}
+    log(f"  reference CG + GAMG rtol 1e-12: {ref['wall']:.2f} s, "
+        f"{ref['n_particles']} particles, {ref['n_bonds']} bonds")
+
+    def record(method, rtol, r):
+        s = r["solver"]
+        row = {"method": method, "rtol": rtol, "seconds": s["setup_seconds"] + s["solve_seconds"],
+               "iterations": float(np.mean(s["iterations"])),
+               "error": max_rel_error(r["properties"], ref["properties"])}
+        out["runs"].append(row)
+        log(f"  {method:<22} rtol {rtol if rtol else '-':>7}  {row['seconds']:8.3f} s  "
+            f"its {row['iterations']:7.1f}  max rel err {row['error']:.2e}")
+
+    for method, opts in ITERATIVE.items():
+        for rtol in rtols:
+            try:
+                record(method, rtol, _solve(bed, comm, rtol=rtol, ksp_options=opts, max_it=20_000))
+            except AmfeError as exc:
+                out["unavailable"][method] = str(exc).splitlines()[0]
+                log(f"  {method}: not available here ({out['unavailable'][method]})")
+                break
+    for method, opts in (("Cholesky (MUMPS)", MUMPS), ("Cholesky (CHOLMOD)", CHOLMOD)):
+        try:
+            record(method, None, _solve(bed, comm, ksp_options=opts))
+        except AmfeError as exc:
+            out["unavailable"][method] = str(exc).splitlines()[0]
+            log(f"  {method}: not available here")
+    if ref["n_particles"] <= scipy_max:
+        record("scipy SuperLU", None, _scipy_solve(bed))
+    else:
+        out["unavailable"]["scipy SuperLU"] = f"skipped above {scipy_max} particles"
+    return out
+
+
+def direct_vs_iterative(sides, log=print):
+    """Rows {side_mm, n_particles, method, seconds, error} of fully scanned 0.3 mm high beds.
+
+    CG + GAMG at amfe's default rtol against the PETSc Cholesky factorisations
+    on growing beds, one rank: how each one's set-up + solve time grows with
+    the bed. Error: against the MUMPS result.
+    """
+    from petsc4py import PETSc
+
+    from amfe.bed import generate_bed
+    from amfe.errors import AmfeError
+    rows = []
+    for side in sides:
+        bed = generate_bed(size=(side * 1e-3, side * 1e-3, 0.3e-3), seed=0)
+        ref = None
+        for method, opts in (("Cholesky (MUMPS)", MUMPS), ("Cholesky (CHOLMOD)", CHOLMOD),
+                             ("CG + GAMG", {})):
+            try:
+                r = _solve(bed, PETSc.COMM_SELF, ksp_options=opts)
+            except AmfeError:
+                continue
+            ref = ref or r
+            s = r["solver"]
+            rows.append({"side_mm": side, "n_particles": r["n_particles"], "method": method,
+                         "seconds": s["setup_seconds"] + s["solve_seconds"],
+                         "error": max_rel_error(r["properties"], ref["properties"])})
+            log(f"  {side:4.2f} mm {r['n_particles']:7d} particles  {method:<20} "
+                f"{rows[-1]['seconds']:8.2f} s")
+    return rows
+
+
+def _scipy_solve(bed):
+    """scipy spsolve (SuperLU) of the same KUBC problem, in homogenize_bed's result layout."""
+    from amfe.frame import build_frame
+    from amfe.homogenize import compliance_and_constants
+    from solvers.scipy_direct import kubc_stiffness_scipy
+    frame = build_frame(bed.centers, bed.radii, bed.material())
+    C, sec = kubc_stiffness_scipy(frame, strain="bagi")
+    _, props = compliance_and_constants(C * frame.stress_scale)
+    return {"properties": props, "solver": {"setup_seconds": sec["factor"],
+                                            "solve_seconds": sec["solve"], "iterations": [0]}}
+
+
+def recommend(acc, target=1e-6):
+    """The cheapest run whose constants are within ``target`` of the reference."""
+    good = [r for r in acc["runs"] if r["error"] <= target]
+    return min(good, key=lambda r: r["seconds"]) if good else None
+
+
+def pareto_front(runs):
+    """Runs not beaten by another in both time and error, sorted by time."""
+    front, best = [], math.inf
+    for r in sorted(runs, key=lambda r: (r["seconds"], r["error"])):
+        if r["error"] < best:
+            front.append(r)
+            best = r["error"]
+    return front
+
+
+# ------------------------------------------------------------ 2./3. MPI workers
+
+def scaling_sizes(quick, tiny=False):
+    """Square bases [mm] of the fully scanned 0.3 mm high beds of section 2 (1 000 ... 295 000)."""
+    if tiny:
+        return [0.18, 0.3]
+    return [0.18, 0.35, 0.7] if quick else [0.18, 0.35, 0.7, 1.4, 2.1, 3.0]
+
+
+RVE_SCAN = dict(track_width=0.1e-3, hatch_spacing=0.14e-3, angle=30.0, layer_rotation=90.0,
+                offset=0.0)
+
+
+def rve_plan(quick, tiny=False):
+    """[(base mm, seed)] of section 3: several seeds where the bed is small."""
+    if tiny:
+        return [(0.3, 0), (0.45, 0)]
+    if quick:
+        return [(b, s) for b in (0.3, 0.45, 0.6) for s in (0, 1)]
+    sizes = [0.3, 0.45, 0.6, 0.9, 1.2, 1.8, 2.4, 3.0]
+    return [(b, s) for b in sizes for s in ((0, 1, 2) if b <= 1.2 else (0,))]
+
+
+def _matvec_seconds(PETSc, bed, comm, repeats=20):
+    """Seconds of one fine-level MatMult of the assembled AIJ stiffness (bs 6) on ``comm``."""
+    from amfe.frame import build_frame
+    from solvers.assembly import assemble_stiffness
+    from solvers.partition import row_ranges
+    frame = build_frame(bed.centers, bed.radii, bed.material())
+    rr = row_ranges(frame.n_particles, comm.getSize())
+    A = assemble_stiffness(PETSc, frame, comm, int(rr[comm.getRank()]),
+                           int(rr[comm.getRank() + 1]))
+    x, y = A.createVecs()
+    x.set(1.0)
+    A.mult(x, y)
+    comm.barrier()
+    t0 = time.perf_counter()
+    for _ in range(repeats):
+        A.mult(x, y)
+    comm.barrier()
+    dt = (time.perf_counter() - t0) / repeats
+    A.destroy()
+    return dt
+
+
+def worker(kind, items, path):
+    """Run under mpirun: one homogenization per item on COMM_WORLD; rank 0 writes JSON lines."""
+    from solvers.petsc import init_petsc
+    PETSc = init_petsc([])
+    from amfe.atomicio import atomic_write
+    from amfe.bed import generate_bed
+    from amfe.scanpath import ScanPath
+    comm = PETSc.COMM_WORLD
+    rows = []
+    for item in items:
+        comm.barrier()
+        t0 = time.perf_counter()
+        if kind == "scaling":
+            side = item
+            bed = generate_bed(size=(side * 1e-3, side * 1e-3, 0.3e-3), seed=0)
+        else:
+            side, seed = item
+            bed = generate_bed(size=(side * 1e-3, side * 1e-3, 0.3e-3), seed=seed,
+                               scan=ScanPath(**RVE_SCAN))
+        t_gen = time.perf_counter() - t0
+        r = _solve(bed, comm)
+        s = r["solver"]
+        row = {"side_mm": side, "ranks": comm.getSize(), "n_particles": r["n_particles"],
+               "n_bonds": r["n_bonds"], "properties": r["properties"],
+               "generate": t_gen, "bonds": s["frame_seconds"], "assemble": s["assembly_seconds"],
+               "setup": s["setup_seconds"], "solves": s["solve_seconds"],
+               "averages": s["average_seconds"], "total": t_gen + r["wall"],
+               "iterations": float(np.mean(s["iterations"]))}
+        if kind == "scaling":
+            row["matvec"] = _matvec_seconds(PETSc, bed, comm)
+            row["matvecs_per_solve"] = s["solve_seconds"] / 6 / row["matvec"]
+        else:
+            row["seed"] = item[1]
+        rows.append(row)
+        if comm.getRank() == 0:
+            print(f"    {kind} {side:5.2f} mm, {row['ranks']} rank(s): {row['n_particles']:7d} "
+                  f"particles, {row['total']:7.2f} s, {row['iterations']:.1f} its", flush=True)
+    if comm.getRank() == 0:
+        import json
+        atomic_write(path, lambda fh: fh.write(json.dumps(rows).encode()))
+
+
+def run_worker(kind, items, ranks, path, log=print):
+    """mpirun -n RANKS python run/report.py --worker KIND ...; returns its rows."""
+    import json
+    cmd = [sys.executable, os.path.join(ROOT, "run", "report.py"), "--worker", kind,
+           "--items", json.dumps(items), "--worker-out", path]
+    if ranks > 1 or os.environ.get("AMFE_REPORT_MPIRUN"):
+        cmd = ["mpirun", "-n", str(ranks), *cmd]
+    env = dict(os.environ, **MPI_ENV)
+    p = subprocess.run(cmd, env=env, cwd=ROOT, text=True, stdout=subprocess.PIPE,
+                       stderr=subprocess.STDOUT)
+    for line in p.stdout.splitlines():
+        if line.startswith("    "):
+            log(line)
+    if p.returncode != 0:
+        raise RuntimeError(f"{kind} worker on {ranks} rank(s) failed (exit {p.returncode}):\n"
+                           + p.stdout[-3000:])
+    with open(path) as fh:
+        return json.load(fh)
+
+
+def fit_exponent(n, t):
+    """Least-squares slope of log t against log n (t ~ n^p): p."""
+    return float(np.polyfit(np.log(np.asarray(n, float)), np.log(np.asarray(t, float)), 1)[0])
+
+
+def rve_summary(rows, tol=0.01):
+    """Per base size: mean constants over seeds, spread, cost; the RVE size at ``tol``.
+
+    The change of a size is the max relative difference of its mean constants
+    from the largest size's; the RVE size is the smallest base from which on
+    every larger size changes by less than ``tol``.
+    """
+    sides = sorted({r["side_mm"] for r in rows})
+    table = []
+    for b in sides:
+        rs = [r for r in rows if r["side_mm"] == b]
+        mean = {k: float(np.mean([r["properties"][k] for r in rs])) for k in CONSTANTS}
+        spread = max(float(np.std([r["properties"][k] for r in rs]) / abs(mean[k]))
+                     for k in CONSTANTS) if len(rs) > 1 else float("nan")
+        table.append({"side_mm": b, "seeds": len(rs), "mean": mean, "spread": spread,
+                      "n_particles": float(np.mean([r["n_particles"] for r in rs])),
+                      "seconds": float(np.mean([r["total"] for r in rs]))})
+    last = table[-1]["mean"]
+    for row in table:
+        row["change"] = max_rel_error(row["mean"], last)
+    rve = None
+    for k in range(len(table) - 1, -1, -1):
+        if table[k]["change"] < tol and all(t["change"] < tol for t in table[k:]):
+            rve = table[k]["side_mm"]
+        else:
+            break
+    return table, (rve if rve is not None and rve < table[-1]["side_mm"] else None)
+
+
+# ------------------------------------------------------------ 4. surrogate vs solver
+
+def find_models(models_dir):
+    """{name: (checkpoint dict, description)} of the networks found in ``models_dir``.
+
+    NAME.pt for lenet5, alexnet, vgg and ensemble (run/train_surrogate.py's
+    names); "Custom Net" is member 0 of the ensemble. Falls back to the
+    shipped model (amfe/models/custom_small.pt) as the ensemble.
+    """
+    from training.checkpoint import load_checkpoint
+    found = {}
+    names = {"lenet5": "LeNet-5", "alexnet": "AlexNet", "vgg": "VGG", "ensemble": "Custom Net x5"}
+    for n, desc in names.items():
+        p = os.path.join(models_dir or "", f"{n}.pt")
+        if models_dir and os.path.exists(p):
+            found[n] = (load_checkpoint(p), desc)
+    shipped = os.path.join(ROOT, "amfe", "models", "custom_small.pt")
+    if "ensemble" not in found and os.path.exists(shipped):
+        found["ensemble"] = (load_checkpoint(shipped), "Custom Net x5 (shipped)")
+    if "ensemble" in found:
+        ck = found["ensemble"][0]
+        k0 = dict(ck, members=[ck["members"][0]], member_seeds=[ck["member_seeds"][0]],
+                  history=[ck["history"][0]], spread=None,
+                  training=dict(ck["training"], members=1, seconds=ck["history"][0]["seconds"]))
+        found = {"custom": (k0, "Custom Net"), **found}
+    return found
+
+
+def surrogate_vs_solver(test_path, models_dir, n_solver_beds, rtols, log=print):
+    """Section 4 on the held-out beds of ``test_path``: networks and the solver at loose rtol.
+
+    Networks: mean relative error over the six labels and all held-out beds,
+    ms per bed batched (one torch thread), and the pixelation of a bed
+    measured on ``n_solver_beds`` beds. Solver: the first ``n_solver_beds``
+    beds regenerated from their seeds (amfe.scales.bed_for) and solved at each
+    rtol, error against the data set's labels (rtol 1e-8), wall time per bed
+    on one core including bonds and assembly.
+    """
+    import h5py
+    import torch
+    from petsc4py import PETSc
+
+    from amfe.images import pixelate
+    from amfe.scales import bed_for, get_scale
+    from training.metrics import property_metrics
+    from training.predict import Surrogate
+    sys.path.insert(0, os.path.join(ROOT, "run"))
+    from bench_surrogate import bench_batched
+
+    torch.set_num_threads(1)
+    with h5py.File(test_path, "r") as f:
+        ok = np.flatnonzero(f["status"][:] == 0)
+        images = f["images"][:][ok].astype(np.float32)
+        labels = f["labels"][:][ok]
+        seeds = f["seed"][:][ok]
+        scale = f.attrs["scale"]
+    scale = get_scale(scale.decode() if isinstance(scale, bytes) else str(scale))
+    out = {"n_test": int(len(ok)), "networks": {}, "solver": []}
+    for name, (ck, desc) in find_models(models_dir).items():
+        sur = Surrogate(ck, name)
+        pred = sur.predict(images)["mean"]
+        m = property_metrics(pred, labels)
+        ms = next(iter(bench_batched(sur, images, threads=(1,), batches=(None,),
+                                     repeats=3).values()))
+        out["networks"][name] = {
+            "description": desc, "ms_per_bed": float(ms),
+            "mre": {k: float(m[k]["mre"]) for k in LABELS},
+            "r2": {k: float(m[k]["r2"]) for k in LABELS},
+            "mean_error": float(np.mean([m[k]["mre"] for k in LABELS])),
+            "train_seconds": float(ck["training"]["seconds"]), "params": int(ck["n_parameters"]), "members": len(ck["members"])}
+        log(f"  {desc:<26} {ms:7.3f} ms/bed  mean rel err "
+            f"{100 * out['networks'][name]['mean_error']:.2f} %")
+    pix, by_rtol = [], {rt: [] for rt in rtols}
+    for k in range(min(n_solver_beds, len(ok))):
+        bed = bed_for(scale, int(seeds[k]))
+        t0 = time.perf_counter()
+        pixelate(bed, scale.cell, scale.layer_thickness, box=[np.zeros(3), np.array(scale.size)],
+                 spacing=scale.image_spacing)
+        pix.append(time.perf_counter() - t0)
+        for rt in rtols:
+            r = _solve(bed, PETSc.COMM_SELF, rtol=rt)
+            err = [abs(r["properties"][n] / labels[k][j] - 1) for j, n in enumerate(LABELS)]
+            by_rtol[rt].append((r["wall"], float(np.mean(err)), float(np.max(err))))
+    out["pixelate_seconds"] = float(np.mean(pix)) if pix else float("nan")
+    for rt in rtols:
+        a = np.array(by_rtol[rt]).reshape(-1, 3)
+        out["solver"].append({"rtol": rt, "beds": len(a), "seconds": float(a[:, 0].mean()),
+                              "mean_error": float(a[:, 1].mean()),
+                              "max_error": float(a[:, 2].max())})
+        log(f"  solver CG + GAMG rtol {rt:.0e}: {a[:, 0].mean():.3f} s/bed, mean rel err "
+            f"{100 * a[:, 1].mean():.2e} % ({len(a)} beds)")
+    return out
