@@ -49,6 +49,8 @@ def parse(argv):
                     help="held-out data set of section 4")
     ap.add_argument("--models", default="/work/data/surrogate",
                     help="folder of run/train_surrogate.py's checkpoints (section 4)")
+    ap.add_argument("--rewrite", action="store_true",
+                    help="only redraw OUT/report.md and the plots from OUT/report.json")
     ap.add_argument("--worker", choices=("scaling", "rve"), help=argparse.SUPPRESS)
     ap.add_argument("--items", help=argparse.SUPPRESS)
     ap.add_argument("--worker-out", help=argparse.SUPPRESS)
@@ -61,6 +63,12 @@ def main(argv=None):
         items = json.loads(args.items)
         M.worker(args.worker, [tuple(i) if isinstance(i, list) else i for i in items],
                  args.worker_out)
+        return 0
+    if args.rewrite:
+        from report_write import write_report
+        with open(os.path.join(args.out, "report.json")) as fh:
+            data = json.load(fh)
+        write_report(data, args.out, {int(s) for s in args.sections.split(",")})
         return 0
     quick = args.quick or args.tiny
     sections = {int(s) for s in args.sections.split(",")}
