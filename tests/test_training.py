@@ -239,7 +239,7 @@ def test_pickled_object_checkpoint_refused(ensemble, tmp_path):
 
 
 def test_ensemble_spread_zero_when_members_identical(ensemble, synth):
-    same = dict(ensemble, members=[ensemble["members"][0]] * 3)
+    same = dict(ensemble, members=[ensemble["members"][0]] * 3, fill_range=None)
     res = Surrogate(same).predict(read_rows(synth)[0])
     assert np.all(res["spread"] == 0) and np.all(res["score"] == 0)
     assert not res["flagged"].any()
@@ -326,3 +326,25 @@ def test_train_and_predict_check_cli(tmp_path):
     proc = run_cli(["predict", str(big), "--model", str(model)])
     assert proc.returncode == 2
     assert "1x5x10" in proc.stderr and "1x5x5" in proc.stderr
+
+
+def test_fill_check_flags_other_enlargements(ensemble, synth):
+    """A bed whose fullest cells are fuller (or emptier) than every training bed's is flagged."""
+    from training.predict import calibrate_fill, fill_statistic
+    images = read_rows(synth)[0]
+    f = fill_statistic(images)
+    # the statistic is the 99th percentile of each bed's pixels (independent numpy call)
+    k = 3
+    assert f[k] == pytest.approx(np.sort(images[k].ravel())[int(0.99 * (images[k].size - 1))],
+                                 abs=0.02)
+    rng = calibrate_fill(images, 0.0, 100.0)
+    assert rng["lo"] == pytest.approx(f.min()) and rng["hi"] == pytest.approx(f.max())
+    ck = dict(ensemble, spread=None, fill_range=rng)   # no spread flag: only the fill check
+    sur = Surrogate(ck)
+    assert not sur.predict(images)["flagged"].any()
+    outside = [0.5 * rng["lo"]] + ([0.5 * (rng["hi"] + 1)] if rng["hi"] < 0.99 else [])
+    for v in outside:
+        x = np.full_like(images[:1], v)
+        res = sur.predict(x)
+        assert res["fill_out"][0] and res["flagged"][0]
+    assert ensemble["fill_range"]["lo"] <= ensemble["fill_range"]["hi"]

@@ -11,6 +11,14 @@ deviation over |mean| (relative); the flag score is max over properties of
 validation beds), and a bed is flagged when the score exceeds the
 checkpoint's threshold (the 95th percentile of the score on the validation
 beds, so about 1 in 20 in-distribution beds is flagged).
+
+A second, input-side check needs no ensemble: the fill of a bed's fullest
+cells (:func:`fill_statistic`, the 99th percentile of its pixels) measures
+the sintering enlargement, i.e. the neck size the moduli hang on, and the
+spread misses beds made with other enlargements (docs/surrogate_diagnosis.md).
+A checkpoint with a ``fill_range`` (the 0.5th and 99.5th percentiles of that
+statistic over its training beds, :func:`calibrate_fill`) flags a bed whose
+fill lies outside it, whatever the spread.
 """
 import os
 import time
@@ -36,6 +44,30 @@ def default_model_path():
     return Path(amfe.__file__).resolve().parent / "models" / DEFAULT_MODEL_NAME
 
 
+FILL_PERCENTILE = 99.0
+
+
+def fill_statistic(images):
+    """The fill of each bed's fullest cells: the 99th percentile of its pixels, (n,) float64.
+
+    images (n, layers, H, W) volume fractions [-] (or one image (layers, H, W)).
+    """
+    x = np.asarray(images, np.float64)
+    if x.ndim == 3:
+        x = x[None]
+    return np.percentile(x.reshape(x.shape[0], -1), FILL_PERCENTILE, axis=1)
+
+
+def calibrate_fill(images, lo=0.5, hi=99.5):
+    """The accepted range of :func:`fill_statistic`: its lo-th and hi-th percentiles over ``images``."""
+    f = fill_statistic(images)
+    return {"lo": float(np.percentile(f, lo)), "hi": float(np.percentile(f, hi)),
+            "percentiles": [float(lo), float(hi)],
+            "definition": f"{FILL_PERCENTILE:g}th percentile of a bed's pixels (fill of its "
+                          "fullest cells, which measures the enlargement); a bed outside "
+                          "[lo, hi], the given percentiles over the training beds, is flagged"}
+
+
 class Surrogate:
     """The networks, normalisation and flag threshold of one checkpoint."""
 
@@ -49,6 +81,7 @@ class Surrogate:
         spread = ckpt.get("spread") or {}
         self.spread_scale = np.asarray(spread.get("scale", np.ones(6)), np.float64)
         self.threshold = spread.get("threshold")
+        self.fill_range = ckpt.get("fill_range")
 
     @classmethod
     def load(cls, path=None):
@@ -76,9 +109,18 @@ class Surrogate:
         return out
 
     def predict(self, images, batch_size=1024):
-        """{mean (n, 6), spread (n, 6) relative, score (n,), flagged (n,) bool} of images."""
+        """{mean (n, 6), spread (n, 6) relative, score (n,), fill (n,), fill_out (n,) bool,
+        flagged (n,) bool} of images; flagged = spread over the threshold or fill_out."""
         members = self.member_outputs(images, batch_size)
-        return summarize_members(members, self.spread_scale, self.threshold)
+        res = summarize_members(members, self.spread_scale, self.threshold)
+        res["fill"] = fill_statistic(images)
+        if self.fill_range:
+            res["fill_out"] = ((res["fill"] < self.fill_range["lo"])
+                               | (res["fill"] > self.fill_range["hi"]))
+        else:
+            res["fill_out"] = np.zeros(len(res["fill"]), bool)
+        res["flagged"] = res["flagged"] | res["fill_out"]
+        return res
 
     def predict_bed(self, bed):
         """Pixelate ``bed`` as the training data was and predict: (result dict, image, seconds)."""

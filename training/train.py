@@ -30,7 +30,7 @@ from .data import (BedDataset, Normalizer, augment_batch, dataset_hash,
                    dataset_info, read_rows, split_indices)
 from .metrics import metrics_line, property_metrics
 from .nets import build_net, count_parameters, resolved_args
-from .predict import predict_raw, tta_mode
+from .predict import calibrate_fill, predict_raw, tta_mode
 
 MEMORY_LIMIT = 1 << 30   # train from memory when the selected images take less (bytes)
 
@@ -220,6 +220,7 @@ def train_model(data_path, cfg, progress=True, log=print):
         "history": hists,
         "tta": cfg.tta,
         "spread": None,
+        "fill_range": calibrate_fill(read_rows(data_path, train_rows)[0]),
         "metrics": {},
     }
     ckpt["training"]["seconds"] = float(sum(h["seconds"] for h in hists))

@@ -56,7 +56,7 @@ def run(args):
     sur = Surrogate.load(args.model)
     times["load_model"] = time.perf_counter() - t
     threshold = args.threshold if args.threshold is not None else sur.threshold
-    if args.fallback and threshold is None:
+    if args.fallback and threshold is None and not sur.fill_range:
         raise AmfeError(f"--fallback needs a flag threshold: {sur.path} is a single network "
                         "without a calibrated ensemble spread; use an ensemble (amfe train "
                         "--members 5) or give --threshold")
@@ -67,7 +67,9 @@ def run(args):
     res, image, t_pred = sur.predict_bed(bed)
     times.update(t_pred)
     score = float(res["score"][0])
-    flagged = bool(threshold is not None and sur.n_members > 1 and score > threshold)
+    spread_flag = bool(threshold is not None and sur.n_members > 1 and score > threshold)
+    fill_flag = bool(res["fill_out"][0])
+    flagged = spread_flag or fill_flag
 
     solver = None
     if args.check or args.fallback:
@@ -92,6 +94,9 @@ def run(args):
         "spread": as_properties(res["spread"][0]),
         "spread_score": score,
         "threshold": threshold,
+        "fill": float(res["fill"][0]),
+        "fill_range": ([sur.fill_range["lo"], sur.fill_range["hi"]] if sur.fill_range
+                       else None),
         "flagged": flagged,
         "source": "surrogate",
         "model": os.fspath(sur.path),
@@ -145,11 +150,15 @@ def summary(out, output=None):
                      f"{100 * check['relative_difference'][k]:+9.2f}%")
         lines.append(line)
     if out["threshold"] is None or out["members"] < 2:
-        lines.append("no out-of-distribution flag (a single network has no spread)")
+        lines.append("no spread flag (a single network has no spread)")
     else:
-        verdict = "FLAGGED: unlike the training beds" if out["flagged"] else "in distribution"
-        lines.append(f"spread score {out['spread_score']:.3g} (threshold {out['threshold']:.3g}): "
-                     f"{verdict}")
+        lines.append(f"spread score {out['spread_score']:.3g} (threshold {out['threshold']:.3g})")
+    if out["fill_range"]:
+        lo, hi = out["fill_range"]
+        inside = lo <= out["fill"] <= hi
+        lines.append(f"fill of the fullest cells {out['fill']:.3f} (training beds {lo:.3f} - "
+                     f"{hi:.3f}){'' if inside else ': outside, another enlargement?'}")
+    lines.append("FLAGGED: unlike the training beds" if out["flagged"] else "in distribution")
     if out["source"] == "solver":
         lines.append("source: solver (PETSc, --fallback); its constants:")
         for k in NINE:
