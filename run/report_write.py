@@ -37,6 +37,17 @@ def _save(fig, path):
     return path
 
 
+def _loglog(ax, xlabel, ylabel, title):
+    """Log-log axes with labels, grid and legend."""
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7)
+
+
 def _s(x):
     """Seconds for a table: 3 significant digits, minutes/hours when long."""
     if x >= 3600:
@@ -69,13 +80,9 @@ def section_accuracy(acc, out, md):
     front = M.pareto_front(acc["runs"])
     ax.plot([r["seconds"] for r in front], [max(r["error"], FLOOR) for r in front], "k--",
             lw=0.8, label="Pareto front")
-    ax.set_xscale("log")
-    ax.set_yscale("log")
-    ax.set_xlabel("preconditioner/factor set-up + six solves [s]")
-    ax.set_ylabel("max relative error of the nine constants [-]")
-    ax.set_title(f"{acc['n_particles']} particles, {acc['n_bonds']} bonds (labels: rtol)")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=7)
+    _loglog(ax, "preconditioner/factor set-up + six solves [s]",
+            "max relative error of the nine constants [-]",
+            f"{acc['n_particles']} particles, {acc['n_bonds']} bonds (labels: rtol)")
     paths = [_save(fig, os.path.join(out, "report_pareto.png"))]
 
     md += ["## 1. Solver accuracy against cost", "",
@@ -302,13 +309,9 @@ def section_surrogate(sur, out, md):
         if r["mean_error"] == 0:
             ax.axvline(r["seconds"], color="k", ls=":", lw=1,
                        label=f"solver at rtol {r['rtol']:.0e} (how the labels were made)")
-    ax.set_xscale("log")
-    ax.set_yscale("log")
-    ax.set_xlabel("time per bed on one core [s] (open circles: network + pixelation)")
-    ax.set_ylabel("mean relative error over the six labels [%]")
-    ax.set_title(f"held-out beds ({sur['n_test']} for the networks)")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=7)
+    _loglog(ax, "time per bed on one core [s] (open circles: network + pixelation)",
+            "mean relative error over the six labels [%]",
+            f"held-out beds ({sur['n_test']} for the networks)")
     paths = [_save(fig, os.path.join(out, "report_surrogate.png"))]
     md += ["## 4. Surrogate against solver", "",
            f"Held-out beds: `{sur['test']}` ({sur['n_test']} beds, a data-set seed no network "
