@@ -177,7 +177,7 @@ def train_model(data_path, cfg, progress=True, log=print):
         train_rows = train_rows[:cfg.max_train]
     in_memory = len(train_rows) * int(np.prod(image_shape)) * 4 < MEMORY_LIMIT
     train_ds = BedDataset(data_path, train_rows, in_memory=in_memory)
-    _, train_labels = read_rows(data_path, train_rows)
+    train_images, train_labels = read_rows(data_path, train_rows)
     val_images, val_labels = read_rows(data_path, val_rows)
     log_flags = (cfg.log_moduli,) * 3 + (False,) * 3
     norm = Normalizer.fit(train_labels, log=log_flags)
@@ -220,7 +220,7 @@ def train_model(data_path, cfg, progress=True, log=print):
         "history": hists,
         "tta": cfg.tta,
         "spread": None,
-        "fill_range": calibrate_fill(read_rows(data_path, train_rows)[0]),
+        "fill_range": calibrate_fill(train_images),
         "metrics": {},
     }
     ckpt["training"]["seconds"] = float(sum(h["seconds"] for h in hists))
