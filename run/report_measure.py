@@ -211,7 +211,7 @@ def rve_plan(quick, tiny=False):
         return [(0.3, 0), (0.45, 0)]
     if quick:
         return [(b, s) for b in (0.3, 0.45, 0.6) for s in (0, 1)]
-    sizes = [0.3, 0.45, 0.6, 0.9, 1.2, 1.8, 2.4, 3.0]
+    sizes = [0.3, 0.45, 0.6, 0.9, 1.2, 1.8, 2.4, 3.0, 3.6, 4.2]
     return [(b, s) for b in sizes for s in ((0, 1, 2) if b <= 1.2 else (0,))]
 
 
