@@ -333,6 +333,32 @@ def rve_summary(rows, tol=0.01):
     return table, (rve if rve is not None and rve < table[-1]["side_mm"] else None)
 
 
+def rve_extrapolate(table, min_side=1.0, tol=0.01):
+    """Fit c(L) = c_inf + a / L per constant over the bases L >= ``min_side`` mm.
+
+    A boundary layer of fixed thickness (KUBC stiffens the particles next to
+    the faces) changes the constants by a share proportional to 1/L. Returns
+    {c_inf, a (per constant), side_at_tol: the base [mm] from which every
+    fitted constant is within ``tol`` of its c_inf, worst_residual: the
+    largest relative misfit of the fit on the sizes used, sides: those sizes};
+    None with fewer than three sizes.
+    """
+    rows = [t for t in table if t["side_mm"] >= min_side]
+    if len(rows) < 3:
+        return None
+    inv = np.array([1.0 / t["side_mm"] for t in rows])
+    A = np.stack([np.ones_like(inv), inv], axis=1)
+    c_inf, a, worst, side = {}, {}, 0.0, 0.0
+    for k in CONSTANTS:
+        y = np.array([t["mean"][k] for t in rows])
+        (c0, c1), *_ = np.linalg.lstsq(A, y, rcond=None)
+        c_inf[k], a[k] = float(c0), float(c1)
+        worst = max(worst, float(np.max(np.abs(A @ [c0, c1] - y) / np.abs(y))))
+        side = max(side, abs(c1) / (tol * abs(c0)))
+    return {"c_inf": c_inf, "a": a, "side_at_tol": float(side), "worst_residual": worst,
+            "sides": [t["side_mm"] for t in rows], "tol": tol}
+
+
 # ------------------------------------------------------------ 4. surrogate vs solver
 
 def find_models(models_dir):

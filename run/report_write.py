@@ -281,6 +281,19 @@ def section_rve(rve, out, md):
     else:
         md.append("**No size below the largest is within 1 % of it:** the constants still "
                   "drift at the sizes measured (KUBC stiffens small beds, DESIGN 5a).")
+    ex = M.rve_extrapolate(table)
+    rve["extrapolation"] = ex
+    if ex:
+        worst = max(M.CONSTANTS, key=lambda k: abs(ex["a"][k] / ex["c_inf"][k]))
+        md.append(f"Fitting c(L) = c_inf + a / L to each constant over the bases "
+                  f"{', '.join(f'{b:g}' for b in ex['sides'])} mm (a boundary layer of fixed "
+                  f"thickness; largest misfit {100 * ex['worst_residual']:.2f} %) gives the "
+                  f"unbounded bed's constants (Ex {ex['c_inf']['Ex'] / 1e9:.1f}, Ey "
+                  f"{ex['c_inf']['Ey'] / 1e9:.1f}, Ez {ex['c_inf']['Ez'] / 1e9:.1f} GPa, nu_xy "
+                  f"{ex['c_inf']['nu_xy']:.4f}) and **every constant within 1 % of its limit "
+                  f"from a base of about {ex['side_at_tol']:.1f} mm** (set by {worst}); the "
+                  "measured sizes are the data behind that estimate, the size itself an "
+                  "extrapolation.")
     within5 = [t["side_mm"] for k, t in enumerate(table)
                if all(u["change"] < 0.05 for u in table[k:])]
     if within5 and within5[0] < table[-1]["side_mm"]:

@@ -73,3 +73,12 @@ def test_pareto_front_and_fit():
             {"seconds": 3, "error": 1e-2}, {"seconds": 4, "error": 1e-6}]
     assert [r["seconds"] for r in M.pareto_front(runs)] == [1, 2, 4]
     assert M.fit_exponent([1e3, 1e4, 1e5], [2.0, 20.0, 200.0]) == pytest.approx(1.0)
+
+
+def test_rve_extrapolation_recovers_boundary_layer():
+    table = [{"side_mm": b, "mean": {k: 2.0 + 0.1 / b for k in M.CONSTANTS}}
+             for b in (1.0, 2.0, 3.0, 4.0)]
+    ex = M.rve_extrapolate(table)
+    assert ex["c_inf"]["Ex"] == pytest.approx(2.0) and ex["a"]["G_xy"] == pytest.approx(0.1)
+    assert ex["side_at_tol"] == pytest.approx(5.0) and ex["worst_residual"] < 1e-12
+    assert M.rve_extrapolate(table[:2]) is None
