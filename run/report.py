@@ -71,8 +71,21 @@ def main(argv=None):
         write_report(data, args.out, {int(s) for s in args.sections.split(",")})
         return 0
     quick = args.quick or args.tiny
-    sections = {int(s) for s in args.sections.split(",")}
-    os.makedirs(args.out, exist_ok=True)
+    try:
+        sections = {int(s) for s in args.sections.split(",")}
+    except ValueError:
+        sections = set()
+    if not sections or not sections <= {1, 2, 3, 4, 5}:
+        print(f"report.py: --sections must be a comma list of 1-5, got {args.sections!r}",
+              file=sys.stderr)
+        return 2
+    try:
+        os.makedirs(args.out, exist_ok=True)
+        probe = tempfile.NamedTemporaryFile(dir=args.out)
+        probe.close()
+    except OSError as exc:
+        print(f"report.py: cannot write the report to {args.out}: {exc}", file=sys.stderr)
+        return 2
     t_start = time.perf_counter()
 
     def log(msg):

@@ -82,3 +82,10 @@ def test_rve_extrapolation_recovers_boundary_layer():
     assert ex["c_inf"]["Ex"] == pytest.approx(2.0) and ex["a"]["G_xy"] == pytest.approx(0.1)
     assert ex["side_at_tol"] == pytest.approx(5.0) and ex["worst_residual"] < 1e-12
     assert M.rve_extrapolate(table[:2]) is None
+
+
+@pytest.mark.parametrize("args", [["--sections", "1,9"], ["--out", os.devnull]])
+def test_bad_arguments_exit_2(args):
+    p = subprocess.run([sys.executable, os.path.join(ROOT, "run", "report.py"), *args],
+                       cwd=ROOT, env=MPI_ENV, capture_output=True, text=True, timeout=120)
+    assert p.returncode == 2 and "report.py:" in p.stderr and "Traceback" not in p.stderr
