@@ -18,7 +18,7 @@ Each bed is the record of ``solvers.batch.make_record`` (the same
 generation, image and PETSc homogenisation as `amfe dataset`, one rank),
 its data-set seed 100 + variant number. The file has the data-set layout
 of amfe.datasetio (images, labels, C, density, index, seed, status, reason,
-params/*), plus ``variant`` (M,) strings; its root attributes are those of a
+params/*, bond_images), plus ``variant`` (M,) strings; its root attributes are those of a
 `small` data set (so the shipped model accepts its images) and ``variants``.
 Finished records are kept in OUTPUT.parts/ and reused when the script is
 run again (kill-safe, like amfe dataset). About 1.5 s per bed on one core.
@@ -98,6 +98,7 @@ def write_file(output, parts, plan):
     tmp = output + ".tmp"
     with h5py.File(tmp, "w") as f:
         f["images"] = np.stack([r["image"] for r in recs]).astype(np.float32)
+        f["bond_images"] = np.stack([r["bond_image"] for r in recs]).astype(np.float32)
         f["labels"] = np.stack([r["labels"] for r in recs])
         f["C"] = np.stack([r["C"] for r in recs])
         for key, dtype in (("density", np.float64), ("index", np.int64), ("seed", np.int64),

@@ -55,6 +55,7 @@ import traceback
 import numpy as np
 
 from amfe.bed import generate_bed
+from amfe.bondimage import bond_image
 from amfe.datasetio import (STATUS_FAILED, STATUS_OK, check_dataset, density_histogram,
                             describe_params, done_indices, empty_record, failure_groups,
                             merge_parts, parts_dir, read_params_json,
@@ -117,6 +118,8 @@ def make_record(k, dataset_seed, scale, group, rtol=DEFAULT_RTOL, pixelate=None)
                 raise AmfeError(f"pixelate gave an image of shape {image.shape}, expected "
                                 f"{sc.image_shape}")
             rec["image"] = image
+            rec["bond_image"] = bond_image(bed, cell=sc.cell, layer_thickness=sc.layer_thickness,
+                                           box=((0.0, 0.0, 0.0), sc.size))
             rec["density"] = float(image.mean(dtype=np.float64))
             rec["seconds"][1] = time.perf_counter() - t1
     except Exception as exc:  # noqa: BLE001 - recorded, not fatal

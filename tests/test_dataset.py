@@ -33,7 +33,7 @@ SEED = 5
 COUNT = 24        # determinism runs
 KILL_COUNT = 150  # kill + resume run: a few seconds on 2 ranks
 EMPTY_REASON = "the scan path deletes every particle"
-ROW_KEYS = ("images", "labels", "C", "density", "index", "seed", "status", "reason",
+ROW_KEYS = ("images", "bond_images", "labels", "C", "density", "index", "seed", "status", "reason",
             "iterations", "n_particles", "n_removed", "n_bonds", "volume")
 
 
@@ -164,6 +164,29 @@ def test_labels_equal_amfe_homogenize_of_regenerated_bed(runs, tmp_path, capsys)
     img = pixelate(bed, cell=tuple(a["image_cell"][:2]), layer_thickness=a["layer_thickness"],
                    box=((0.0, 0.0, 0.0), tuple(a["bed_size"])), spacing=a["image_spacing"])
     assert np.array_equal(img, rows["images"][k])
+
+
+def test_bond_images_equal_those_of_regenerated_beds(runs, tmp_path, capsys):
+    """--add-bond-images (regeneration from the seeds) rebuilds what the run recorded."""
+    src = runs[1][0]
+    with h5py.File(src, "r") as f:
+        made = f["bond_images"][()]
+        status = f["status"][()]
+    assert made[status == 0].min() >= 0 and made[status == 0].sum(axis=(1, 2, 3)).min() > 0
+    old = tmp_path / "old.h5"
+    with h5py.File(src, "r") as f, h5py.File(old, "w") as g:   # a file from before bond images
+        for name in f:
+            if name != "bond_images":
+                f.copy(f[name], g, name)
+        g.attrs.update(dict(f.attrs))
+    assert main(["dataset", "--add-bond-images", str(old), "--no-progress"]) == 0
+    assert f"added /bond_images of {COUNT} records" in capsys.readouterr().out
+    with h5py.File(old, "r") as g:
+        assert np.array_equal(g["bond_images"][()], made)
+    assert main(["dataset", "--check", str(old)]) == 0
+    capsys.readouterr()
+    assert main(["dataset", "--add-bond-images", str(old)]) == 2
+    assert "already has /bond_images" in capsys.readouterr().err
 
 
 def _session_pids(sid):

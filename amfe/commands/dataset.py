@@ -3,6 +3,7 @@
     mpirun -n N amfe dataset -o DATA.h5 --count M [--seed S] [--scale small|paper]
                              [--ranks-per-bed k]
     amfe dataset --check DATA.h5
+    amfe dataset --add-bond-images DATA.h5
 
 Record k holds the bed with seed record_seed(S, k) of the scale's
 distribution (amfe.scales), its image (amfe.images), the six labels and C
@@ -39,6 +40,9 @@ def register(sub):
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--check", metavar="DATA.h5",
                    help="validate a data-set file and print its summary (exit 1 if bad)")
+    p.add_argument("--add-bond-images", metavar="DATA.h5",
+                   help="add the bond-stiffness images (amfe.bondimage) to a data set made "
+                        "before they existed; regenerates each bed from its seed, no solve")
     p.set_defaults(func=run)
 
 
@@ -47,6 +51,10 @@ def run(args):
         if args.output or args.count is not None:
             raise AmfeError("--check FILE validates a file; it takes no -o or --count")
         return _check(args.check)
+    if args.add_bond_images:
+        if args.output or args.count is not None:
+            raise AmfeError("--add-bond-images FILE upgrades a file; it takes no -o or --count")
+        return _add_bond_images(args.add_bond_images, not args.no_progress)
     if not args.output or args.count is None:
         raise AmfeError("give -o DATA.h5 and --count M (or --check DATA.h5)")
     from solvers.batch import run_dataset
@@ -75,6 +83,16 @@ def _check(path):
         return 1
     print(f"amfe dataset --check: {path} is valid")
     print(summary_text(data, attrs))
+    return 0
+
+
+def _add_bond_images(path, progress):
+    from ..datasetio import add_bond_images
+
+    if _world_rank() != 0:
+        return 0
+    n = add_bond_images(path, progress=progress)
+    print(f"amfe dataset: added /bond_images of {n} records to {path}")
     return 0
 
 
