@@ -5,7 +5,8 @@
 1. Batched: Surrogate.predict on the data set's images (all members and
    test-time symmetries the model uses), torch on 1 and on 2 threads,
    best of several repeats, in ms per bed for batches of 1, 100 and all.
-2. One bed, in process: read the bed file, pixelate it, predict (each timed).
+2. One bed, in process: read the bed file, pixelate it, image its bonds (a
+   model with the bond input), predict (each timed).
 3. One bed, the whole command: wall time of `amfe predict BED.h5` in a fresh
    process (Python start-up and the torch import included).
 
@@ -81,8 +82,8 @@ def bench_bed(model, bed_path, repeats=5, threads=1):
         t1 = time.perf_counter()
         _, _, times = sur.predict_bed(bed)
         t2 = time.perf_counter()
-        row = {"read_bed": t1 - t0, "pixelate": times["pixelate"], "predict": times["predict"],
-               "total": t2 - t0}
+        row = {"read_bed": t1 - t0, "pixelate": times["pixelate"],
+               "bonds": times.get("bonds", 0.0), "predict": times["predict"], "total": t2 - t0}
         best = row if best is None or row["total"] < best["total"] else best
     best["load_model"] = load
     best["n_particles"] = int(bed.n)
@@ -117,7 +118,7 @@ def run_all(model, data_path, log=print):
     from training.predict import Surrogate
 
     sur = Surrogate.load(model)
-    images, _ = read_rows(data_path)
+    images, _ = read_rows(data_path, inputs=sur.inputs)
     res = {"model": str(sur.path), "members": sur.n_members, "tta": sur.tta,
            "batched": bench_batched(sur, images)}
     for (t, n), ms in res["batched"].items():
@@ -126,7 +127,7 @@ def run_all(model, data_path, log=print):
         bed = make_bed(data_path, tmp)
         res["bed"] = bench_bed(model, bed)
         log("one bed in process ({n_particles} particles): read {read_bed:.4f} s, pixelate "
-            "{pixelate:.4f} s, predict {predict:.4f} s, total {total:.4f} s (model load "
+            "{pixelate:.4f} s, bond image {bonds:.4f} s, predict {predict:.4f} s, total {total:.4f} s (model load "
             "{load_model:.3f} s, once)".format(**res["bed"]))
         res["cli"] = bench_cli(model, bed)
         res["import_torch"] = bench_import()

@@ -29,8 +29,12 @@ SMALL_ATTRS = {"scale": "small", "bed_size": [0.6e-3, 0.6e-3, 0.3e-3],
                "image_spacing": 2.5e-6}
 
 
-def write_synthetic(path, n=60, shape=SMALL, attrs=SMALL_ATTRS, seed=0, failed=(3, 7)):
-    """An amfe data-set file whose labels are smooth functions of the images."""
+def write_synthetic(path, n=60, shape=SMALL, attrs=SMALL_ATTRS, seed=0, failed=(3, 7),
+                    bonds=False):
+    """An amfe data-set file whose labels are smooth functions of the images.
+
+    With ``bonds`` it also has /bond_images, and Ex depends on them as well.
+    """
     rng = np.random.default_rng(seed)
     L, H, W = shape
     base = rng.uniform(0.2, 0.8, (n, 1, 1, 1))
@@ -41,12 +45,17 @@ def write_synthetic(path, n=60, shape=SMALL, attrs=SMALL_ATTRS, seed=0, failed=(
     labels = np.stack([1e11 * np.exp(2 * d) * (1 + aniso), 1e11 * np.exp(2 * d),
                        1.2e11 * np.exp(1.5 * d), 0.05 + 0.02 * d, 0.05 + 0.03 * d,
                        0.1 + 0.1 * d], axis=1)
+    if bonds:
+        bond_images = (rng.uniform(0.5, 2.0, (n, 1, 1, 1)) * images).astype(np.float32)
+        labels[:, 0] *= bond_images.mean(axis=(1, 2, 3)) / images.mean(axis=(1, 2, 3))
     status = np.zeros(n, np.uint8)
     for k in failed:
         status[k] = 1
         labels[k] = np.nan
     with h5py.File(path, "w") as f:
         f["images"] = images
+        if bonds:
+            f["bond_images"] = bond_images
         f["labels"] = labels
         f["status"] = status
         f["density"] = d
@@ -348,3 +357,73 @@ def test_fill_check_flags_other_enlargements(ensemble, synth):
         res = sur.predict(x)
         assert res["fill_out"][0] and res["flagged"][0]
     assert ensemble["fill_range"]["lo"] <= ensemble["fill_range"]["hi"]
+
+
+# ---------------------------------------------------------------- the bond-stiffness input
+
+def test_bond_inputs_are_stacked_after_the_fill(tmp_path, synth):
+    data = str(write_synthetic(tmp_path / "b.h5", n=30, bonds=True))
+    both = ("fill", "bonds")
+    info = dataset_info(data, both)
+    assert info["image_shape"] == [6, 20, 20] and info["inputs"] == list(both)
+    x, y = read_rows(data, info["ok"], both)
+    with h5py.File(data, "r") as f:
+        want = np.concatenate([f["images"][()], f["bond_images"][()]], axis=1)[info["ok"]]
+    assert np.array_equal(x, want)
+    ds = BedDataset(data, info["ok"][:5], inputs="fill,bonds")
+    assert np.array_equal(ds[4][0].numpy(), want[4])
+    assert dataset_hash(data, inputs=both) != dataset_hash(data)
+    with pytest.raises(AmfeError, match="add-bond-images"):
+        dataset_info(synth, both)
+    with pytest.raises(AmfeError, match="image kinds"):
+        dataset_info(data, ("fill", "necks"))
+    with pytest.raises(AmfeError, match="image kinds"):
+        TrainConfig(inputs=("fill", "fill")).check()
+
+
+def test_bond_model_round_trip_and_refuses_fill_only_images(tmp_path):
+    data = str(write_synthetic(tmp_path / "b.h5", n=30, bonds=True))
+    cfg = TrainConfig(epochs=1, batch_size=10, members=2, inputs=("fill", "bonds"))
+    ck = train_model(data, cfg, progress=False, log=lambda line: None)
+    path = tmp_path / "b.pt"
+    save_checkpoint(path, ck)
+    sur = Surrogate.load(path)
+    assert sur.inputs == ("fill", "bonds") and sur.image_shape == (6, 20, 20) and sur.n_fill == 3
+    x, _ = read_rows(data, inputs=("fill", "bonds"))
+    assert np.array_equal(sur.member_outputs(x), Surrogate(ck).member_outputs(x))
+    # the fill check reads the fill layers only
+    assert np.allclose(sur.predict(x)["fill"], Surrogate(ck).predict(x)["fill"])
+    from training.predict import fill_statistic
+    assert np.allclose(sur.predict(x)["fill"], fill_statistic(x[:, :3]))
+    with pytest.raises(AmfeError, match=r"3x20x20.*6x20x20"):
+        sur.predict(x[:, :3])
+
+
+def test_predict_cli_images_the_bonds_of_the_bed(tmp_path):
+    data = write_synthetic(tmp_path / "tiny.h5", n=30, shape=(1, 5, 5), attrs=TINY_ATTRS,
+                           bonds=True)
+    model = tmp_path / "tiny.pt"
+    proc = run_cli(["train", str(data), "-o", str(model), "--epochs", "1", "--batch-size", "8",
+                    "--inputs", "fill,bonds", "--threads", "1", "--quiet"])
+    assert proc.returncode == 0, proc.stderr
+    bed_path = _tiny_bed(tmp_path / "bed.h5")
+    out = tmp_path / "p.json"
+    proc = run_cli(["predict", str(bed_path), "--model", str(model), "-o", str(out),
+                    "--threads", "1"])
+    assert proc.returncode == 0, proc.stderr
+    res = json.loads(out.read_text())
+    assert res["inputs"] == ["fill", "bonds"] and "bonds" in res["timings"]
+    # the same prediction from the two images made independently here
+    from amfe.bedio import read_bed
+    from amfe.bondimage import bond_image
+    from amfe.images import pixelate
+    bed = read_bed(bed_path)
+    a = TINY_ATTRS
+    box = ((0.0, 0.0, 0.0), tuple(a["bed_size"]))
+    fill = pixelate(bed, cell=tuple(a["image_cell"][:2]), layer_thickness=a["layer_thickness"],
+                    box=box, spacing=a["image_spacing"])
+    bonds = bond_image(bed, cell=tuple(a["image_cell"][:2]), layer_thickness=a["layer_thickness"],
+                       box=box)
+    want = Surrogate.load(model).predict(np.concatenate([fill, bonds])[None])["mean"][0]
+    got = [res["properties"][k] for k in ("Ex", "Ey", "Ez", "nu_yz", "nu_xz", "nu_xy")]
+    assert np.allclose(got, want, rtol=1e-6)

@@ -4,6 +4,11 @@ The file layout is :mod:`amfe.datasetio` (``images`` (M, layers, H, W)
 float32, ``labels`` (M, 6) Ex, Ey, Ez [Pa], nu_yz, nu_xz, nu_xy, ``status``
 (M,) 0 ok / 1 failed). Only rows with status 0 and finite labels are used.
 
+A network's input stacks one or more image kinds along the channel axis
+(:data:`INPUT_KINDS`): "fill", the volume-fraction image (the paper's), and
+"bonds", the bond-stiffness image (:mod:`amfe.bondimage`); inputs ("fill",
+"bonds") give (2 layers, H, W) channels, the fill layers first.
+
 - :class:`BedDataset` opens the HDF5 file lazily, once per process (an h5py
   handle must not cross a fork), so a DataLoader with several workers works;
   ``in_memory=True`` reads the selected rows in one go on first use instead
@@ -36,8 +41,34 @@ from amfe.errors import AmfeError
 from . import AUGMENTATIONS
 
 # Root attributes of a data set that say how its images were made (amfe.datasetio).
+INPUT_KINDS = {"fill": "images", "bonds": "bond_images"}   # kind: data-set array
+DEFAULT_INPUTS = ("fill",)
 IMAGE_ATTRS = ("scale", "image_shape", "image_cell", "layer_thickness", "image_spacing",
                "bed_size", "seed", "count")
+
+
+def check_inputs(inputs):
+    """``inputs`` as a tuple of known image kinds, without repeats (AmfeError otherwise)."""
+    if isinstance(inputs, str):
+        inputs = tuple(k.strip() for k in inputs.split(",") if k.strip())
+    inputs = tuple(str(k) for k in inputs)
+    bad = [k for k in inputs if k not in INPUT_KINDS]
+    if bad or not inputs or len(set(inputs)) != len(inputs):
+        raise AmfeError(f"inputs must be distinct image kinds from {', '.join(INPUT_KINDS)}, "
+                        f"got {','.join(inputs) or 'none'}")
+    return inputs
+
+
+def _require_inputs(f, path, inputs):
+    for kind in inputs:
+        name = INPUT_KINDS[kind]
+        if name not in f:
+            hint = (f"; add it with `amfe dataset --add-bond-images {path}`"
+                    if name == "bond_images" else "")
+            raise AmfeError(f"{path} has no /{name}, which inputs {','.join(inputs)} need{hint}")
+        if f[name].shape != f["images"].shape:
+            raise AmfeError(f"{path}: /{name} has shape {f[name].shape}, /images "
+                            f"{f['images'].shape}")
 
 
 def _open(path):
@@ -72,36 +103,48 @@ def _plain(value):
     return value
 
 
-def dataset_info(path):
+def dataset_info(path, inputs=DEFAULT_INPUTS):
     """Rows usable for training and the file's image attributes.
 
     Returns {path, n_rows, ok (int64 array of row numbers with status 0 and
-    finite labels), image_shape [layers, H, W], and the root attributes in
-    :data:`IMAGE_ATTRS` that exist, as plain Python values}.
+    finite labels), image_shape [channels, H, W] of the network input
+    (channels = layers x number of input kinds), inputs, and the root
+    attributes in :data:`IMAGE_ATTRS` that exist, as plain Python values}.
+    AmfeError if the file lacks an image kind of ``inputs``.
     """
+    inputs = check_inputs(inputs)
     with _open(path) as f:
+        _require_inputs(f, path, inputs)
         status = f["status"][()]
         labels = f["labels"][()]
         ok = np.flatnonzero((status == STATUS_OK) & np.all(np.isfinite(labels), axis=1))
+        layers, H, W = (int(s) for s in f["images"].shape[1:])
         info = {"path": os.fspath(path), "n_rows": int(status.shape[0]), "ok": ok,
-                "image_shape": [int(s) for s in f["images"].shape[1:]]}
+                "image_shape": [layers * len(inputs), H, W], "inputs": list(inputs)}
         for key in IMAGE_ATTRS:
             if key in f.attrs and key != "image_shape":
                 info[key] = _plain(f.attrs[key])
     return info
 
 
-def read_rows(path, rows=None):
-    """(images float32 (n, layers, H, W), labels float64 (n, 6)) of ``rows`` (default: all ok)."""
+def read_rows(path, rows=None, inputs=DEFAULT_INPUTS):
+    """(images float32 (n, channels, H, W), labels float64 (n, 6)) of ``rows`` (default: all ok).
+
+    The images stack the kinds of ``inputs`` along the channel axis.
+    """
+    inputs = check_inputs(inputs)
     if rows is None:
-        rows = dataset_info(path)["ok"]
+        rows = dataset_info(path, inputs)["ok"]
     rows = np.asarray(rows, np.int64)
     with _open(path) as f:
+        _require_inputs(f, path, inputs)
         # h5py wants increasing indices; read sorted, then restore the order asked for.
         order = np.argsort(rows, kind="stable")
         srt = rows[order]
         uniq, inv = np.unique(srt, return_inverse=True)
-        images = f["images"][uniq] if uniq.size else np.zeros((0, *f["images"].shape[1:]))
+        images = np.concatenate(
+            [f[INPUT_KINDS[k]][uniq] if uniq.size else np.zeros((0, *f["images"].shape[1:]))
+             for k in inputs], axis=1)
         labels = f["labels"][uniq] if uniq.size else np.zeros((0, 6))
     out_i = np.empty((rows.size, *images.shape[1:]), np.float32)
     out_l = np.empty((rows.size, 6), np.float64)
@@ -109,9 +152,9 @@ def read_rows(path, rows=None):
     return out_i, out_l
 
 
-def dataset_hash(path, rows=None):
-    """sha256 (hex) of the images (float32) and labels (float64) of ``rows`` (default: all ok)."""
-    images, labels = read_rows(path, rows)
+def dataset_hash(path, rows=None, inputs=DEFAULT_INPUTS):
+    """sha256 (hex) of the input images (float32) and labels (float64) of ``rows`` (default: all ok)."""
+    images, labels = read_rows(path, rows, inputs)
     h = hashlib.sha256()
     h.update(np.ascontiguousarray(images, np.float32).tobytes())
     h.update(np.ascontiguousarray(labels, np.float64).tobytes())
@@ -135,17 +178,19 @@ def split_indices(rows, val_fraction=0.2, seed=0):
 
 
 class BedDataset(torch.utils.data.Dataset):
-    """(image float32 (layers, H, W), labels float64 (6,)) of selected rows of a data-set file.
+    """(image float32 (channels, H, W), labels float64 (6,)) of selected rows of a data-set file.
 
     Lazy: the file is opened on first access in each process (so the Dataset
     can be handed to DataLoader workers, each opening its own handle), and
     each item reads one image chunk. ``in_memory=True`` reads all selected
-    rows at the first access instead. ``rows`` default: every ok row.
+    rows at the first access instead. ``rows`` default: every ok row;
+    ``inputs``: the image kinds stacked (:data:`INPUT_KINDS`).
     """
 
-    def __init__(self, path, rows=None, in_memory=False):
+    def __init__(self, path, rows=None, in_memory=False, inputs=DEFAULT_INPUTS):
         self.path = os.fspath(path)
-        info = dataset_info(self.path)
+        self.inputs = check_inputs(inputs)
+        info = dataset_info(self.path, self.inputs)
         self.rows = info["ok"] if rows is None else np.asarray(rows, np.int64)
         bad = np.setdiff1d(self.rows, info["ok"])
         if bad.size:
@@ -169,7 +214,7 @@ class BedDataset(torch.utils.data.Dataset):
     def arrays(self):
         """All selected rows as (images, labels) numpy arrays (read once, then cached)."""
         if self._cache is None:
-            self._cache = read_rows(self.path, self.rows)
+            self._cache = read_rows(self.path, self.rows, self.inputs)
         return self._cache
 
     def __getitem__(self, k):
@@ -178,7 +223,9 @@ class BedDataset(torch.utils.data.Dataset):
             return torch.from_numpy(images[k]), torch.from_numpy(labels[k])
         f = self._handle()
         row = int(self.rows[k])
-        return (torch.from_numpy(np.asarray(f["images"][row], np.float32)),
+        image = np.concatenate([np.asarray(f[INPUT_KINDS[k]][row], np.float32)
+                                for k in self.inputs], axis=0)
+        return (torch.from_numpy(image),
                 torch.from_numpy(np.asarray(f["labels"][row], np.float64)))
 
     def __getstate__(self):

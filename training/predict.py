@@ -31,7 +31,7 @@ from amfe.datasetio import LABEL_NAMES
 from amfe.errors import AmfeError
 
 from .checkpoint import build_members, check_image_shape, load_checkpoint
-from .data import Normalizer, flip_images, transpose_labels
+from .data import DEFAULT_INPUTS, Normalizer, check_inputs, flip_images, transpose_labels
 
 DEFAULT_MODEL_NAME = "custom_small.pt"
 TRAIN_HINT = ("train it with `python run/train_surrogate.py` (see docs/surrogate.md) or pass "
@@ -77,6 +77,8 @@ class Surrogate:
         self.nets = build_members(ckpt, self.path)
         self.norm = Normalizer.from_dict(ckpt["normalizer"])
         self.image_shape = tuple(int(s) for s in ckpt["image_shape"])
+        self.inputs = check_inputs(ckpt.get("inputs", DEFAULT_INPUTS))
+        self.n_fill = self.image_shape[0] // len(self.inputs)   # the fill layers come first
         self.tta = tta_mode(ckpt.get("tta", "none"))
         spread = ckpt.get("spread") or {}
         self.spread_scale = np.asarray(spread.get("scale", np.ones(6)), np.float64)
@@ -110,10 +112,12 @@ class Surrogate:
 
     def predict(self, images, batch_size=1024):
         """{mean (n, 6), spread (n, 6) relative, score (n,), fill (n,), fill_out (n,) bool,
-        flagged (n,) bool} of images; flagged = spread over the threshold or fill_out."""
+        flagged (n,) bool} of inputs (n, channels, H, W) (the image kinds of ``self.inputs``
+        stacked); flagged = spread over the threshold or fill_out."""
         members = self.member_outputs(images, batch_size)
         res = summarize_members(members, self.spread_scale, self.threshold)
-        res["fill"] = fill_statistic(images)
+        x = np.asarray(images)
+        res["fill"] = fill_statistic((x[None] if x.ndim == 3 else x)[:, :self.n_fill])
         if self.fill_range:
             res["fill_out"] = ((res["fill"] < self.fill_range["lo"])
                                | (res["fill"] > self.fill_range["hi"]))
@@ -123,13 +127,24 @@ class Surrogate:
         return res
 
     def predict_bed(self, bed):
-        """Pixelate ``bed`` as the training data was and predict: (result dict, image, seconds)."""
+        """Image ``bed`` as the training data was and predict.
+
+        Returns (result dict, volume-fraction image (layers, H, W), seconds
+        {pixelate, bonds (when the model reads bond images), predict}).
+        """
         t0 = time.perf_counter()
         image = pixelate_like_training(bed, self.ckpt, self.path)
         t1 = time.perf_counter()
-        res = self.predict(image[None])
+        times = {"pixelate": t1 - t0}
+        parts = {"fill": image}
+        if "bonds" in self.inputs:
+            parts["bonds"] = bond_image_like_training(bed, self.ckpt)
+            times["bonds"] = time.perf_counter() - t1
+        x = np.concatenate([parts[k] for k in self.inputs], axis=0)
         t2 = time.perf_counter()
-        return res, image, {"pixelate": t1 - t0, "predict": t2 - t1}
+        res = self.predict(x[None])
+        times["predict"] = time.perf_counter() - t2
+        return res, image, times
 
 
 TTA_MODES = ("none", "flips", "d4")
@@ -208,8 +223,23 @@ def pixelate_like_training(bed, ckpt, path="the model"):
                      layer_thickness=float(px["layer_thickness"]),
                      box=((0.0, 0.0, 0.0), tuple(float(s) for s in size)),
                      spacing=float(px["image_spacing"]))
-    check_image_shape(ckpt, image.shape, f"the bed's image ({_mm(size)} mm)", path)
+    n_kinds = len(check_inputs(ckpt.get("inputs", DEFAULT_INPUTS)))
+    shape = (image.shape[0] * n_kinds, *image.shape[1:])
+    check_image_shape(ckpt, shape, f"the bed's image ({_mm(size)} mm)", path)
     return np.asarray(image, np.float32)
+
+
+def bond_image_like_training(bed, ckpt):
+    """The bond-stiffness image of ``bed`` (amfe.bondimage) on the training data's grid."""
+    from amfe.bondimage import bond_image
+
+    px = ckpt["pixelation"]
+    size = bed.attrs.get("size") if hasattr(bed, "attrs") else None
+    if size is None:
+        size = px["bed_size"]
+    return bond_image(bed, cell=tuple(px["image_cell"][:2]),
+                      layer_thickness=float(px["layer_thickness"]),
+                      box=((0.0, 0.0, 0.0), tuple(float(s) for s in size)))
 
 
 def _mm(size):

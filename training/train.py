@@ -26,8 +26,8 @@ from amfe.material import STEEL
 
 from . import AUGMENTATIONS, SCHEDULES
 from .checkpoint import check_image_shape
-from .data import (BedDataset, Normalizer, augment_batch, dataset_hash,
-                   dataset_info, read_rows, split_indices)
+from .data import (DEFAULT_INPUTS, BedDataset, Normalizer, augment_batch, check_inputs,
+                   dataset_hash, dataset_info, read_rows, split_indices)
 from .metrics import metrics_line, property_metrics
 from .nets import build_net, count_parameters, resolved_args
 from .predict import calibrate_fill, predict_raw, tta_mode
@@ -54,6 +54,7 @@ class TrainConfig:
     flag_percentile: float = 95.0
     workers: int = 0
     max_train: int = 0          # use at most this many training beds (0: all); for tests
+    inputs: tuple = DEFAULT_INPUTS   # image kinds stacked as channels (training.data)
 
     def check(self):
         if self.epochs < 1 or self.batch_size < 1 or self.members < 1:
@@ -67,6 +68,7 @@ class TrainConfig:
             raise AmfeError(f"unknown augmentation {self.augment!r}; choose one of "
                             f"{', '.join(AUGMENTATIONS)}")
         self.tta = tta_mode(self.tta)
+        self.inputs = check_inputs(self.inputs)
         if not (0 < self.flag_percentile < 100):
             raise AmfeError("the flag percentile must lie in (0, 100)")
 
@@ -167,8 +169,9 @@ def train_model(data_path, cfg, progress=True, log=print):
     also holds "history" (per member) and "metrics" {"validation": ...}.
     """
     cfg.check()
-    info = dataset_info(data_path)
+    info = dataset_info(data_path, cfg.inputs)
     image_shape = tuple(info["image_shape"])
+    n_fill = image_shape[0] // len(cfg.inputs)
     ok = info["ok"]
     if ok.size < 2:
         raise AmfeError(f"{data_path}: {ok.size} usable record(s); training needs more")
@@ -176,14 +179,14 @@ def train_model(data_path, cfg, progress=True, log=print):
     if cfg.max_train:
         train_rows = train_rows[:cfg.max_train]
     in_memory = len(train_rows) * int(np.prod(image_shape)) * 4 < MEMORY_LIMIT
-    train_ds = BedDataset(data_path, train_rows, in_memory=in_memory)
-    train_images, train_labels = read_rows(data_path, train_rows)
-    val_images, val_labels = read_rows(data_path, val_rows)
+    train_ds = BedDataset(data_path, train_rows, in_memory=in_memory, inputs=cfg.inputs)
+    train_images, train_labels = read_rows(data_path, train_rows, cfg.inputs)
+    val_images, val_labels = read_rows(data_path, val_rows, cfg.inputs)
     log_flags = (cfg.log_moduli,) * 3 + (False,) * 3
     norm = Normalizer.fit(train_labels, log=log_flags)
     log(f"{data_path}: {info['n_rows']} records, {ok.size} ok; train {len(train_rows)}, "
-        f"validation {len(val_rows)} (split seed {cfg.split_seed}); images "
-        f"{'x'.join(map(str, image_shape))}; {cfg.arch}, {cfg.members} member(s), "
+        f"validation {len(val_rows)} (split seed {cfg.split_seed}); inputs "
+        f"{','.join(cfg.inputs)} {'x'.join(map(str, image_shape))}; {cfg.arch}, {cfg.members} member(s), "
         f"{cfg.epochs} epochs, batch {cfg.batch_size}, lr {cfg.lr:g} ({cfg.schedule}), "
         f"augment {cfg.augment}, tta {cfg.tta}, log moduli {cfg.log_moduli}")
 
@@ -209,9 +212,10 @@ def train_model(data_path, cfg, progress=True, log=print):
         "n_parameters": count_parameters(nets[0]),
         "normalizer": norm.to_dict(),
         "image_shape": list(image_shape),
+        "inputs": list(cfg.inputs),
         "pixelation": pixelation_of(info),
         "material": {k: float(v) for k, v in STEEL.asdict().items()},
-        "dataset": {"path": str(data_path), "sha256": dataset_hash(data_path, ok),
+        "dataset": {"path": str(data_path), "sha256": dataset_hash(data_path, ok, cfg.inputs),
                     "seed": info.get("seed"), "scale": info.get("scale"),
                     "n_ok": int(ok.size), "n_train": int(len(train_rows)),
                     "n_validation": int(len(val_rows)),
@@ -220,7 +224,7 @@ def train_model(data_path, cfg, progress=True, log=print):
         "history": hists,
         "tta": cfg.tta,
         "spread": None,
-        "fill_range": calibrate_fill(train_images),
+        "fill_range": calibrate_fill(train_images[:, :n_fill]),
         "metrics": {},
     }
     ckpt["training"]["seconds"] = float(sum(h["seconds"] for h in hists))
@@ -278,10 +282,10 @@ def evaluate_file(surrogate, path):
     Returns (metrics dict with flagged_fraction, n, and ms_per_bed of the
     batched prediction; result dict of Surrogate.predict; true labels).
     """
-    info = dataset_info(path)
+    info = dataset_info(path, surrogate.inputs)
     check_image_shape(surrogate.ckpt, info["image_shape"], f"the data set {path}",
                       surrogate.path)
-    images, labels = read_rows(path, info["ok"])
+    images, labels = read_rows(path, info["ok"], surrogate.inputs)
     t0 = time.perf_counter()
     res = surrogate.predict(images)
     dt = time.perf_counter() - t0

@@ -102,6 +102,7 @@ def run(args):
         "model": os.fspath(sur.path),
         "arch": sur.ckpt["arch"],
         "members": sur.n_members,
+        "inputs": list(sur.inputs),
         "image_shape": list(image.shape),
         "density": float(image.mean(dtype="float64")),
     }
@@ -137,7 +138,7 @@ def summary(out, output=None):
     check = out.get("check")
     lines = [f"{out['bed']}: image {'x'.join(map(str, out['image_shape']))}, packing density "
              f"{out['density']:.3f}; model {out['model']} ({out['arch']}, {out['members']} "
-             f"member(s))"]
+             f"member(s), inputs {','.join(out.get('inputs', ['fill']))})"]
     surrogate = out.get("surrogate", {}).get("properties", out["properties"])
     head = f"  {'':6s} {'surrogate':>16s} {'spread':>8s}"
     if check:
@@ -167,7 +168,7 @@ def summary(out, output=None):
         lines.append("source: surrogate")
     t = out["timings"]
     parts = [f"{k.replace('_', ' ')} {t[k]:.3g} s" for k in ("load_model", "read_bed", "pixelate",
-                                                              "predict", "solve") if k in t]
+                                                              "bonds", "predict", "solve") if k in t]
     lines.append(f"time {out['seconds']:.3g} s: " + ", ".join(parts))
     if output:
         lines.append(f"wrote {output}")

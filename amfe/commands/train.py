@@ -20,7 +20,7 @@ from ..errors import AmfeError
 # (tests/test_training.py checks that they agree).
 DEFAULTS = SimpleNamespace(arch="custom", epochs=80, batch_size=100, lr=1e-3, schedule="constant",
                            weight_decay=0.0, seed=0, members=1, split_seed=0, val_fraction=0.2,
-                           augment="none", flag_percentile=95.0)
+                           augment="none", flag_percentile=95.0, inputs=("fill",))
 
 
 def register(sub):
@@ -57,6 +57,10 @@ def register(sub):
     p.add_argument("--flag-percentile", type=float, default=d.flag_percentile,
                    help="ensemble flag threshold: this percentile of the validation spread "
                         "score (default 95)")
+    p.add_argument("--inputs", default=",".join(d.inputs), metavar="KINDS",
+                   help="image kinds stacked as input channels: fill (volume fraction, the "
+                        "paper's) or fill,bonds (plus the bond-stiffness image; the data set "
+                        "needs /bond_images) (default fill)")
     p.add_argument("--width", type=float, help="alexnet/vgg: channel-count multiplier (default 1)")
     p.add_argument("--hidden", type=int, nargs="+",
                    help="alexnet/vgg: widths of the hidden FC layers (default 4096 4096)")
@@ -103,7 +107,7 @@ def run(args):
                       split_seed=args.split_seed, val_fraction=args.val_fraction,
                       log_moduli=not args.linear_moduli, augment=args.augment, tta=args.tta,
                       flag_percentile=args.flag_percentile, workers=args.workers,
-                      max_train=args.max_train)
+                      max_train=args.max_train, inputs=args.inputs)
 
     def log(line):
         if not args.quiet:
