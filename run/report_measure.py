@@ -364,20 +364,22 @@ def rve_extrapolate(table, min_side=1.0, tol=0.01):
 def find_models(models_dir):
     """{name: (checkpoint dict, description)} of the networks found in ``models_dir``.
 
-    NAME.pt for lenet5, alexnet, vgg and ensemble (run/train_surrogate.py's
-    names); "Custom Net" is member 0 of the ensemble. Falls back to the
-    shipped model (amfe/models/custom_small.pt) as the ensemble.
+    NAME.pt for lenet5, alexnet, vgg, ensemble and bonds (run/train_surrogate.py's
+    names; bonds is the shipped one, which also reads the bond image);
+    "Custom Net" is member 0 of the ensemble. Falls back to the shipped model
+    (amfe/models/custom_small.pt).
     """
     from training.checkpoint import load_checkpoint
     found = {}
-    names = {"lenet5": "LeNet-5", "alexnet": "AlexNet", "vgg": "VGG", "ensemble": "Custom Net x5"}
+    names = {"lenet5": "LeNet-5", "alexnet": "AlexNet", "vgg": "VGG", "ensemble": "Custom Net x5",
+             "bonds": "Custom Net x5 + bond image (shipped)"}
     for n, desc in names.items():
         p = os.path.join(models_dir or "", f"{n}.pt")
         if models_dir and os.path.exists(p):
             found[n] = (load_checkpoint(p), desc)
     shipped = os.path.join(ROOT, "amfe", "models", "custom_small.pt")
-    if "ensemble" not in found and os.path.exists(shipped):
-        found["ensemble"] = (load_checkpoint(shipped), "Custom Net x5 (shipped)")
+    if "bonds" not in found and os.path.exists(shipped):
+        found["bonds"] = (load_checkpoint(shipped), "Custom Net x5 + bond image (shipped)")
     if "ensemble" in found:
         ck = found["ensemble"][0]
         k0 = dict(ck, members=[ck["members"][0]], member_seeds=[ck["member_seeds"][0]],
@@ -392,7 +394,8 @@ def surrogate_vs_solver(test_path, models_dir, n_solver_beds, rtols, log=print):
 
     Networks: mean relative error over the six labels and all held-out beds,
     ms per bed batched (one torch thread), and the pixelation of a bed
-    measured on ``n_solver_beds`` beds. Solver: the first ``n_solver_beds``
+    measured on ``n_solver_beds`` beds (and its bond image, for the networks
+    that read it). Solver: the first ``n_solver_beds``
     beds regenerated from their seeds (amfe.scales.bed_for) and solved at each
     rtol, error against the data set's labels (rtol 1e-8), wall time per bed
     on one core including bonds and assembly.
@@ -401,8 +404,10 @@ def surrogate_vs_solver(test_path, models_dir, n_solver_beds, rtols, log=print):
     import torch
     from petsc4py import PETSc
 
+    from amfe.bondimage import bond_image
     from amfe.images import pixelate
     from amfe.scales import bed_for, get_scale
+    from training.data import read_rows
     from training.metrics import property_metrics
     from training.predict import Surrogate
     sys.path.insert(0, os.path.join(ROOT, "run"))
@@ -411,7 +416,6 @@ def surrogate_vs_solver(test_path, models_dir, n_solver_beds, rtols, log=print):
     torch.set_num_threads(1)
     with h5py.File(test_path, "r") as f:
         ok = np.flatnonzero(f["status"][:] == 0)
-        images = f["images"][:][ok].astype(np.float32)
         labels = f["labels"][:][ok]
         seeds = f["seed"][:][ok]
         scale = f.attrs["scale"]
@@ -419,6 +423,7 @@ def surrogate_vs_solver(test_path, models_dir, n_solver_beds, rtols, log=print):
     out = {"n_test": int(len(ok)), "networks": {}, "solver": []}
     for name, (ck, desc) in find_models(models_dir).items():
         sur = Surrogate(ck, name)
+        images, _ = read_rows(test_path, ok, sur.inputs)
         pred = sur.predict(images)["mean"]
         m = property_metrics(pred, labels)
         ms = next(iter(bench_batched(sur, images, threads=(1,), batches=(None,),
@@ -428,21 +433,29 @@ def surrogate_vs_solver(test_path, models_dir, n_solver_beds, rtols, log=print):
             "mre": {k: float(m[k]["mre"]) for k in LABELS},
             "r2": {k: float(m[k]["r2"]) for k in LABELS},
             "mean_error": float(np.mean([m[k]["mre"] for k in LABELS])),
-            "train_seconds": float(ck["training"]["seconds"]), "params": int(ck["n_parameters"]), "members": len(ck["members"])}
+            "train_seconds": float(ck["training"]["seconds"]), "params": int(ck["n_parameters"]),
+            "members": len(ck["members"]), "inputs": list(sur.inputs)}
         log(f"  {desc:<26} {ms:7.3f} ms/bed  mean rel err "
             f"{100 * out['networks'][name]['mean_error']:.2f} %")
-    pix, by_rtol = [], {rt: [] for rt in rtols}
+    pix, bonds, by_rtol = [], [], {rt: [] for rt in rtols}
     for k in range(min(n_solver_beds, len(ok))):
         bed = bed_for(scale, int(seeds[k]))
         t0 = time.perf_counter()
         pixelate(bed, scale.cell, scale.layer_thickness, box=[np.zeros(3), np.array(scale.size)],
                  spacing=scale.image_spacing)
         pix.append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        bond_image(bed, scale.cell, scale.layer_thickness, box=[np.zeros(3), np.array(scale.size)])
+        bonds.append(time.perf_counter() - t0)
         for rt in rtols:
             r = _solve(bed, PETSc.COMM_SELF, rtol=rt)
             err = [abs(r["properties"][n] / labels[k][j] - 1) for j, n in enumerate(LABELS)]
             by_rtol[rt].append((r["wall"], float(np.mean(err)), float(np.max(err))))
     out["pixelate_seconds"] = float(np.mean(pix)) if pix else float("nan")
+    out["bond_image_seconds"] = float(np.mean(bonds)) if bonds else float("nan")
+    for r in out["networks"].values():   # the images a network needs, per bed
+        r["image_seconds"] = out["pixelate_seconds"] + (
+            out["bond_image_seconds"] if "bonds" in r["inputs"] else 0.0)
     for rt in rtols:
         a = np.array(by_rtol[rt]).reshape(-1, 3)
         out["solver"].append({"rtol": rt, "beds": len(a), "seconds": float(a[:, 0].mean()),
