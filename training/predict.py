@@ -216,13 +216,10 @@ def pixelate_like_training(bed, ckpt, path="the model"):
     from amfe.images import pixelate
 
     px = ckpt["pixelation"]
-    size = bed.attrs.get("size") if hasattr(bed, "attrs") else None
-    if size is None:
-        size = px["bed_size"]
+    size = _image_size(bed, ckpt)
     image = pixelate(bed, cell=tuple(px["image_cell"][:2]),
                      layer_thickness=float(px["layer_thickness"]),
-                     box=((0.0, 0.0, 0.0), tuple(float(s) for s in size)),
-                     spacing=float(px["image_spacing"]))
+                     box=((0.0, 0.0, 0.0), size), spacing=float(px["image_spacing"]))
     n_kinds = len(check_inputs(ckpt.get("inputs", DEFAULT_INPUTS)))
     shape = (image.shape[0] * n_kinds, *image.shape[1:])
     check_image_shape(ckpt, shape, f"the bed's image ({_mm(size)} mm)", path)
@@ -234,12 +231,17 @@ def bond_image_like_training(bed, ckpt):
     from amfe.bondimage import bond_image
 
     px = ckpt["pixelation"]
-    size = bed.attrs.get("size") if hasattr(bed, "attrs") else None
-    if size is None:
-        size = px["bed_size"]
     return bond_image(bed, cell=tuple(px["image_cell"][:2]),
                       layer_thickness=float(px["layer_thickness"]),
-                      box=((0.0, 0.0, 0.0), tuple(float(s) for s in size)))
+                      box=((0.0, 0.0, 0.0), _image_size(bed, ckpt)))
+
+
+def _image_size(bed, ckpt):
+    """The imaged box's size [m]: the bed's recorded size, else the training beds'."""
+    size = bed.attrs.get("size") if hasattr(bed, "attrs") else None
+    if size is None:
+        size = ckpt["pixelation"]["bed_size"]
+    return tuple(float(s) for s in size)
 
 
 def _mm(size):
