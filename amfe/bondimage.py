@@ -51,8 +51,7 @@ def bond_image_of(centers, radii, material, lo, hi, cell_xy=DEFAULT_CELL,
         inside = np.all((mid >= lo) & (mid < hi), axis=1)
         idx = np.minimum(idx, n - 1)[inside]
         flat = (idx[:, 2] * n[1] + idx[:, 1]) * n[0] + idx[:, 0]
-        image = np.bincount(flat, weights=(k_n * bonds.length**2)[inside],
-                            minlength=image.size).astype(np.float64)
+        image = np.bincount(flat, weights=(k_n * bonds.length**2)[inside], minlength=image.size)
     out = image.reshape(n[2], n[1], n[0]) / (volume * float(material.E))
     return out.astype(np.float32)
 

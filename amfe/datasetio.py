@@ -103,6 +103,23 @@ def remove_stale_tmp(directory, prefix):
 
 # ---------------------------------------------------------------- parts
 
+def record_bond_image(bed, sc):
+    """The bond image of a record's bed on its scale's grid (box [0, scale size])."""
+    from .bondimage import bond_image
+    return bond_image(bed, cell=sc.cell, layer_thickness=sc.layer_thickness,
+                      box=((0.0, 0.0, 0.0), sc.size))
+
+
+def _image_dataset(f, name, count, shape, data=None):
+    """An (count, *shape) float32 image dataset, one gzip'ed chunk per record."""
+    ds = f.create_dataset(name, (count, *shape), np.float32, data=data, chunks=(1, *shape),
+                          compression="gzip", compression_opts=1, shuffle=True)
+    ds.attrs["axes"] = "record, layer (z), y, x"
+    if name == "bond_images":
+        ds.attrs["definition"] = BOND_IMAGE_DEFINITION
+    return ds
+
+
 def empty_record(k, bed_seed, image_shape):
     """A record with nothing computed yet (NaN labels, zero image), status failed."""
     return {
@@ -213,9 +230,7 @@ def merge_parts(output, parts, params):
     def write(tmp):
         with h5py.File(tmp, "w") as f:
             d = {
-                "images": f.create_dataset("images", (count, *shape), np.float32,
-                                           chunks=(1, *shape), compression="gzip",
-                                           compression_opts=1, shuffle=True),
+                "images": _image_dataset(f, "images", count, shape),
                 "labels": f.create_dataset("labels", (count, 6), np.float64),
                 "C": f.create_dataset("C", (count, 6, 6), np.float64),
                 "density": f.create_dataset("density", (count,), np.float64),
@@ -231,9 +246,7 @@ def merge_parts(output, parts, params):
                 "seconds": f.create_dataset("seconds", (count, 3), np.float64),
                 "solver": f.create_dataset("solver", (count,), h5py.string_dtype()),
             }
-            bonds = f.create_dataset("bond_images", (count, *shape), np.float32,
-                                     chunks=(1, *shape), compression="gzip",
-                                     compression_opts=1, shuffle=True)
+            bonds = _image_dataset(f, "bond_images", count, shape)
             all_bonds = True   # parts written before bond images existed have none
             pg = f.create_group("params")
             pdata = np.empty((count, len(PARAM_NAMES)))
@@ -258,10 +271,7 @@ def merge_parts(output, parts, params):
                 else:
                     all_bonds = False
                 pdata[k] = rec["params"]
-            if all_bonds:
-                bonds.attrs["axes"] = "record, layer (z), y, x"
-                bonds.attrs["definition"] = BOND_IMAGE_DEFINITION
-            else:
+            if not all_bonds:
                 del f["bond_images"]
             for j, name in enumerate(PARAM_NAMES):
                 ds = pg.create_dataset(name, data=pdata[:, j])
@@ -270,7 +280,6 @@ def merge_parts(output, parts, params):
             d["labels"].attrs["units"] = "Pa for Ex, Ey, Ez; - for the Poisson ratios"
             d["C"].attrs["units"] = "Pa"
             d["seconds"].attrs["columns"] = list(SECONDS_NAMES)
-            d["images"].attrs["axes"] = "record, layer (z), y, x"
             f.attrs.update({k: v for k, v in params.items()})
             f.attrs.update({
                 "label_names": list(LABEL_NAMES),
@@ -425,7 +434,6 @@ def add_bond_images(path, progress=True):
     """
     import h5py
 
-    from .bondimage import bond_image
     from .scales import bed_for
 
     path = os.fspath(path)
@@ -453,8 +461,7 @@ def add_bond_images(path, progress=True):
                                 f"particles, the file says {int(data['n_particles'][k])}; the "
                                 "generator has changed since the file was made: remake it")
             try:
-                out[k] = bond_image(bed, cell=sc.cell, layer_thickness=sc.layer_thickness,
-                                    box=((0.0, 0.0, 0.0), sc.size))
+                out[k] = record_bond_image(bed, sc)
             except AmfeError:
                 if int(data["status"][k]) == STATUS_OK:
                     raise
@@ -466,10 +473,7 @@ def add_bond_images(path, progress=True):
     def write(tmp):
         shutil.copyfile(path, tmp)
         with h5py.File(tmp, "r+") as f:
-            ds = f.create_dataset("bond_images", data=out, chunks=(1, *sc.image_shape),
-                                  compression="gzip", compression_opts=1, shuffle=True)
-            ds.attrs["axes"] = "record, layer (z), y, x"
-            ds.attrs["definition"] = BOND_IMAGE_DEFINITION
+            _image_dataset(f, "bond_images", M, sc.image_shape, data=out)
 
     atomic_write(path, write, by_name=True)
     return M

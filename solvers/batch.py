@@ -55,10 +55,9 @@ import traceback
 import numpy as np
 
 from amfe.bed import generate_bed
-from amfe.bondimage import bond_image
 from amfe.datasetio import (STATUS_FAILED, STATUS_OK, check_dataset, density_histogram,
                             describe_params, done_indices, empty_record, failure_groups,
-                            merge_parts, parts_dir, read_params_json,
+                            merge_parts, parts_dir, read_params_json, record_bond_image,
                             remove_stale_tmp, run_params, write_params_json, write_part)
 from amfe.errors import AmfeError
 from amfe.scales import PARAM_NAMES, get_scale, param_record, record_seed, sample_bed_params
@@ -118,8 +117,7 @@ def make_record(k, dataset_seed, scale, group, rtol=DEFAULT_RTOL, pixelate=None)
                 raise AmfeError(f"pixelate gave an image of shape {image.shape}, expected "
                                 f"{sc.image_shape}")
             rec["image"] = image
-            rec["bond_image"] = bond_image(bed, cell=sc.cell, layer_thickness=sc.layer_thickness,
-                                           box=((0.0, 0.0, 0.0), sc.size))
+            rec["bond_image"] = record_bond_image(bed, sc)
             rec["density"] = float(image.mean(dtype=np.float64))
             rec["seconds"][1] = time.perf_counter() - t1
     except Exception as exc:  # noqa: BLE001 - recorded, not fatal

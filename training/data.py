@@ -40,9 +40,9 @@ from amfe.errors import AmfeError
 
 from . import AUGMENTATIONS
 
-# Root attributes of a data set that say how its images were made (amfe.datasetio).
 INPUT_KINDS = {"fill": "images", "bonds": "bond_images"}   # kind: data-set array
 DEFAULT_INPUTS = ("fill",)
+# Root attributes of a data set that say how its images were made (amfe.datasetio).
 IMAGE_ATTRS = ("scale", "image_shape", "image_cell", "layer_thickness", "image_spacing",
                "bed_size", "seed", "count")
 
@@ -223,8 +223,8 @@ class BedDataset(torch.utils.data.Dataset):
             return torch.from_numpy(images[k]), torch.from_numpy(labels[k])
         f = self._handle()
         row = int(self.rows[k])
-        image = np.concatenate([np.asarray(f[INPUT_KINDS[k]][row], np.float32)
-                                for k in self.inputs], axis=0)
+        image = np.concatenate([np.asarray(f[INPUT_KINDS[kind]][row], np.float32)
+                                for kind in self.inputs], axis=0)
         return (torch.from_numpy(image),
                 torch.from_numpy(np.asarray(f["labels"][row], np.float64)))
 
