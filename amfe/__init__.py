@@ -1,28 +1,54 @@
 """amfe: powder beds of sintered spheres as bonded space frames.
 
-The flow is bed -> bonds -> element -> frame -> solve -> homogenize -> properties:
+The flow is bed -> frame -> solve -> average -> properties:
 
-- :mod:`amfe.bed`, :mod:`amfe.scanpath`: powder-bed generator (HCP + raster scan).
-- :mod:`amfe.bonds`, :mod:`amfe.springs`, :mod:`amfe.element`: the bonded frame.
-- :mod:`amfe.frame`: the load-carrying part of a bed, non-dimensionalised.
-- :mod:`solvers`: the distributed PETSc matrix and the six load cases.
-- :mod:`amfe.homogenize`: Bagi volume averages, C, S and the elastic constants.
+>>> import amfe
+>>> bed = amfe.generate_bed(size=(0.1e-3, 0.1e-3, 0.06e-3), seed=1)   # metres
+>>> result = amfe.homogenize(bed)
+>>> f"{result.Ex / 1e9:.0f} GPa"
+'729 GPa'
+
+The face (imported lazily: ``import amfe`` pulls in neither PETSc nor torch):
+
+- :class:`Bed`, :func:`generate_bed`, :class:`ScanPath`, :class:`Material`,
+  ``STEEL``: beds and how they are made (:mod:`amfe.model`).
+- :func:`read_bed`, :func:`write_bed`: bed files (:mod:`amfe.io`).
+- :func:`homogenize` -> :class:`Result` (with :class:`Fields`): the PETSc
+  solve of the six load cases and the Bagi averages; :func:`homogenize_bed`
+  is the array-level function under it (:mod:`amfe.solvers`).
+- :class:`Surrogate`: the CNN that predicts the same constants from a bed's
+  images (:mod:`amfe.training`).
+- :class:`AmfeError`: every error meant for a user.
+
+Layers, bottom to top (README, Layout): amfe.errors/vocab, amfe.model,
+amfe.io, amfe.solvers, amfe.dataset, amfe.training, then this face and
+amfe.cli. docs/model.md holds the physics and the conventions.
 """
-__version__ = "0.1.0"
+import importlib
 
-from .bed import Bed, generate_bed  # noqa: E402
-from .bedio import read_bed, write_bed  # noqa: E402
-from .material import STEEL, Material  # noqa: E402
-from .scanpath import ScanPath  # noqa: E402
+from amfe.version import __version__
+
+_FACE = {
+    "Bed": "amfe.model.bed", "generate_bed": "amfe.model.bed",
+    "ScanPath": "amfe.model.scanpath", "Material": "amfe.model.material",
+    "STEEL": "amfe.model.material",
+    "read_bed": "amfe.io.bedfile", "write_bed": "amfe.io.bedfile",
+    "homogenize": "amfe.api", "Result": "amfe.io.result", "Fields": "amfe.io.result",
+    "homogenize_bed": "amfe.solvers.driver",
+    "Surrogate": "amfe.training.predict",
+    "AmfeError": "amfe.errors",
+}
+
+__all__ = sorted(_FACE) + ["__version__"]
 
 
 def __getattr__(name):
-    # PETSc is imported only when a solve is asked for.
-    if name == "homogenize_bed":
-        from solvers.driver import homogenize_bed
-        return homogenize_bed
+    if name in _FACE:
+        value = getattr(importlib.import_module(_FACE[name]), name)
+        globals()[name] = value
+        return value
     raise AttributeError(f"module 'amfe' has no attribute {name!r}")
 
 
-__all__ = ["Bed", "generate_bed", "read_bed", "write_bed", "Material", "STEEL", "ScanPath",
-           "homogenize_bed"]
+def __dir__():
+    return sorted(set(globals()) | set(_FACE))

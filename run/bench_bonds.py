@@ -3,11 +3,11 @@
 
     .venv/bin/python run/bench_bonds.py [--size LX LY LZ (mm)] [--seed S] [--repeat R] [--profile]
 
-Generates an HCP bed (amfe.bed.generate_bed, default 1.75 x 1.75 x 0.3 mm,
+Generates an HCP bed (amfe.model.bed.generate_bed, default 1.75 x 1.75 x 0.3 mm,
 about 100 000 particles, fully scanned), then times the three phases that turn
-it into element matrices: amfe.bonds.find_bonds (KD-tree pairs + contact
-geometry), amfe.bonds.bond_springs (paper eqs. 1-4) and
-amfe.element.element_blocks (the 6x6 blocks). Best of --repeat runs per phase.
+it into element matrices: amfe.model.bonds.find_bonds (KD-tree pairs + contact
+geometry), amfe.model.bonds.bond_springs (paper eqs. 1-4) and
+amfe.model.element.element_blocks (the 6x6 blocks). Best of --repeat runs per phase.
 Target: under 2 s in total on one core. BLAS/OpenMP threads are pinned to one
 before numpy is imported.
 """
@@ -19,10 +19,10 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 import argparse  # noqa: E402
 import time  # noqa: E402
 
-from amfe.bed import generate_bed  # noqa: E402
-from amfe.bonds import bond_springs, find_bonds  # noqa: E402
-from amfe.element import element_blocks  # noqa: E402
-from amfe.material import STEEL  # noqa: E402
+from amfe.model.bed import generate_bed  # noqa: E402
+from amfe.model.bonds import bond_springs, find_bonds  # noqa: E402
+from amfe.model.element import element_blocks  # noqa: E402
+from amfe.model.material import STEEL  # noqa: E402
 
 TARGET_S = 2.0
 

@@ -5,14 +5,14 @@
     python run/bench_dataset.py --paper          # + one bed of the paper scale (1 rank)
 
 Each run is ``mpirun -n N python run/bench_dataset.py --worker ...``, which
-calls solvers.batch.run_dataset exactly as ``amfe dataset`` does (fresh
+calls amfe.dataset.driver.run_dataset exactly as ``amfe dataset`` does (fresh
 temporary directory, groups of one rank) and reports its timing record. The
 parent measures the whole command's wall time. All times are rank-seconds
 (wall x ranks), split into:
 
 - solver: inside homogenize_bed (frame, assembly, GAMG set-up, six solves,
   averaging) -- the work;
-- generate, image: making the bed and its image (amfe.bed, amfe.images);
+- generate, image: making the bed and its image (amfe.model.bed, amfe.dataset.images);
 - records: the rest of each record's time (hand-out, part file with fsync,
   agreement in the group);
 - tail: ranks idle at the end, waiting for the last beds of the others
@@ -42,10 +42,10 @@ MARK = "BENCH-RESULT "
 
 
 def worker(args):
-    from solvers.petsc import init_petsc
+    from amfe.solvers.petsc import init_petsc
     init_petsc([])
     import h5py
-    from solvers.batch import run_dataset
+    from amfe.dataset.driver import run_dataset
     res = run_dataset(args.output, args.count, seed=args.seed, scale=args.scale,
                       progress=False, out=open(os.devnull, "w"))
     if res is not None:

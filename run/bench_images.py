@@ -1,10 +1,10 @@
 #!/usr/bin/env python
-"""Benchmark the pixelation of powder beds (amfe.images.pixelate) on one core.
+"""Benchmark the pixelation of powder beds (amfe.dataset.images.pixelate) on one core.
 
     .venv/bin/python run/bench_images.py [--paper] [--seed S] [--repeat R] [--check] [--profile]
 
-Generates HCP beds (amfe.bed.generate_bed, fully scanned) and times
-amfe.images.pixelate with the paper's cells (0.03 mm x 0.03 mm x one 0.1 mm
+Generates HCP beds (amfe.model.bed.generate_bed, fully scanned) and times
+amfe.dataset.images.pixelate with the paper's cells (0.03 mm x 0.03 mm x one 0.1 mm
 layer) and the default sampling (median radius / 6): the figure-2 bed
 (0.25 x 0.25 x 0.1 mm), a 0.6 x 0.6 x 0.2 mm bed and, with --paper, the
 paper-scale 3 x 3 x 0.3 mm bed (about 300 000 particles, a 3 x 100 x 100
@@ -26,8 +26,8 @@ import tracemalloc  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from amfe.bed import generate_bed  # noqa: E402
-from amfe.images import SAMPLES_PER_RADIUS, pixelate  # noqa: E402
+from amfe.model.bed import generate_bed  # noqa: E402
+from amfe.dataset.images import SAMPLES_PER_RADIUS, pixelate  # noqa: E402
 
 BEDS = [("figure 2", (0.25, 0.25, 0.1), 1.0), ("0.6 mm", (0.6, 0.6, 0.2), 1.0),
         ("paper", (3.0, 3.0, 0.3), 20.0)]

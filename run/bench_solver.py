@@ -21,7 +21,7 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 import numpy as np  # noqa: E402
 
-from solvers.petsc import init_petsc  # noqa: E402
+from amfe.solvers.petsc import init_petsc  # noqa: E402
 
 BEDS = {  # name: box size [mm], fully scanned HCP
     "1k": (0.3, 0.3, 0.1),
@@ -42,10 +42,10 @@ def main():
     ap.add_argument("--seed", type=int, default=0)
     args, petsc_args = ap.parse_known_args()
     PETSc = init_petsc(petsc_args)
-    from amfe.bed import generate_bed
-    from amfe.frame import build_frame
-    from solvers.driver import homogenize_bed
-    from solvers.scipy_direct import kubc_stiffness_scipy
+    from amfe.model.bed import generate_bed
+    from amfe.model.frame import build_frame
+    from amfe.solvers.driver import homogenize_bed
+    from amfe.solvers.scipy_direct import kubc_stiffness_scipy
 
     comm = PETSc.COMM_WORLD
     rank, size = comm.getRank(), comm.getSize()

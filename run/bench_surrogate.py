@@ -68,8 +68,8 @@ def bench_bed(model, bed_path, repeats=5, threads=1):
     """In-process seconds of reading, pixelating and predicting one bed (best of ``repeats``)."""
     import torch
 
-    from amfe.bedio import read_bed
-    from training.predict import Surrogate
+    from amfe.io.bedfile import read_bed
+    from amfe.training.predict import Surrogate
 
     torch.set_num_threads(threads)
     t0 = time.perf_counter()
@@ -114,8 +114,8 @@ def bench_import(repeats=3):
 
 
 def run_all(model, data_path, log=print):
-    from training.data import read_rows
-    from training.predict import Surrogate
+    from amfe.training.data import read_rows
+    from amfe.training.predict import Surrogate
 
     sur = Surrogate.load(model)
     images, _ = read_rows(data_path, inputs=sur.inputs)

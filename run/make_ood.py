@@ -2,7 +2,7 @@
 
     python run/make_ood.py [-o /work/data/small_ood.h5] [--per-variant 15]
 
-The `small` scale's distribution (amfe.scales) with one thing changed per
+The `small` scale's distribution (amfe.model.scales) with one thing changed per
 variant, outside what the training data saw:
 
 - enl_low:   enlargement factors U(1.02, hi), hi ~ U(1.03, 1.05) (training:
@@ -14,10 +14,10 @@ variant, outside what the training data saw:
 - wide:      tracks 0.2-0.3 mm wide (training 0.05-0.15);
 - jitter:    centre jitter +/-0.06 R (training 0.025).
 
-Each bed is the record of ``solvers.batch.make_record`` (the same
+Each bed is the record of ``amfe.dataset.driver.make_record`` (the same
 generation, image and PETSc homogenisation as `amfe dataset`, one rank),
 its data-set seed 100 + variant number. The file has the data-set layout
-of amfe.datasetio (images, labels, C, density, index, seed, status, reason,
+of amfe.io.datasetfile (images, labels, C, density, index, seed, status, reason,
 params/*, bond_images), plus ``variant`` (M,) strings; its root attributes are those of a
 `small` data set (so the shipped model accepts its images) and ``variants``.
 Finished records are kept in OUTPUT.parts/ and reused when the script is
@@ -35,9 +35,9 @@ import numpy as np
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
-from amfe.datasetio import (LABEL_NAMES, STATUS_OK, done_indices, read_part,  # noqa: E402
-                            write_part)
-from amfe.scales import MM, PARAM_NAMES, SCALES  # noqa: E402
+from amfe.io.datasetparts import STATUS_OK, done_indices, read_part, write_part  # noqa: E402
+from amfe.vocab import LABEL_NAMES  # noqa: E402
+from amfe.model.scales import MM, PARAM_NAMES, SCALES  # noqa: E402
 
 BASE = SCALES["small"]
 VARIANTS = {
@@ -63,8 +63,8 @@ def main(argv=None):
 
     from mpi4py import MPI
 
-    from solvers.batch import _load_pixelate, make_record
-    from solvers.petsc import init_petsc
+    from amfe.dataset.driver import _load_pixelate, make_record
+    from amfe.solvers.petsc import init_petsc
 
     init_petsc([])
     parts = args.output + ".parts"

@@ -17,7 +17,7 @@ import numpy as np
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
-CONSTANTS = ("Ex", "Ey", "Ez", "nu_yz", "nu_xz", "nu_xy", "G_yz", "G_xz", "G_xy")
+from amfe.vocab import CONSTANT_NAMES as CONSTANTS
 LABELS = CONSTANTS[:6]
 MUMPS = {"ksp_type": "preonly", "pc_type": "cholesky", "pc_factor_mat_solver_type": "mumps"}
 CHOLMOD = {"ksp_type": "preonly", "pc_type": "cholesky", "pc_factor_mat_solver_type": "cholmod"}
@@ -68,8 +68,8 @@ def machine():
 
 def pareto_bed(quick):
     """The realistic bed of section 1: a `small` data-set bed (or a smaller one for --quick)."""
-    from amfe.bed import generate_bed
-    from amfe.scales import bed_for, sample_bed_params
+    from amfe.model.bed import generate_bed
+    from amfe.model.scales import bed_for, sample_bed_params
     if quick:
         p = sample_bed_params("small", 7)
         p["size"] = (0.3e-3, 0.3e-3, 0.2e-3)
@@ -78,7 +78,7 @@ def pareto_bed(quick):
 
 
 def _solve(bed, comm, **kw):
-    from solvers.driver import homogenize_bed
+    from amfe.solvers.driver import homogenize_bed
     t0 = time.perf_counter()
     r = homogenize_bed(bed.centers, bed.radii, bed.material(), comm=comm, **kw)
     r["wall"] = time.perf_counter() - t0
@@ -142,7 +142,7 @@ def direct_vs_iterative(sides, log=print):
     """
     from petsc4py import PETSc
 
-    from amfe.bed import generate_bed
+    from amfe.model.bed import generate_bed
     from amfe.errors import AmfeError
     rows = []
     for side in sides:
@@ -166,9 +166,9 @@ def direct_vs_iterative(sides, log=print):
 
 def _scipy_solve(bed):
     """scipy spsolve (SuperLU) of the same KUBC problem, in homogenize_bed's result layout."""
-    from amfe.frame import build_frame
-    from amfe.homogenize import compliance_and_constants
-    from solvers.scipy_direct import kubc_stiffness_scipy
+    from amfe.model.frame import build_frame
+    from amfe.model.averages import compliance_and_constants
+    from amfe.solvers.scipy_direct import kubc_stiffness_scipy
     frame = build_frame(bed.centers, bed.radii, bed.material())
     C, sec = kubc_stiffness_scipy(frame, strain="bagi")
     _, props = compliance_and_constants(C * frame.stress_scale)
@@ -217,9 +217,9 @@ def rve_plan(quick, tiny=False):
 
 def _matvec_seconds(PETSc, bed, comm, repeats=20):
     """Seconds of one fine-level MatMult of the assembled AIJ stiffness (bs 6) on ``comm``."""
-    from amfe.frame import build_frame
-    from solvers.assembly import assemble_stiffness
-    from solvers.partition import row_ranges
+    from amfe.model.frame import build_frame
+    from amfe.solvers.assembly import assemble_stiffness
+    from amfe.solvers.partition import row_ranges
     frame = build_frame(bed.centers, bed.radii, bed.material())
     rr = row_ranges(frame.n_particles, comm.getSize())
     A = assemble_stiffness(PETSc, frame, comm, int(rr[comm.getRank()]),
@@ -239,11 +239,11 @@ def _matvec_seconds(PETSc, bed, comm, repeats=20):
 
 def worker(kind, items, path):
     """Run under mpirun: one homogenization per item on COMM_WORLD; rank 0 writes JSON lines."""
-    from solvers.petsc import init_petsc
+    from amfe.solvers.petsc import init_petsc
     PETSc = init_petsc([])
-    from amfe.atomicio import atomic_write
-    from amfe.bed import generate_bed
-    from amfe.scanpath import ScanPath
+    from amfe.io.atomic import atomic_write
+    from amfe.model.bed import generate_bed
+    from amfe.model.scanpath import ScanPath
     comm = PETSc.COMM_WORLD
     rows = []
     for item in items:
@@ -369,7 +369,7 @@ def find_models(models_dir):
     "Custom Net" is member 0 of the ensemble. Falls back to the shipped model
     (amfe/models/custom_small.pt).
     """
-    from training.checkpoint import load_checkpoint
+    from amfe.training.checkpoint import load_checkpoint
     found = {}
     names = {"lenet5": "LeNet-5", "alexnet": "AlexNet", "vgg": "VGG", "ensemble": "Custom Net x5",
              "bonds": "Custom Net x5 + bond image (shipped)"}
@@ -396,7 +396,7 @@ def surrogate_vs_solver(test_path, models_dir, n_solver_beds, rtols, log=print):
     ms per bed batched (one torch thread), and the pixelation of a bed
     measured on ``n_solver_beds`` beds (and its bond image, for the networks
     that read it). Solver: the first ``n_solver_beds``
-    beds regenerated from their seeds (amfe.scales.bed_for) and solved at each
+    beds regenerated from their seeds (amfe.model.scales.bed_for) and solved at each
     rtol, error against the data set's labels (rtol 1e-8), wall time per bed
     on one core including bonds and assembly.
     """
@@ -404,12 +404,12 @@ def surrogate_vs_solver(test_path, models_dir, n_solver_beds, rtols, log=print):
     import torch
     from petsc4py import PETSc
 
-    from amfe.bondimage import bond_image
-    from amfe.images import pixelate
-    from amfe.scales import bed_for, get_scale
-    from training.data import read_rows
-    from training.metrics import property_metrics
-    from training.predict import Surrogate
+    from amfe.dataset.bondimage import bond_image
+    from amfe.dataset.images import pixelate
+    from amfe.model.scales import bed_for, get_scale
+    from amfe.training.data import read_rows
+    from amfe.training.metrics import property_metrics
+    from amfe.training.predict import Surrogate
     sys.path.insert(0, os.path.join(ROOT, "run"))
     from bench_surrogate import bench_batched
 

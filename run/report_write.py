@@ -14,7 +14,7 @@ import numpy as np
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
-from amfe.atomicio import atomic_write  # noqa: E402
+from amfe.io.atomic import atomic_write  # noqa: E402
 
 import report_measure as M  # noqa: E402
 
@@ -280,7 +280,7 @@ def section_rve(rve, out, md):
                   "the largest bed is the reference, not the infinite bed).")
     else:
         md.append("**No size below the largest is within 1 % of it:** the constants still "
-                  "drift at the sizes measured (KUBC stiffens small beds, DESIGN 5a).")
+                  "drift at the sizes measured (KUBC stiffens small beds, docs/model.md, section 5a).")
     ex = M.rve_extrapolate(table)
     rve["extrapolation"] = ex
     if ex:

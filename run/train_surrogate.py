@@ -12,7 +12,7 @@ stopped (delete WORK/NAME.pt to redo one run). The runs:
 
 - bonds: Custom Net, 5 members (seeds 0-4), amfe's recipe (below) for
   --bond-epochs epochs, on the volume-fraction and the bond-stiffness images
-  (``--inputs fill,bonds``, amfe.bondimage): the shipped model, copied to
+  (``--inputs fill,bonds``, amfe.dataset.bondimage): the shipped model, copied to
   amfe/models/custom_small.pt;
 - custom_bonds: one such network, --epochs epochs (what the bond image is
   worth against the same network on the volume fraction alone);
@@ -20,7 +20,7 @@ stopped (delete WORK/NAME.pt to redo one run). The runs:
   fraction alone, as the paper; its member 0 is the "Custom Net" row of the
   comparison;
 - lenet5, alexnet, vgg: the other networks, amfe's recipe, seed 0 (AlexNet
-  and VGG at half the channels and 1024-wide FC layers, see training.nets;
+  and VGG at half the channels and 1024-wide FC layers, see amfe.training.nets;
   --full-size trains the full ones, about 5x longer);
 - paper: Custom Net with `amfe train`'s defaults, the paper's recipe (80
   epochs, constant learning rate 1e-3, no augmentation);
@@ -59,7 +59,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 sys.path.insert(0, os.path.join(ROOT, "run"))
 
-from amfe.datasetio import LABEL_NAMES  # noqa: E402
+from amfe.vocab import LABEL_NAMES  # noqa: E402
 
 SHIPPED = os.path.join(ROOT, "amfe", "models", "custom_small.pt")
 DOCS = os.path.join(ROOT, "docs")
@@ -150,10 +150,10 @@ def evaluate(args, runs, log):
     import torch
 
     from bench_surrogate import bench_batched
-    from training.checkpoint import load_checkpoint
-    from training.data import read_rows
-    from training.metrics import property_metrics
-    from training.predict import Surrogate
+    from amfe.training.checkpoint import load_checkpoint
+    from amfe.training.data import read_rows
+    from amfe.training.metrics import property_metrics
+    from amfe.training.predict import Surrogate
 
     torch.set_num_threads(1)
     results = {}
@@ -194,9 +194,9 @@ def ood_report(args, ckpt, log):
     """Caught / missed large errors of the ensemble flag on held-out and out-of-distribution beds."""
     import h5py
 
-    from training.data import dataset_info, read_rows
-    from training.metrics import relative_errors
-    from training.predict import Surrogate
+    from amfe.training.data import dataset_info, read_rows
+    from amfe.training.metrics import relative_errors
+    from amfe.training.predict import Surrogate
 
     sur = Surrogate(ckpt, "ensemble")
     out = {"threshold": sur.threshold, "large_error": LARGE_ERROR}
@@ -256,10 +256,10 @@ def noise_floor(work, n_beds=12, n_copies=3, log=print):
     if os.path.isfile(path):
         with open(path) as fh:
             return json.load(fh)
-    import amfe.bed as bedmod
-    from amfe.images import pixelate
-    from amfe.scales import get_scale, record_seed, sample_bed_params
-    from solvers.driver import homogenize_bed
+    import amfe.model.bed as bedmod
+    from amfe.dataset.images import pixelate
+    from amfe.model.scales import get_scale, record_seed, sample_bed_params
+    from amfe.solvers.driver import homogenize_bed
 
     sc = get_scale("small")
     original = bedmod.scanned_mask
@@ -295,9 +295,9 @@ def error_groups(args, ckpt):
     """The ensemble's held-out mean relative error % by kind of bed (skipped pieces, coverage)."""
     import h5py
 
-    from training.data import dataset_info, read_rows
-    from training.metrics import relative_errors
-    from training.predict import Surrogate
+    from amfe.training.data import dataset_info, read_rows
+    from amfe.training.metrics import relative_errors
+    from amfe.training.predict import Surrogate
 
     sur = Surrogate(ckpt)
     ok = dataset_info(args.test, sur.inputs)["ok"]
@@ -339,7 +339,7 @@ def _targets_met(m):
 
 
 def write_docs(args, runs, results, ckpts, ood, ood_fill, bench, elapsed, floor, groups):
-    from training.plots import plot_learning_curves
+    from amfe.training.plots import plot_learning_curves
 
     ens, shp = ckpts["ensemble"], ckpts["bonds"]
     plot_learning_curves({"Custom Net": ens["history"][0], "LeNet-5": ckpts["lenet5"]["history"],
@@ -377,7 +377,7 @@ def write_docs(args, runs, results, ckpts, ood, ood_fill, bench, elapsed, floor,
       "thread, two trainings at a time on the 2-core machine. Inference: ms per bed, the "
       "whole held-out set in one batch, one thread, all members included. Input: the "
       "volume-fraction image (3 x 20 x 20, the paper's), or that and the bond-stiffness image "
-      "on the same cells (6 x 20 x 20, amfe.bondimage: per cell the sum of k_n L^2 / (E V) "
+      "on the same cells (6 x 20 x 20, amfe.dataset.bondimage: per cell the sum of k_n L^2 / (E V) "
       "over its bonds).")
     w("")
     w("| network | input | parameters | training | ms / bed | "

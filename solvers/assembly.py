@@ -9,7 +9,7 @@ MatCreateGraph.)
 import numpy as np
 import scipy.sparse as sp
 
-from amfe.element import element_blocks
+from amfe.model.element import element_blocks
 
 
 def local_block_rows(frame, r0, r1):

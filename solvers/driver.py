@@ -8,35 +8,37 @@ import time
 
 import numpy as np
 
-from amfe.element import bond_forces
+from amfe.model.element import bond_forces
 from amfe.errors import AmfeError
-from amfe.frame import build_frame
-from amfe.homogenize import (asymmetry, bagi_strain, compliance_and_constants, hull_of,
+from amfe.model.frame import build_frame
+from amfe.model.averages import (asymmetry, bagi_strain, compliance_and_constants, hull_of,
                              stiffness, symmetric, voigt, voigt_strain)
-from amfe.material import STEEL
-from .ksp import DEFAULT_RTOL
-from .kubc import CASE_NAMES, kubc_groups
-from .loadcases import solve_load_cases
-from .mixed import mixed_groups
-from .petsc import init_petsc
+from amfe.model.material import STEEL
+from amfe.io.mpi import on_root
+from amfe.io.result import Fields, write_fields_vtu
+from amfe.solvers.ksp import DEFAULT_RTOL
+from amfe.model.kubc import CASE_NAMES, kubc_groups
+from amfe.solvers.loadcases import solve_load_cases
+from amfe.model.mixed import mixed_groups
+from amfe.solvers.petsc import init_petsc
 
 BOUNDARY_CONDITIONS = {"kubc": kubc_groups, "mixed": mixed_groups}
 
 
 def homogenize_bed(centers, radii, material=STEEL, *, a_star_cap=None, rtol=DEFAULT_RTOL,
                    max_it=None, vtu_dir=None, comm=None, petsc_args=None, ksp_options=None,
-                   nondimensional=True, bc="kubc", diagnose=False, progress=False):
+                   nondimensional=True, bc="kubc", diagnose=False, progress=False, fields=False):
     """Effective elastic constants of a bed of bonded spheres.
 
     bc: "kubc" (default; six unit macro-strains on the boundary, one operator)
     or "mixed" (the paper's figure-2 experiments, six operators; see
-    :mod:`solvers.mixed`). diagnose: add a ``diagnostics`` list (per case:
+    :mod:`amfe.model.mixed`). diagnose: add a ``diagnostics`` list (per case:
     iterations, true residual, eigenvalue estimates of the preconditioned
     operator and their ratio, GAMG levels and complexities).
 
     centers (N,3) [m], radii (N,) [m]; every rank of ``comm`` (a PETSc or
     mpi4py communicator, default COMM_WORLD) passes the same arrays.
-    Returns the result dict of DESIGN section 6 (the same on every rank):
+    Returns the result dict of docs/model.md, section 6 (the same on every rank):
     properties (SI: Pa and -), C and S (6x6, Voigt xx, yy, zz, yz, xz, xy,
     engineering shear; Pa and 1/Pa), volume [m^3], n_particles (input),
     n_removed, n_bonds, bc ("kubc" or "mixed"), ranks, solver (ksp_type, pc_type, rtol,
@@ -47,6 +49,7 @@ def homogenize_bed(centers, radii, material=STEEL, *, a_star_cap=None, rtol=DEFA
     {"ksp_type": "preonly", "pc_type": "cholesky"}; ``nondimensional=False``
     assembles in SI units (for the benchmark that shows why scaling matters).
     ``progress=True`` prints one line per phase and load case to stderr on rank 0.
+    ``fields=True`` adds "fields": a :class:`~amfe.io.result.Fields` (every rank).
     Raises AmfeError on every rank for bad input or a failed solve.
     """
     if bc not in BOUNDARY_CONDITIONS:
@@ -69,16 +72,8 @@ def homogenize_bed(centers, radii, material=STEEL, *, a_star_cap=None, rtol=DEFA
     sol = solve_load_cases(PETSc, frame, comm, groups, rtol=rtol, max_it=max_it, log=log,
                            ksp_options=ksp_options, diagnose=diagnose)
 
-    payload = None
-    if mpi.rank == 0:
-        try:
-            payload = _average(frame, sol, bc, a_star_cap, mpi.size, t_frame, vtu_dir)
-        except AmfeError as exc:
-            payload = exc
-    payload = mpi.bcast(payload, root=0)
-    if isinstance(payload, AmfeError):
-        raise AmfeError(str(payload))
-    return payload
+    return on_root(mpi, _average, frame, sol, bc, a_star_cap, mpi.size, t_frame, vtu_dir,
+                   diagnose, fields)
 
 
 def _stderr_log(rank):
@@ -90,14 +85,14 @@ def _stderr_log(rank):
     return log
 
 
-def _average(frame, sol, bc, a_star_cap, ranks, t_frame, vtu_dir):
+def _average(frame, sol, bc, a_star_cap, ranks, t_frame, vtu_dir, diagnose, fields):
     """Rank 0: Bagi averages, C, S, constants, the result dict (and the VTU files)."""
     t0 = time.perf_counter()
     hull = hull_of(frame.centers)
     strains, stresses, stress_asym = [], [], []
     for k in range(6):
-        strains.append(voigt_strain(bagi_strain(hull, sol["u"][k][:, :3])))
-        sigma = sol["moments"][k] / hull.volume
+        strains.append(voigt_strain(bagi_strain(hull, sol.u[k][:, :3])))
+        sigma = sol.moments[k] / hull.volume
         stress_asym.append(asymmetry(sigma))
         stresses.append(voigt(symmetric(sigma)))
     C, c_asym = stiffness(np.array(strains), np.array(stresses))
@@ -115,37 +110,44 @@ def _average(frame, sol, bc, a_star_cap, ranks, t_frame, vtu_dir):
         "bc": bc,
         "ranks": int(ranks),
         "solver": {
-            "ksp_type": sol["ksp_type"], "pc_type": sol["pc_type"], "rtol": float(sol["rtol"]),
-            "iterations": sol["iterations"],
-            "setup_seconds": sol["setup_seconds"], "solve_seconds": sol["solve_seconds"],
-            "case_seconds": sol["case_seconds"],
-            "frame_seconds": t_frame, "assembly_seconds": sol["assembly_seconds"],
+            "ksp_type": sol.setups[0].ksp_type, "pc_type": sol.setups[0].pc_type,
+            "rtol": sol.setups[0].rtol,
+            "iterations": sol.iterations,
+            "setup_seconds": sol.setup_seconds, "solve_seconds": sol.solve_seconds,
+            "case_seconds": [c.seconds for c in sol.cases],
+            "frame_seconds": t_frame, "assembly_seconds": sol.assembly_seconds,
             "average_seconds": t_avg,
-            "residuals": sol["residuals"],
+            "residuals": sol.residuals,
             "stress_asymmetry": float(max(stress_asym)),
             "C_asymmetry": float(c_asym),
         },
     }
-    if sol["notes"]:
-        result["solver"]["notes"] = sol["notes"]
+    if sol.notes:
+        result["solver"]["notes"] = sol.notes
     if a_star_cap is not None:
         result["n_capped"] = int(frame.n_capped)
-    if "diagnostics" in sol:
-        result["diagnostics"] = sol["diagnostics"]
+    if diagnose:
+        result["diagnostics"] = sol.diagnostics()
+    if fields:
+        result["fields"] = frame_fields(frame, sol.u)
     if vtu_dir is not None:
-        write_frame_vtu(vtu_dir, frame, sol["u"])
+        write_frame_vtu(vtu_dir, frame, sol.u)
     return result
+
+
+def frame_fields(frame, u):
+    """The :class:`~amfe.io.result.Fields` of the six solutions ``u`` (6, n, 6), in SI units."""
+    b, L, F = frame.bonds, frame.length_scale, frame.force_scale
+    forces = [bond_forces(b.normal, b.d_i, b.d_j, frame.k_n, frame.k_t, frame.kappa_n,
+                          frame.kappa_t, u[k][b.i], u[k][b.j]) for k in range(len(u))]
+    axial, shear, moment = (np.array(a) for a in zip(*forces))
+    return Fields(particle_id=np.asarray(frame.kept), centers=frame.centers * L,
+                  radii=frame.radii * L, bonds=np.stack([b.i, b.j], axis=1),
+                  displacement=u[:, :, :3] * L, rotation=u[:, :, 3:].copy(),
+                  axial_force=axial * F, shear_force=shear * F, moment=moment * F * L,
+                  case_names=tuple(CASE_NAMES))
 
 
 def write_frame_vtu(directory, frame, u):
     """One VTU per load case (SI units, per unit macro-strain) and cases.pvd."""
-    from amfe.vtu import write_load_cases
-    b, L, F = frame.bonds, frame.length_scale, frame.force_scale
-    cases = []
-    for k in range(6):
-        axial, shear, moment = bond_forces(b.normal, b.d_i, b.d_j, frame.k_n, frame.k_t,
-                                           frame.kappa_n, frame.kappa_t, u[k][b.i], u[k][b.j])
-        cases.append({"displacement": u[k][:, :3] * L, "rotation": u[k][:, 3:],
-                      "axial_force": axial * F, "shear_force": shear * F, "moment": moment * F * L})
-    return write_load_cases(directory, frame.centers * L, frame.radii * L,
-                            np.stack([b.i, b.j], axis=1), cases, names=list(CASE_NAMES))
+    return write_fields_vtu(directory, frame_fields(frame, u))

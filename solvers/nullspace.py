@@ -1,24 +1,7 @@
 """Near null space of a free frame of 6-DOF nodes: the six rigid-body modes."""
 import numpy as np
 
-
-def rigid_body_modes(points, center=None):
-    """(6, 6n) rigid-body modes of n nodes with DOFs (u_x, u_y, u_z, th_x, th_y, th_z).
-
-    Modes 0-2 translate; modes 3-5 rotate about the axes through ``center``
-    (default: the centroid of ``points`` (n,3)): a rotation omega moves u by
-    omega x (x - center) AND sets theta = omega. (PETSc's
-    MatNullSpaceCreateRigidBody covers 3-DOF nodes only.)
-    """
-    center = points.mean(axis=0) if center is None else np.asarray(center, float)
-    rel = points - center
-    modes = np.zeros((6, points.shape[0], 6))
-    for a in range(3):
-        omega = np.eye(3)[a]
-        modes[a, :, a] = 1.0
-        modes[3 + a, :, :3] = np.cross(omega, rel)
-        modes[3 + a, :, 3 + a] = 1.0
-    return modes.reshape(6, -1)
+from amfe.model.loadcase import rigid_body_modes
 
 
 def near_nullspace(PETSc, A, local_points, center):
@@ -28,12 +11,19 @@ def near_nullspace(PETSc, A, local_points, center):
     center (3,): the same rotation centre on every rank (the global centroid,
     which keeps the modes well conditioned).
     """
-    modes = rigid_body_modes(local_points, center)
+    return orthonormal_nullspace(PETSc, A, rigid_body_modes(local_points, center))
+
+
+def orthonormal_nullspace(PETSc, A, local_modes):
+    """A PETSc NullSpace spanned by ``local_modes`` (m, nloc*6 or m, nloc, 6) on A's rows.
+
+    Orthonormalised by modified Gram-Schmidt with global dot products.
+    """
     vecs = []
-    for k in range(6):
+    for m in local_modes:
         v = A.createVecRight()
-        v.setArray(modes[k])
-        for w in vecs:  # modified Gram-Schmidt with global dot products
+        v.setArray(np.ravel(m))
+        for w in vecs:
             v.axpy(-v.dot(w), w)
         v.normalize()
         vecs.append(v)

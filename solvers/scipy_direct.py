@@ -1,6 +1,6 @@
 """A serial scipy baseline for KUBC: SuperLU on the free DOFs, no PETSc.
 
-Independent of solvers.assembly and solvers.kubc (global K scattered from full
+Independent of amfe.solvers.assembly and amfe.model.kubc (global K scattered from full
 12x12 element matrices, prescribed DOFs eliminated by partitioning, reactions
 from the unreduced K), so it serves both as the benchmark's direct-solver
 baseline and as the tests' reference.
@@ -11,9 +11,10 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from amfe.element import element_matrices
-from amfe.homogenize import (bagi_strain, bagi_stress, boundary_particles, box_center, hull_of,
-                             stiffness, unit_strains, voigt, voigt_strain)
+from amfe.model.element import element_matrices
+from amfe.model.averages import (bagi_strain, bagi_stress, box_center, hull_of, stiffness,
+                                 unit_strains, voigt, voigt_strain)
+from amfe.model.kubc import boundary_particles, kubc_displacements
 
 
 def global_stiffness(frame):
@@ -32,7 +33,7 @@ def kubc_stiffness_scipy(frame, strain="applied"):
 
     strain="applied": the Voigt strains are the unit vectors, so C's columns
     are the Bagi stresses. strain="bagi": C = Sig Eps^-1 with Eps the Bagi
-    strains of the solved displacements on the hull, as amfe.homogenize does;
+    strains of the solved displacements on the hull, as amfe.model.averages does;
     the two agree when every hull vertex is a prescribed boundary particle
     and differ when a hull vertex is not (a scan track ending short of a
     face), where "bagi" is the definition amfe's labels use.
@@ -51,7 +52,7 @@ def kubc_stiffness_scipy(frame, strain="applied"):
     t2 = time.perf_counter()
     U = np.zeros((K.shape[0], 6))
     for k, eps in enumerate(unit_strains()):
-        U[pres, k] = ((x[bnd] - xc) @ eps.T).ravel()
+        U[pres, k] = kubc_displacements(x[bnd], xc, eps).ravel()
     U[free] = lu.solve(-(Kfp @ U[pres]))
     t3 = time.perf_counter()
     F = (K @ U)[pres]

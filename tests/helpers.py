@@ -5,7 +5,7 @@ import sys
 
 import numpy as np
 
-from solvers.scipy_direct import kubc_stiffness_scipy
+from amfe.solvers.scipy_direct import kubc_stiffness_scipy
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 MPI_ENV = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
@@ -20,7 +20,7 @@ def cubic_lattice(n, spacing=1.8e-6, radius=1e-6):
 
 
 def scipy_kubc_stiffness(frame):
-    """C (6x6, non-dimensional) by scipy's SuperLU: see solvers.scipy_direct."""
+    """C (6x6, non-dimensional) by scipy's SuperLU: see amfe.solvers.scipy_direct."""
     return kubc_stiffness_scipy(frame)[0]
 
 

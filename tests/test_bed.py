@@ -11,12 +11,12 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from amfe.bed import Bed, generate_bed, hcp_lattice, limit_a_star, pair_a_star, shrink_factor
-from amfe.bonds import find_bonds
+from amfe.model.bed import Bed, generate_bed, hcp_lattice, limit_a_star, pair_a_star, shrink_factor
+from amfe.model.bonds import find_bonds
 from amfe.errors import AmfeError
-from amfe.material import STEEL, Material
-from amfe.scanpath import ScanPath, scanned_mask
-from amfe.springs import critical_a_star
+from amfe.model.material import STEEL, Material
+from amfe.model.scanpath import ScanPath, scanned_mask
+from amfe.model.springs import critical_a_star
 
 CRIT = critical_a_star(STEEL.nu, STEEL.psi)
 SMALL = (150e-6, 150e-6, 100e-6)   # a few hundred particles

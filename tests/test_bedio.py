@@ -4,9 +4,9 @@ import h5py
 import numpy as np
 import pytest
 
-import amfe.bedio as bedio
-from amfe.bed import Bed, generate_bed
-from amfe.bedio import read_bed, write_bed
+import amfe.io.bedfile as bedio
+from amfe.model.bed import Bed, generate_bed
+from amfe.io.bedfile import read_bed, write_bed
 from amfe.errors import AmfeError
 
 

@@ -1,12 +1,12 @@
-"""The bond-stiffness image (amfe.bondimage): analytic pixels, sums, unit invariance."""
+"""The bond-stiffness image (amfe.dataset.bondimage): analytic pixels, sums, unit invariance."""
 import numpy as np
 import pytest
 
-from amfe.bondimage import bond_image, bond_image_of
-from amfe.bonds import bond_springs, find_bonds
-from amfe.material import STEEL, Material
-from amfe.scales import bed_for, get_scale, record_seed
-from amfe.springs import spring_constants
+from amfe.dataset.bondimage import bond_image, bond_image_of
+from amfe.model.bonds import bond_springs, find_bonds
+from amfe.model.material import STEEL, Material
+from amfe.model.scales import bed_for, get_scale, record_seed
+from amfe.model.springs import spring_constants
 
 CELL = (30e-6, 30e-6)
 T = 100e-6

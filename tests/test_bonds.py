@@ -4,10 +4,10 @@ import math
 import numpy as np
 import pytest
 
-from amfe.bonds import bond_springs, contact_geometry, find_bonds, find_pairs
+from amfe.model.bonds import bond_springs, contact_geometry, find_bonds, find_pairs
 from amfe.errors import AmfeError
-from amfe.material import Material
-from amfe.springs import critical_a_star
+from amfe.model.material import Material
+from amfe.model.springs import critical_a_star
 
 
 def test_pairs_match_brute_force():

@@ -1,7 +1,7 @@
 """`amfe dataset`: determinism across rank counts, labels = amfe homogenize, kill + resume,
 failed records, --check, and `amfe pack --scale`.
 
-The beds come from the `tiny` scale (amfe.scales; for tests only): 0.15 x 0.15 x
+The beds come from the `tiny` scale (amfe.model.scales; for tests only): 0.15 x 0.15 x
 0.1 mm beds of a few hundred particles, a fifth of them empty on purpose so
 that failed records are exercised.
 """
@@ -18,11 +18,12 @@ import h5py
 import numpy as np
 import pytest
 
-from amfe.bed import generate_bed
-from amfe.bedio import read_bed
+from amfe.model.bed import generate_bed
+from amfe.io.bedfile import read_bed
 from amfe.cli import main
-from amfe.datasetio import LABEL_NAMES, PARAMS_JSON, parts_dir
-from amfe.scales import (PARAM_NAMES, SCALES, bed_for, param_record, record_seed,
+from amfe.io.datasetparts import PARAMS_JSON, parts_dir
+from amfe.vocab import LABEL_NAMES
+from amfe.model.scales import (PARAM_NAMES, SCALES, bed_for, param_record, record_seed,
                          sample_bed_params)
 
 from helpers import MPI_ENV, ROOT, run_cli
@@ -159,7 +160,7 @@ def test_labels_equal_amfe_homogenize_of_regenerated_bed(runs, tmp_path, capsys)
     want = np.array([props[n] for n in LABEL_NAMES])
     assert np.allclose(rows["labels"][k], want, rtol=1e-8, atol=0)
     # the record's image is the regenerated bed's, with the attrs' recipe
-    from amfe.images import pixelate
+    from amfe.dataset.images import pixelate
     a = rows["attrs"]
     img = pixelate(bed, cell=tuple(a["image_cell"][:2]), layer_thickness=a["layer_thickness"],
                    box=((0.0, 0.0, 0.0), tuple(a["bed_size"])), spacing=a["image_spacing"])

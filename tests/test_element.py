@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from amfe.element import bond_forces, element_matrices, local_element, local_frames
+from amfe.model.element import bond_forces, element_matrices, local_element, local_frames
 
 
 def _random_bonds(M=20, seed=0):

@@ -2,7 +2,7 @@
 wrong number, a NaN, a hang or a traceback. The measured numbers are in
 docs/hard_cases.md; run with `pytest -s tests/test_hard_cases.py` to print them.
 
-References are the independent scipy direct solve (solvers.scipy_direct, SuperLU
+References are the independent scipy direct solve (amfe.solvers.scipy_direct, SuperLU
 on the free DOFs) on the same frame, scaled to Pa. Beds are built by hand on
 simple cubic lattices of spheres of radius R = 1 um, spacing S = 1.8 R (a* = 0.872
 on every bond), which makes each hard feature easy to place and to reason about.
@@ -19,13 +19,13 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from amfe.bed import Bed, generate_bed
-from amfe.bedio import write_bed
+from amfe.model.bed import Bed, generate_bed
+from amfe.io.bedfile import write_bed
 from amfe.errors import AmfeError
-from amfe.frame import build_frame
-from amfe.springs import critical_a_star
-from solvers.driver import homogenize_bed
-from solvers.scipy_direct import kubc_stiffness_scipy
+from amfe.model.frame import build_frame
+from amfe.model.springs import critical_a_star
+from amfe.solvers.driver import homogenize_bed
+from amfe.solvers.scipy_direct import kubc_stiffness_scipy
 
 from helpers import run_cli
 
@@ -160,7 +160,7 @@ def test_bonds_extremely_close_to_critical_are_accurate_or_refused(delta):
     # before the fix: C off by 1.7e-3 (1e-11) and 9.8e-2 (1e-13) after a "converged" solve
     # (identity rows scaled by the mean diagonal); with each DOF's own diagonal the error was
     # 7e-5 at 1e-13, where even the direct reference keeps only 3e-7: such bonds (within
-    # amfe.springs.A_STAR_MARGIN = 1e-10 of the critical a*) are now refused, naming them
+    # amfe.model.springs.A_STAR_MARGIN = 1e-10 of the critical a*) are now refused, naming them
     x, r = near_critical_interior_bed(CRIT - delta)
     try:
         res = homogenize_bed(x, r)

@@ -1,4 +1,4 @@
-"""Tests of amfe.homogenize: Bagi averages, C, S and the engineering constants.
+"""Tests of amfe.model.averages: Bagi averages, C, S and the engineering constants.
 
 References are analytic or computed independently here (Delaunay tetrahedra,
 tributary-area quadrature, direct uniaxial/shear solves of sigma = C eps).
@@ -10,7 +10,8 @@ import pytest
 from scipy.spatial import Delaunay
 
 from amfe.errors import AmfeError
-from amfe import homogenize as hz
+from amfe.model import averages as hz
+from amfe.model import kubc
 
 
 # --------------------------------------------------------------------------- #
@@ -189,13 +190,13 @@ def test_kubc_on_lattice_gives_applied_strain():
     x = cubic_lattice(5, 2.5e-5)
     r = np.full(len(x), 1.6e-5)
     xc = hz.box_center(x)
-    bnd = hz.boundary_particles(x, r)
+    bnd = kubc.boundary_particles(x, r)
     h = hz.hull_of(x)
     assert bnd[h.vertices].all()          # every hull vertex is a boundary particle
     eps_cases = hz.unit_strains() * 1e-3
     for k, eps in enumerate(eps_cases):
         u = np.zeros_like(x)
-        u[bnd] = hz.kubc_displacements(x[bnd], xc, eps)
+        u[bnd] = kubc.kubc_displacements(x[bnd], xc, eps)
         u[~bnd] = RNG.normal(size=(np.count_nonzero(~bnd), 3))   # interior is irrelevant
         H = hz.bagi_strain(h, u)
         np.testing.assert_allclose(hz.voigt_strain(H), 1e-3 * np.eye(6)[k], rtol=0, atol=1e-15)
@@ -308,7 +309,7 @@ def test_kubc_displacements():
     x = rng.uniform(size=(10, 3))
     xc = np.array([0.5, 0.4, 0.6])
     eps = rng.normal(size=(3, 3))
-    u = hz.kubc_displacements(x, xc, eps)
+    u = kubc.kubc_displacements(x, xc, eps)
     for b in range(10):
         np.testing.assert_allclose(u[b], eps @ (x[b] - xc), rtol=1e-14)
 
@@ -450,7 +451,7 @@ def test_pipeline_uniform_continuum():
     xc = hz.box_center(pos)
     strains, stresses = [], []
     for eps in hz.unit_strains() * 1e-4:
-        u = hz.kubc_displacements(pos, xc, eps)
+        u = kubc.kubc_displacements(pos, xc, eps)
         H = hz.bagi_strain(h, u)
         e = hz.voigt_strain(H)
         s = C0 @ e
@@ -477,7 +478,7 @@ def test_boundary_particles_lattice_count(n, rfac, layers):
     rng = np.random.default_rng(n)
     r = rng.uniform(0.5, 1.0, size=len(x)) * rfac * s
     r[17] = rfac * s                                      # the maximum radius
-    mask = hz.boundary_particles(x, r)
+    mask = kubc.boundary_particles(x, r)
     inner = max(n - 2 * layers, 0)
     assert mask.sum() == n ** 3 - inner ** 3
     # independent per-particle check via integer lattice indices
@@ -492,5 +493,5 @@ def test_boundary_particles_distance_equal_to_radius_counts():
                   [1.5, 3.0, 3.0], [1.5, 1.0, 1.5]])
     r = np.full(len(x), 1.0)
     # bbox [0,3]^3; particle 4 sits at 1.5 from every face -> interior; 6 at 1.0 from y=0
-    np.testing.assert_array_equal(hz.boundary_particles(x, r),
+    np.testing.assert_array_equal(kubc.boundary_particles(x, r),
                                   [True, True, True, True, False, True, True])

@@ -1,9 +1,9 @@
-"""Pixelated bed images (amfe.images), checked against independent geometry.
+"""Pixelated bed images (amfe.dataset.images), checked against independent geometry.
 
 References: sphere and spherical-cap volumes, the two-sphere lens from the cap
 formula, the HCP packing fraction pi / (3 sqrt 2) of cells that are whole
 lattice periods, and Monte Carlo estimates of the union (random points, a
-point is filled when it lies inside any sphere). Accuracy target (DESIGN 7):
+point is filled when it lies inside any sphere). Accuracy target (docs/model.md, section 7):
 about 1 % of a cell volume; the module claims about 0.1 % at its default
 sampling, so the exact references are checked to 0.2 %.
 """
@@ -12,10 +12,10 @@ import math
 import numpy as np
 import pytest
 
-import amfe.images as images
-from amfe.bed import Bed, generate_bed
+import amfe.dataset.images as images
+from amfe.model.bed import Bed, generate_bed
 from amfe.errors import AmfeError
-from amfe.images import image_box, pixelate, pixelate_spheres
+from amfe.dataset.images import image_box, pixelate, pixelate_spheres
 
 UM = 1e-6
 CELL = (30 * UM, 30 * UM)
@@ -200,7 +200,7 @@ def test_generated_bed_total_is_spheres_minus_lenses():
     A box around all the spheres (with partial cells) must hold that volume;
     the sum of sphere volumes is 5-6 % more.
     """
-    from amfe.bonds import find_bonds
+    from amfe.model.bonds import find_bonds
     bed = generate_bed(seed=3)
     bonds = find_bonds(bed.centers, bed.radii)
     lens = sum(lens_volume(bed.radii[i], bed.radii[j], d)

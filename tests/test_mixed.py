@@ -4,10 +4,10 @@ import json
 import numpy as np
 import pytest
 
-from amfe.bed import generate_bed
-from amfe.bedio import write_bed
-from amfe.frame import build_frame
-from solvers.driver import homogenize_bed
+from amfe.model.bed import generate_bed
+from amfe.io.bedfile import write_bed
+from amfe.model.frame import build_frame
+from amfe.solvers.driver import homogenize_bed
 
 from helpers import cubic_lattice, run_cli
 

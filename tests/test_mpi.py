@@ -6,15 +6,15 @@ import meshio
 import numpy as np
 import pytest
 
-from amfe.bed import generate_bed
-from amfe.bedio import write_bed
+from amfe.model.bed import generate_bed
+from amfe.io.bedfile import write_bed
 
 from helpers import run_cli
 
 pytestmark = pytest.mark.mpi
 
 RESULT_KEYS = {"properties", "C", "S", "volume", "n_particles", "n_removed", "n_bonds", "bc",
-               "ranks", "solver"}
+               "ranks", "solver", "schema_version"}
 PROPERTY_KEYS = {"Ex", "Ey", "Ez", "nu_yz", "nu_xz", "nu_xy", "G_yz", "G_xz", "G_xy"}
 
 
@@ -113,8 +113,8 @@ def test_groups_of_a_split_communicator_solve_their_own_beds(tmp_path):
     script.write_text(
         "import json, sys\n"
         "from mpi4py import MPI\n"
-        "from amfe.bed import generate_bed\n"
-        "from solvers.driver import homogenize_bed\n"
+        "from amfe.model.bed import generate_bed\n"
+        "from amfe.solvers.driver import homogenize_bed\n"
         "w = MPI.COMM_WORLD\n"
         "g = w.Split(color=w.rank, key=0)\n"
         "bed = generate_bed(size=(100e-6, 100e-6, 60e-6), seed=20 + w.rank)\n"

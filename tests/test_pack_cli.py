@@ -7,10 +7,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from amfe.bed import generate_bed
-from amfe.bedio import read_bed
+from amfe.model.bed import generate_bed
+from amfe.io.bedfile import read_bed
 from amfe.cli import main
-from amfe.scanpath import ScanPath
+from amfe.model.scanpath import ScanPath
 
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = ["--size", "0.15", "0.15", "0.1"]

@@ -5,13 +5,13 @@ import numpy as np
 import pytest
 import torch
 
-from amfe.scales import bed_for, get_scale, record_seed
-from training.checkpoint import load_checkpoint
-from training.predict import Surrogate, default_model_path
+from amfe.model.scales import bed_for, get_scale, record_seed
+from amfe.training.checkpoint import load_checkpoint
+from amfe.training.predict import Surrogate, default_model_path
 
 torch.set_num_threads(1)
 
-LABELS = ("Ex", "Ey", "Ez", "nu_yz", "nu_xz", "nu_xy")
+from amfe.vocab import LABEL_NAMES as LABELS
 
 
 @pytest.fixture(scope="module")
@@ -37,7 +37,7 @@ def test_shipped_model_is_plain_small_and_for_the_small_scale(shipped):
 
 def test_shipped_model_predicts_held_out_beds(shipped):
     """Six beds of the held-out test set's seeds: surrogate against the PETSc solve."""
-    from solvers.driver import homogenize_bed
+    from amfe.solvers.driver import homogenize_bed
 
     sur = Surrogate.load()
     sc = get_scale("small")

@@ -2,16 +2,16 @@
 import numpy as np
 import pytest
 
-from amfe.bed import generate_bed
-from amfe.frame import build_frame
-from amfe.homogenize import bagi_strain, hull_of, voigt_strain
-from amfe.material import Material
-from solvers.assembly import assemble_stiffness
-from solvers.driver import homogenize_bed
-from solvers.kubc import kubc_groups
-from solvers.loadcases import solve_load_cases
-from solvers.nullspace import rigid_body_modes
-from solvers.petsc import init_petsc
+from amfe.model.bed import generate_bed
+from amfe.model.frame import build_frame
+from amfe.model.averages import bagi_strain, hull_of, voigt_strain
+from amfe.model.material import Material
+from amfe.solvers.assembly import assemble_stiffness
+from amfe.solvers.driver import homogenize_bed
+from amfe.model.kubc import kubc_groups
+from amfe.solvers.loadcases import solve_load_cases
+from amfe.model.loadcase import rigid_body_modes
+from amfe.solvers.petsc import init_petsc
 
 from helpers import cubic_lattice, scipy_kubc_stiffness
 
@@ -49,7 +49,7 @@ def test_kubc_bagi_strain_is_the_applied_strain(hcp_bed):
     # every hull vertex is a boundary particle, so the strain is exact
     assert groups[0].fixed[hull.vertices, :3].all()
     for k in range(6):
-        e = voigt_strain(bagi_strain(hull, sol["u"][k][:, :3]))
+        e = voigt_strain(bagi_strain(hull, sol.u[k][:, :3]))
         assert np.allclose(e, np.eye(6)[k], atol=1e-10, rtol=0)
 
 
@@ -62,7 +62,7 @@ def test_matches_independent_scipy_direct_solve(hcp_bed):
     # KUBC with free boundary rotations: reactions are forces only, stress symmetric
     assert res["solver"]["stress_asymmetry"] < 1e-8
     assert res["solver"]["C_asymmetry"] < 1e-8
-    # the model is stiffer than the solid (DESIGN 5a), nu in a physical range
+    # the model is stiffer than the solid (docs/model.md, section 5a), nu in a physical range
     p = res["properties"]
     assert 1.0 * 210e9 < p["Ex"] < 4 * 210e9
     assert 0 < p["nu_xy"] < 0.5
@@ -106,8 +106,8 @@ def test_floating_particles_removed_and_counted():
 
 
 def test_sbaij_operator_equals_constrained_aij(hcp_bed):
-    from solvers.assembly import aij_from_blocks, local_block_rows, sbaij_operator
-    from amfe.homogenize import boundary_particles
+    from amfe.solvers.assembly import aij_from_blocks, local_block_rows, sbaij_operator
+    from amfe.model.kubc import boundary_particles
     frame = build_frame(hcp_bed.centers, hcp_bed.radii)
     n = frame.n_particles
     blocks = local_block_rows(frame, 0, n)

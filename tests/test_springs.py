@@ -4,8 +4,8 @@ import math
 import numpy as np
 import pytest
 
-from amfe.material import Material
-from amfe.springs import critical_a_star, normal_denominator, spring_constants
+from amfe.model.material import Material
+from amfe.model.springs import critical_a_star, normal_denominator, spring_constants
 
 
 def test_springs_by_hand_at_half():

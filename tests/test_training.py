@@ -10,13 +10,13 @@ import torch
 
 from amfe.errors import AmfeError
 from helpers import run_cli
-from training import ARCH_NAMES
-from training.checkpoint import load_checkpoint, save_checkpoint
-from training.data import (BedDataset, Normalizer, augment_batch, dataset_hash, dataset_info,
+from amfe.training import ARCH_NAMES
+from amfe.training.checkpoint import load_checkpoint, save_checkpoint
+from amfe.training.data import (BedDataset, Normalizer, augment_batch, dataset_hash, dataset_info,
                            read_rows, split_indices, transpose_labels)
-from training.nets import build_net, count_parameters
-from training.predict import Surrogate, summarize_members
-from training.train import TrainConfig, train_member, train_model
+from amfe.training.nets import build_net, count_parameters
+from amfe.training.predict import Surrogate, summarize_members
+from amfe.training.train import TrainConfig, train_member, train_model
 
 torch.set_num_threads(1)
 
@@ -259,14 +259,14 @@ def test_ensemble_spread_zero_when_members_identical(ensemble, synth):
 
 
 def test_default_model_missing_says_how_to_train(monkeypatch, tmp_path):
-    import training.predict as tp
+    import amfe.training.predict as tp
     monkeypatch.setattr(tp, "default_model_path", lambda: tmp_path / "none.pt")
     with pytest.raises(AmfeError, match="train_surrogate"):
         tp.Surrogate.load(None)
 
 
 def test_cli_defaults_match_train_config():
-    from amfe.commands.train import DEFAULTS
+    from amfe.cli.train import DEFAULTS
     cfg = TrainConfig()
     for k, v in vars(DEFAULTS).items():
         assert getattr(cfg, k) == v, k
@@ -275,9 +275,9 @@ def test_cli_defaults_match_train_config():
 # ---------------------------------------------------------------- command line
 
 def _tiny_bed(path):
-    from amfe.bed import generate_bed
-    from amfe.bedio import write_bed
-    from amfe.scales import record_seed, sample_bed_params
+    from amfe.model.bed import generate_bed
+    from amfe.io.bedfile import write_bed
+    from amfe.model.scales import record_seed, sample_bed_params
     for k in range(20):
         params = sample_bed_params("tiny", record_seed(0, k))
         try:
@@ -328,8 +328,8 @@ def test_train_and_predict_check_cli(tmp_path):
     res = json.loads(out.read_text())
     assert not res["flagged"] and res["source"] == "surrogate" and "solve" not in res["timings"]
     # the same model refuses a bed whose image has another shape
-    from amfe.bed import generate_bed
-    from amfe.bedio import write_bed
+    from amfe.model.bed import generate_bed
+    from amfe.io.bedfile import write_bed
     big = tmp_path / "big.h5"
     write_bed(big, generate_bed(size=(0.3e-3, 0.15e-3, 0.1e-3), seed=0))
     proc = run_cli(["predict", str(big), "--model", str(model)])
@@ -339,7 +339,7 @@ def test_train_and_predict_check_cli(tmp_path):
 
 def test_fill_check_flags_other_enlargements(ensemble, synth):
     """A bed whose fullest cells are fuller (or emptier) than every training bed's is flagged."""
-    from training.predict import calibrate_fill, fill_statistic
+    from amfe.training.predict import calibrate_fill, fill_statistic
     images = read_rows(synth)[0]
     f = fill_statistic(images)
     # the statistic is the 99th percentile of each bed's pixels (independent numpy call)
@@ -393,7 +393,7 @@ def test_bond_model_round_trip_and_refuses_fill_only_images(tmp_path):
     assert np.array_equal(sur.member_outputs(x), Surrogate(ck).member_outputs(x))
     # the fill check reads the fill layers only
     assert np.allclose(sur.predict(x)["fill"], Surrogate(ck).predict(x)["fill"])
-    from training.predict import fill_statistic
+    from amfe.training.predict import fill_statistic
     assert np.allclose(sur.predict(x)["fill"], fill_statistic(x[:, :3]))
     with pytest.raises(AmfeError, match=r"3x20x20.*6x20x20"):
         sur.predict(x[:, :3])
@@ -414,9 +414,9 @@ def test_predict_cli_images_the_bonds_of_the_bed(tmp_path):
     res = json.loads(out.read_text())
     assert res["inputs"] == ["fill", "bonds"] and "bonds" in res["timings"]
     # the same prediction from the two images made independently here
-    from amfe.bedio import read_bed
-    from amfe.bondimage import bond_image
-    from amfe.images import pixelate
+    from amfe.io.bedfile import read_bed
+    from amfe.dataset.bondimage import bond_image
+    from amfe.dataset.images import pixelate
     bed = read_bed(bed_path)
     a = TINY_ATTRS
     box = ((0.0, 0.0, 0.0), tuple(a["bed_size"]))

@@ -1,4 +1,4 @@
-"""ParaView output (amfe.vtu): round trip, the .pvd collection, validation, atomicity."""
+"""ParaView output (amfe.io.vtu): round trip, the .pvd collection, validation, atomicity."""
 import os
 import xml.etree.ElementTree as ET
 
@@ -6,7 +6,7 @@ import meshio
 import numpy as np
 import pytest
 
-from amfe import vtu
+from amfe.io import vtu
 from amfe.errors import AmfeError
 
 

@@ -1,13 +1,13 @@
-"""The CNN surrogate (paper sections 6-8, DESIGN section 8): data, networks, training, inference.
+"""The CNN surrogate (paper sections 6-8, docs/model.md, section 8): data, networks, training, inference.
 
-- :mod:`training.data`: a lazy torch Dataset over an amfe data set, seeded
+- :mod:`amfe.training.data`: a lazy torch Dataset over an amfe data set, seeded
   splits, label normalisation, label-preserving symmetries.
-- :mod:`training.nets`: Custom Net, LeNet-5, AlexNet and VGG with a six-output
+- :mod:`amfe.training.nets`: Custom Net, LeNet-5, AlexNet and VGG with a six-output
   linear regression head.
-- :mod:`training.train`: training one network or a seeded ensemble.
-- :mod:`training.checkpoint`: plain-data checkpoints, loaded weights-only.
-- :mod:`training.predict`: inference on images and beds, the ensemble flag.
-- :mod:`training.metrics`, :mod:`training.plots`: errors per property, curves.
+- :mod:`amfe.training.train`: training one network or a seeded ensemble.
+- :mod:`amfe.training.checkpoint`: plain-data checkpoints, loaded weights-only.
+- :mod:`amfe.training.predict`: inference on images and beds, the ensemble flag.
+- :mod:`amfe.training.metrics`, :mod:`amfe.training.plots`: errors per property, curves.
 
 This module imports nothing heavy, so the amfe command line can build its
 parsers without importing torch.

@@ -7,7 +7,7 @@ ints, floats, bools, strings, None, lists and dicts:
     arch, arch_args          network name and the keyword arguments that rebuild it
     members                  list of state dicts (one per ensemble member; 1 for a single net)
     member_seeds             their training seeds
-    normalizer               {mean, std, log, labels} (training.data.Normalizer)
+    normalizer               {mean, std, log, labels} (amfe.training.data.Normalizer)
     image_shape              [layers, H, W]
     pixelation               {scale, bed_size, image_cell, layer_thickness, image_spacing}:
                              how amfe predict pixelates a bed exactly as the training data
@@ -32,11 +32,11 @@ from collections import OrderedDict
 import numpy as np
 import torch
 
-from amfe import __version__
-from amfe.atomicio import atomic_write
+from amfe.version import __version__
+from amfe.io.atomic import atomic_write
 from amfe.errors import AmfeError
 
-from .nets import ARCHITECTURES, build_net
+from amfe.training.nets import ARCHITECTURES, build_net
 
 FORMAT = "amfe.surrogate"
 FORMAT_VERSION = 1

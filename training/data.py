@@ -1,12 +1,12 @@
 """Data for the surrogate: a lazy torch Dataset over an amfe data-set file, splits, normalisation.
 
-The file layout is :mod:`amfe.datasetio` (``images`` (M, layers, H, W)
+The file layout is :mod:`amfe.io.datasetfile` (``images`` (M, layers, H, W)
 float32, ``labels`` (M, 6) Ex, Ey, Ez [Pa], nu_yz, nu_xz, nu_xy, ``status``
 (M,) 0 ok / 1 failed). Only rows with status 0 and finite labels are used.
 
 A network's input stacks one or more image kinds along the channel axis
 (:data:`INPUT_KINDS`): "fill", the volume-fraction image (the paper's), and
-"bonds", the bond-stiffness image (:mod:`amfe.bondimage`); inputs ("fill",
+"bonds", the bond-stiffness image (:mod:`amfe.dataset.bondimage`); inputs ("fill",
 "bonds") give (2 layers, H, W) channels, the fill layers first.
 
 - :class:`BedDataset` opens the HDF5 file lazily, once per process (an h5py
@@ -27,7 +27,7 @@ A network's input stacks one or more image kinds along the channel axis
   :func:`transpose_labels`): mirroring x or y leaves all six orthotropic
   constants unchanged; swapping x and y maps (Ex, Ey, Ez, nu_yz, nu_xz,
   nu_xy) to (Ey, Ex, Ez, nu_xz, nu_yz, nu_yx) with nu_yx = nu_xy Ey / Ex
-  (nu_ij = -S_ji / S_ii, amfe.homogenize), an involution.
+  (nu_ij = -S_ji / S_ii, amfe.model.averages), an involution.
 """
 import hashlib
 import os
@@ -35,14 +35,15 @@ import os
 import numpy as np
 import torch
 
-from amfe.datasetio import LABEL_NAMES, STATUS_OK
+from amfe.io.datasetparts import STATUS_OK
+from amfe.vocab import LABEL_NAMES
 from amfe.errors import AmfeError
 
-from . import AUGMENTATIONS
+from amfe.training import AUGMENTATIONS
 
 INPUT_KINDS = {"fill": "images", "bonds": "bond_images"}   # kind: data-set array
 DEFAULT_INPUTS = ("fill",)
-# Root attributes of a data set that say how its images were made (amfe.datasetio).
+# Root attributes of a data set that say how its images were made (amfe.io.datasetfile).
 IMAGE_ATTRS = ("scale", "image_shape", "image_cell", "layer_thickness", "image_spacing",
                "bed_size", "seed", "count")
 
@@ -82,7 +83,7 @@ def _open(path):
     for name in ("images", "labels", "status"):
         if name not in f:
             f.close()
-            raise AmfeError(f"{path} is not an amfe data set: no /{name} (see amfe.datasetio)")
+            raise AmfeError(f"{path} is not an amfe data set: no /{name} (see amfe.io.datasetfile)")
     if f["images"].ndim != 4 or f["labels"].shape[1:] != (6,):
         shape_i, shape_l = f["images"].shape, f["labels"].shape
         f.close()

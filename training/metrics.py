@@ -1,7 +1,7 @@
 """Error measures of predicted labels, per property (the paper's "average difference", and R^2)."""
 import numpy as np
 
-from amfe.datasetio import LABEL_NAMES
+from amfe.vocab import LABEL_NAMES
 
 
 def relative_errors(pred, true):

@@ -4,9 +4,9 @@ Every network maps a (batch, layers, H, W) image to (batch, 6) outputs through
 the same kind of regression head: a stack of fully connected layers with ReLU
 and a last *linear* layer with six outputs (the paper's "multiple output
 linear regression layer" in place of the softmax classifier). The outputs are
-the normalised labels (:class:`training.data.Normalizer`).
+the normalised labels (:class:`amfe.training.data.Normalizer`).
 
-- ``custom``: Custom Net, DESIGN section 8 / paper figure 6. Four blocks of
+- ``custom``: Custom Net, docs/model.md, section 8 / paper figure 6. Four blocks of
   3x3 convolution (16, 32, 64, 128 channels) + ReLU + 2x2 max pooling, then
   FC 512 -> 256 -> 128 (ReLU) -> 6 (linear). Padding ``"valid"`` (Keras's
   default, the paper's) when the image survives the four blocks that way,
@@ -45,7 +45,7 @@ from torch import nn
 
 from amfe.errors import AmfeError
 
-from . import ARCH_NAMES
+from amfe.training import ARCH_NAMES
 
 N_OUTPUTS = 6
 
@@ -103,7 +103,7 @@ def custom_padding(image_shape):
 
 
 class CustomNet(nn.Module):
-    """Custom Net (paper figure 6, DESIGN section 8); see the module docstring."""
+    """Custom Net (paper figure 6, docs/model.md, section 8); see the module docstring."""
 
     CHANNELS = (16, 32, 64, 128)
     HIDDEN = (512, 256, 128)
@@ -176,13 +176,18 @@ class AlexNet(nn.Module):
             if k in self.POOL_AFTER and min(hw) >= 2:
                 layers.append(MaxPool2x2())
                 hw = (hw[0] // 2, hw[1] // 2)
-        keep = (min(hw[0], 6), min(hw[1], 6))
-        layers.append(nn.AdaptiveAvgPool2d(keep))
-        self.features = nn.Sequential(*layers)
-        self.head = regression_head(c * keep[0] * keep[1], hidden, dropout)
+        _pooled_head(self, layers, c, hw, 6, hidden, dropout)
 
     def forward(self, x):
         return self.head(torch.flatten(self.features(x), 1))
+
+
+def _pooled_head(net, layers, c, hw, keep_max, hidden, dropout):
+    """Close a feature stack with an adaptive pool to at most keep_max^2 and the head."""
+    keep = (min(hw[0], keep_max), min(hw[1], keep_max))
+    layers.append(nn.AdaptiveAvgPool2d(keep))
+    net.features = nn.Sequential(*layers)
+    net.head = regression_head(c * keep[0] * keep[1], hidden, dropout)
 
 
 class VGG(nn.Module):
@@ -207,10 +212,7 @@ class VGG(nn.Module):
                 layers.append(nn.BatchNorm2d(out))
             layers.append(nn.ReLU(inplace=True))
             c = out
-        keep = (min(hw[0], 7), min(hw[1], 7))
-        layers.append(nn.AdaptiveAvgPool2d(keep))
-        self.features = nn.Sequential(*layers)
-        self.head = regression_head(c * keep[0] * keep[1], hidden, dropout)
+        _pooled_head(self, layers, c, hw, 7, hidden, dropout)
 
     def forward(self, x):
         return self.head(torch.flatten(self.features(x), 1))

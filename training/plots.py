@@ -3,14 +3,14 @@ import os
 
 import numpy as np
 
-from amfe.datasetio import LABEL_NAMES
+from amfe.vocab import LABEL_NAMES
 
 
 def plot_learning_curves(runs, path, title=""):
     """Write a PNG: loss (train solid, validation dashed) and validation mean relative error.
 
     runs: {name: history} or {name: [histories]} (an ensemble: every member
-    drawn, the first labelled); a history is training.train's dict.
+    drawn, the first labelled); a history is amfe.training.train's dict.
     """
     import matplotlib
     matplotlib.use("Agg")

@@ -27,11 +27,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from amfe.datasetio import LABEL_NAMES
+from amfe.vocab import LABEL_NAMES
 from amfe.errors import AmfeError
 
-from .checkpoint import build_members, check_image_shape, load_checkpoint
-from .data import DEFAULT_INPUTS, Normalizer, check_inputs, flip_images, transpose_labels
+from amfe.training.checkpoint import build_members, check_image_shape, load_checkpoint
+from amfe.training.data import DEFAULT_INPUTS, Normalizer, check_inputs, flip_images, transpose_labels
 
 DEFAULT_MODEL_NAME = "custom_small.pt"
 TRAIN_HINT = ("train it with `python run/train_surrogate.py` (see docs/surrogate.md) or pass "
@@ -40,8 +40,8 @@ TRAIN_HINT = ("train it with `python run/train_surrogate.py` (see docs/surrogate
 
 def default_model_path():
     """The model shipped in the package: amfe/models/custom_small.pt."""
-    import amfe
-    return Path(amfe.__file__).resolve().parent / "models" / DEFAULT_MODEL_NAME
+    import amfe.version
+    return Path(amfe.version.__file__).resolve().parent / "models" / DEFAULT_MODEL_NAME
 
 
 FILL_PERCENTILE = 99.0
@@ -111,9 +111,19 @@ class Surrogate:
         return out
 
     def predict(self, images, batch_size=1024):
-        """{mean (n, 6), spread (n, 6) relative, score (n,), fill (n,), fill_out (n,) bool,
-        flagged (n,) bool} of inputs (n, channels, H, W) (the image kinds of ``self.inputs``
-        stacked); flagged = spread over the threshold or fill_out."""
+        """Predict the six constants of beds or of their images.
+
+        ``images``: a :class:`~amfe.model.bed.Bed`, a bed file's path, or inputs
+        (n, channels, H, W) (the image kinds of ``self.inputs`` stacked). Returns
+        {mean (n, 6), spread (n, 6) relative, score (n,), fill (n,), fill_out
+        (n,) bool, flagged (n,) bool}, the six in label order (Ex, Ey, Ez [Pa],
+        nu_yz, nu_xz, nu_xy); flagged = spread over the threshold or fill_out.
+        """
+        if isinstance(images, (str, os.PathLike)):
+            from amfe.io.bedfile import read_bed
+            images = read_bed(images)
+        if hasattr(images, "centers"):
+            return self.predict_bed(images)[0]
         members = self.member_outputs(images, batch_size)
         res = summarize_members(members, self.spread_scale, self.threshold)
         x = np.asarray(images)
@@ -177,7 +187,7 @@ def predict_raw(net, images, norm, tta="none", batch_size=1024):
     """Raw predictions (n, 6) float64 of one network, averaged over the TTA symmetries.
 
     A mirrored image has the same six labels; an x<->y transposed one has
-    them permuted (training.data.transpose_labels, an involution), so its
+    them permuted (amfe.training.data.transpose_labels, an involution), so its
     prediction is mapped back before averaging (in raw units).
     """
     net.eval()
@@ -213,7 +223,7 @@ def pixelate_like_training(bed, ckpt, path="the model"):
     beds), else [0, the training beds' size]. AmfeError if the image's shape
     is not the model's.
     """
-    from amfe.images import pixelate
+    from amfe.dataset.images import pixelate
 
     px = ckpt["pixelation"]
     size = _image_size(bed, ckpt)
@@ -227,8 +237,8 @@ def pixelate_like_training(bed, ckpt, path="the model"):
 
 
 def bond_image_like_training(bed, ckpt):
-    """The bond-stiffness image of ``bed`` (amfe.bondimage) on the training data's grid."""
-    from amfe.bondimage import bond_image
+    """The bond-stiffness image of ``bed`` (amfe.dataset.bondimage) on the training data's grid."""
+    from amfe.dataset.bondimage import bond_image
 
     px = ckpt["pixelation"]
     return bond_image(bed, cell=tuple(px["image_cell"][:2]),

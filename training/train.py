@@ -20,17 +20,17 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 import torch
 
-from amfe.datasetio import LABEL_NAMES
+from amfe.vocab import LABEL_NAMES
 from amfe.errors import AmfeError
-from amfe.material import STEEL
+from amfe.model.material import STEEL
 
-from . import AUGMENTATIONS, SCHEDULES
-from .checkpoint import check_image_shape
-from .data import (DEFAULT_INPUTS, BedDataset, Normalizer, augment_batch, check_inputs,
+from amfe.training import AUGMENTATIONS, SCHEDULES
+from amfe.training.checkpoint import check_image_shape
+from amfe.training.data import (DEFAULT_INPUTS, BedDataset, Normalizer, augment_batch, check_inputs,
                    dataset_hash, dataset_info, read_rows, split_indices)
-from .metrics import metrics_line, property_metrics
-from .nets import build_net, count_parameters, resolved_args
-from .predict import calibrate_fill, predict_raw, tta_mode
+from amfe.training.metrics import metrics_line, property_metrics
+from amfe.training.nets import build_net, count_parameters, resolved_args
+from amfe.training.predict import calibrate_fill, predict_raw, tta_mode
 
 MEMORY_LIMIT = 1 << 30   # train from memory when the selected images take less (bytes)
 
@@ -54,7 +54,7 @@ class TrainConfig:
     flag_percentile: float = 95.0
     workers: int = 0
     max_train: int = 0          # use at most this many training beds (0: all); for tests
-    inputs: tuple = DEFAULT_INPUTS   # image kinds stacked as channels (training.data)
+    inputs: tuple = DEFAULT_INPUTS   # image kinds stacked as channels (amfe.training.data)
 
     def check(self):
         if self.epochs < 1 or self.batch_size < 1 or self.members < 1:
@@ -165,7 +165,7 @@ def train_member(train_ds, val_images, val_labels, norm, cfg, image_shape, seed,
 def train_model(data_path, cfg, progress=True, log=print):
     """Train ``cfg.members`` networks on the data set ``data_path``: the checkpoint dict.
 
-    The dict is what :func:`training.checkpoint.save_checkpoint` writes; it
+    The dict is what :func:`amfe.training.checkpoint.save_checkpoint` writes; it
     also holds "history" (per member) and "metrics" {"validation": ...}.
     """
     cfg.check()
@@ -229,7 +229,7 @@ def train_model(data_path, cfg, progress=True, log=print):
     }
     ckpt["training"]["seconds"] = float(sum(h["seconds"] for h in hists))
     if len(val_rows):
-        from .predict import Surrogate
+        from amfe.training.predict import Surrogate
         sur = Surrogate(ckpt, "the new model")
         members = sur.member_outputs(val_images)
         if cfg.members > 1:
@@ -245,12 +245,12 @@ def train_model(data_path, cfg, progress=True, log=print):
 
 
 def calibrate_spread(members, percentile=95.0):
-    """The flag of :mod:`training.predict` fitted on validation predictions (members, n, 6).
+    """The flag of :mod:`amfe.training.predict` fitted on validation predictions (members, n, 6).
 
     scale: the median relative spread per property; threshold: the
     ``percentile`` of the score max_p(spread_p / scale_p) over the beds.
     """
-    from .predict import summarize_members
+    from amfe.training.predict import summarize_members
     rel = summarize_members(members)["spread"]
     scale = np.median(rel, axis=0)
     scale = np.where(scale > 0, scale, 1.0)
@@ -269,7 +269,7 @@ def pixelation_of(info):
     missing = [k for k in need if k not in info]
     if missing:
         raise AmfeError(f"{info['path']} lacks the root attribute(s) {', '.join(missing)} that say "
-                        "how its images were made (see amfe.datasetio)")
+                        "how its images were made (see amfe.io.datasetfile)")
     return {"scale": info.get("scale"), "bed_size": [float(s) for s in info["bed_size"]],
             "image_cell": [float(s) for s in info["image_cell"]],
             "layer_thickness": float(info["layer_thickness"]),

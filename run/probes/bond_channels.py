@@ -1,7 +1,7 @@
 # Probe for docs/surrogate_diagnosis.md (issue 6); a research script, not part of amfe. Run from the repository root with .venv/bin/python.
 import numpy as np, h5py, sys
-from amfe.scales import bed_for, get_scale
-from amfe.bonds import find_bonds, bond_springs
+from amfe.model.scales import bed_for, get_scale
+from amfe.model.bonds import find_bonds, bond_springs
 sc=get_scale('small')
 path,part,nparts=sys.argv[1],int(sys.argv[2]),int(sys.argv[3])
 f=h5py.File(path); seeds=f['seed'][:]; st=f['status'][:]

@@ -1,9 +1,9 @@
 # Probe for docs/surrogate_diagnosis.md (issue 6); a research script, not part of amfe. Run from the repository root with .venv/bin/python.
 import numpy as np, sys, dataclasses
-from amfe.scales import sample_bed_params, get_scale
-from amfe.bed import generate_bed
-from amfe.images import pixelate
-from solvers.driver import homogenize_bed
+from amfe.model.scales import sample_bed_params, get_scale
+from amfe.model.bed import generate_bed
+from amfe.dataset.images import pixelate
+from amfe.solvers.driver import homogenize_bed
 from petsc4py import PETSc
 sc=get_scale('small')
 part=int(sys.argv[1]); out=[]

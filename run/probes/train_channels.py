@@ -1,7 +1,7 @@
 # Probe for docs/surrogate_diagnosis.md (issue 6); a research script, not part of amfe. Run from the repository root with .venv/bin/python.
 import numpy as np, h5py, torch, sys, time
-from training.nets import build_net
-from training.data import Normalizer, augment_batch, split_indices
+from amfe.training.nets import build_net
+from amfe.training.data import Normalizer, augment_batch, split_indices
 torch.set_num_threads(1)
 variant=sys.argv[1]; E=int(sys.argv[2]) if len(sys.argv)>2 else 300
 def load(name):

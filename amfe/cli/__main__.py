@@ -1,0 +1,6 @@
+"""`python -m amfe.cli ...` is the `amfe` command."""
+import sys
+
+from amfe.cli import main
+
+sys.exit(main())

@@ -1,0 +1,108 @@
+"""`amfe dataset`: a training data set of beds, images and labels, under mpirun, kill-safe.
+
+    mpirun -n N amfe dataset -o DATA.h5 --count M [--seed S] [--scale small|paper]
+                             [--ranks-per-bed k]
+    amfe dataset --check DATA.h5
+    amfe dataset --add-bond-images DATA.h5
+
+Record k holds the bed with seed record_seed(S, k) of the scale's
+distribution (amfe.model.scales), its image (amfe.dataset.images), the six labels and C
+(homogenize_bed), the packing density and the generation parameters; it is a
+pure function of (S, k), whatever N and k. Rank groups of k ranks take beds
+from a shared counter (amfe.dataset.driver). Killing the job loses only the beds in
+flight: the same command resumes it. A bed that fails is recorded as failed
+with its reason. File layout: amfe.io.datasetfile.
+"""
+import os
+import sys
+
+from amfe.errors import AmfeError
+from amfe.model.scales import SCALES
+
+
+def register(sub):
+    p = sub.add_parser(
+        "dataset", help="make a data set of beds, images and labels (mpirun, resumable)",
+        description=__doc__.split("\n\n")[0] + " Run it as `mpirun -n N amfe dataset ...` or "
+                    "alone; rerun the same command to resume after a kill.",
+        epilog="Any -option (single dash) goes to PETSc. Scales: small (0.6 x 0.6 x 0.3 mm, "
+               "images 3x20x20), paper (3 x 3 x 0.3 mm, images 3x100x100); tiny is for tests.")
+    p.add_argument("-o", "--output", metavar="DATA.h5", help="data-set file to make (HDF5)")
+    p.add_argument("--count", type=int, metavar="M", help="number of records")
+    p.add_argument("--seed", type=int, default=0, metavar="S",
+                   help="data-set seed, integer >= 0 (default 0)")
+    p.add_argument("--scale", default="small", choices=list(SCALES),
+                   help="bed distribution (default small; see amfe.model.scales)")
+    p.add_argument("--ranks-per-bed", type=int, default=1, metavar="K",
+                   help="MPI ranks that solve one bed together (default 1)")
+    p.add_argument("--rtol", type=float, default=None,
+                   help="KSP relative tolerance of the solves (default 1e-8)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--check", metavar="DATA.h5",
+                   help="validate a data-set file and print its summary (exit 1 if bad)")
+    p.add_argument("--add-bond-images", metavar="DATA.h5",
+                   help="add the bond-stiffness images (amfe.dataset.bondimage) to a data set made "
+                        "before they existed; regenerates each bed from its seed, no solve")
+    p.set_defaults(func=run)
+
+
+def run(args):
+    if args.check:
+        if args.output or args.count is not None:
+            raise AmfeError("--check FILE validates a file; it takes no -o or --count")
+        return _check(args.check)
+    if args.add_bond_images:
+        if args.output or args.count is not None:
+            raise AmfeError("--add-bond-images FILE upgrades a file; it takes no -o or --count")
+        return _add_bond_images(args.add_bond_images, not args.no_progress)
+    if not args.output or args.count is None:
+        raise AmfeError("give -o DATA.h5 and --count M (or --check DATA.h5)")
+    from amfe.dataset.driver import run_dataset
+    from amfe.solvers.ksp import DEFAULT_RTOL
+    from amfe.solvers.petsc import init_petsc
+
+    init_petsc(args.petsc_args)
+    run_dataset(args.output, args.count, seed=args.seed, scale=args.scale,
+                ranks_per_bed=args.ranks_per_bed,
+                rtol=DEFAULT_RTOL if args.rtol is None else args.rtol,
+                progress=not args.no_progress)
+    return 0
+
+
+def _check(path):
+    from amfe.dataset.summary import summary_text
+    from amfe.io.datasetfile import check_dataset
+
+    rank = _world_rank()
+    if rank != 0:
+        return 0
+    problems, data, attrs = check_dataset(path)
+    if problems:
+        print(f"amfe dataset --check: {path} is NOT a valid data set:", file=sys.stderr)
+        for p in problems:
+            print(f"  - {p}", file=sys.stderr)
+        return 1
+    print(f"amfe dataset --check: {path} is valid")
+    print(summary_text(data, attrs))
+    return 0
+
+
+def _add_bond_images(path, progress):
+    from amfe.dataset.upgrade import add_bond_images
+
+    if _world_rank() != 0:
+        return 0
+    n = add_bond_images(path, progress=progress)
+    print(f"amfe dataset: added /bond_images of {n} records to {path}")
+    return 0
+
+
+def _world_rank():
+    """This process's rank under mpirun (from the launcher's environment; 0 alone)."""
+    mpi = sys.modules.get("mpi4py.MPI")
+    if mpi is not None:
+        return mpi.COMM_WORLD.rank
+    for var in ("OMPI_COMM_WORLD_RANK", "PMI_RANK", "PMIX_RANK"):
+        if os.environ.get(var, "").isdigit():
+            return int(os.environ[var])
+    return 0

@@ -1,0 +1,183 @@
+"""`amfe predict BED.h5`: the surrogate's elastic constants of a bed, in milliseconds.
+
+    amfe predict bed.h5 [--model MODEL.pt] [-o OUT.json] [--check] [--fallback]
+
+Pixelates the bed exactly as the model's training data (cells, layers and
+sample spacing are stored in the checkpoint) and runs the network(s); the
+default model is the Custom Net ensemble shipped in amfe/models/. With an
+ensemble, the members' spread flags beds unlike the training data;
+--fallback then runs the PETSc solve instead, --check always runs it and
+prints both with their difference. Both also work under mpirun.
+"""
+import os
+import sys
+import time
+
+from amfe.errors import AmfeError
+from amfe.io.atomic import write_json
+
+from amfe.vocab import LABEL_NAMES as SIX
+NINE = SIX + ("G_yz", "G_xz", "G_xy")
+
+
+def register(sub):
+    p = sub.add_parser("predict", help="elastic constants of a bed from the CNN surrogate",
+                       description=__doc__.split("\n\n")[0],
+                       epilog="With --check or --fallback, any -option (single dash) goes to "
+                              "PETSc.")
+    p.add_argument("bed", metavar="BED.h5", help="bed HDF5 file (/particles/centers, /radii)")
+    p.add_argument("--model", metavar="MODEL.pt",
+                   help="checkpoint from amfe train (default: the shipped amfe/models/"
+                        "custom_small.pt)")
+    p.add_argument("-o", "--output", metavar="OUT.json", help="write the result as JSON here")
+    p.add_argument("--check", action="store_true",
+                   help="also run the PETSc solve; print and store both and their difference")
+    p.add_argument("--fallback", action="store_true",
+                   help="run the PETSc solve instead when the ensemble spread flags the bed")
+    p.add_argument("--threshold", type=float,
+                   help="flag threshold on the spread score (default: the model's, calibrated "
+                        "on its validation beds)")
+    p.add_argument("--threads", type=int, help="torch CPU threads (default: torch's)")
+    p.set_defaults(func=run)
+
+
+def run(args):
+    t_start = time.perf_counter()
+    import torch
+
+    from amfe.training.predict import Surrogate, as_properties, check_material
+
+    from amfe.io.bedfile import read_bed
+
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    times = {}
+    t = time.perf_counter()
+    sur = Surrogate.load(args.model)
+    times["load_model"] = time.perf_counter() - t
+    threshold = args.threshold if args.threshold is not None else sur.threshold
+    if args.fallback and threshold is None and not sur.fill_range:
+        raise AmfeError(f"--fallback needs a flag threshold: {sur.path} is a single network "
+                        "without a calibrated ensemble spread; use an ensemble (amfe train "
+                        "--members 5) or give --threshold")
+    t = time.perf_counter()
+    bed = read_bed(args.bed)
+    times["read_bed"] = time.perf_counter() - t
+    check_material(bed, sur.ckpt, sur.path)
+    res, image, t_pred = sur.predict_bed(bed)
+    times.update(t_pred)
+    score = float(res["score"][0])
+    spread_flag = bool(threshold is not None and sur.n_members > 1 and score > threshold)
+    fill_flag = bool(res["fill_out"][0])
+    flagged = spread_flag or fill_flag
+
+    solver = None
+    if args.check or args.fallback:
+        from mpi4py import MPI
+        comm = MPI.COMM_WORLD
+        flagged = comm.bcast(flagged, root=0)   # every rank takes the same branch
+        if args.check or flagged:
+            from amfe.solvers.driver import homogenize_bed
+            from amfe.solvers.petsc import init_petsc
+            init_petsc(args.petsc_args)
+            t = time.perf_counter()
+            solver = homogenize_bed(bed.centers, bed.radii, bed.material())
+            times["solve"] = time.perf_counter() - t
+        rank = comm.rank
+    else:
+        rank = _launcher_rank()
+
+    surrogate_props = as_properties(res["mean"][0])
+    out = {
+        "bed": os.fspath(args.bed),
+        "properties": surrogate_props,
+        "spread": as_properties(res["spread"][0]),
+        "spread_score": score,
+        "threshold": threshold,
+        "fill": float(res["fill"][0]),
+        "fill_range": ([sur.fill_range["lo"], sur.fill_range["hi"]] if sur.fill_range
+                       else None),
+        "flagged": flagged,
+        "source": "surrogate",
+        "model": os.fspath(sur.path),
+        "arch": sur.ckpt["arch"],
+        "members": sur.n_members,
+        "inputs": list(sur.inputs),
+        "image_shape": list(image.shape),
+        "density": float(image.mean(dtype="float64")),
+    }
+    if solver is not None:
+        solver_props = {k: float(solver["properties"][k]) for k in NINE}
+        if args.fallback and flagged:
+            out["source"] = "solver"
+            out["properties"] = solver_props
+            out["surrogate"] = {"properties": surrogate_props}
+        if args.check:
+            out["check"] = {"solver": solver_props,
+                            "relative_difference": {k: (surrogate_props[k] - solver_props[k])
+                                                    / abs(solver_props[k]) for k in SIX}}
+        out["solver"] = solver["solver"]
+    times["total"] = time.perf_counter() - t_start
+    out["seconds"] = times["total"]
+    out["timings"] = times
+    if rank == 0:
+        if args.output:
+            write_json(args.output, out)
+        print(summary(out, args.output))
+        sys.stdout.flush()
+    return 0
+
+
+def _fmt(key, value):
+    """A property as printed: moduli in GPa, ratios bare, 6 significant digits."""
+    return f"{value / 1e9:.6g} GPa" if key.startswith(("E", "G")) else f"{value:.6g}"
+
+
+def summary(out, output=None):
+    """The table amfe predict prints (tests compare its numbers with the JSON)."""
+    check = out.get("check")
+    lines = [f"{out['bed']}: image {'x'.join(map(str, out['image_shape']))}, packing density "
+             f"{out['density']:.3f}; model {out['model']} ({out['arch']}, {out['members']} "
+             f"member(s), inputs {','.join(out.get('inputs', ['fill']))})"]
+    surrogate = out.get("surrogate", {}).get("properties", out["properties"])
+    head = f"  {'':6s} {'surrogate':>16s} {'spread':>8s}"
+    if check:
+        head += f" {'solver':>16s} {'difference':>10s}"
+    lines.append(head)
+    for k in SIX:
+        line = f"  {k:6s} {_fmt(k, surrogate[k]):>16s} {100 * out['spread'][k]:7.2f}%"
+        if check:
+            line += (f" {_fmt(k, check['solver'][k]):>16s} "
+                     f"{100 * check['relative_difference'][k]:+9.2f}%")
+        lines.append(line)
+    if out["threshold"] is None or out["members"] < 2:
+        lines.append("no spread flag (a single network has no spread)")
+    else:
+        lines.append(f"spread score {out['spread_score']:.3g} (threshold {out['threshold']:.3g})")
+    if out["fill_range"]:
+        lo, hi = out["fill_range"]
+        inside = lo <= out["fill"] <= hi
+        lines.append(f"fill of the fullest cells {out['fill']:.3f} (training beds {lo:.3f} - "
+                     f"{hi:.3f}){'' if inside else ': outside, another enlargement?'}")
+    lines.append("FLAGGED: unlike the training beds" if out["flagged"] else "in distribution")
+    if out["source"] == "solver":
+        lines.append("source: solver (PETSc, --fallback); its constants:")
+        for k in NINE:
+            lines.append(f"  {k:6s} {_fmt(k, out['properties'][k]):>16s}")
+    else:
+        lines.append("source: surrogate")
+    t = out["timings"]
+    parts = [f"{k.replace('_', ' ')} {t[k]:.3g} s" for k in ("load_model", "read_bed", "pixelate",
+                                                              "bonds", "predict", "solve") if k in t]
+    lines.append(f"time {out['seconds']:.3g} s: " + ", ".join(parts))
+    if output:
+        lines.append(f"wrote {output}")
+    return "\n".join(lines)
+
+
+def _launcher_rank():
+    """This process's rank under mpirun, from the launcher's environment (0 alone)."""
+    for var in ("OMPI_COMM_WORLD_RANK", "PMI_RANK", "PMIX_RANK"):
+        if os.environ.get(var, "").isdigit():
+            return int(os.environ[var])
+    return 0

@@ -1,0 +1,135 @@
+"""`amfe train DATA.h5 -o MODEL.pt`: train a CNN surrogate on a data set (paper section 7).
+
+    amfe train data.h5 --arch custom -o model.pt [--epochs 80] [--seed 0] [--members 5]
+                       [--test heldout.h5]
+
+Adam, batch 100, 80 epochs, MSE on normalised labels, an 80/20
+train/validation split by --split-seed; every member seeded. Prints the loss
+and the validation error per property each epoch under a progress bar, writes
+the learning curve (PNG) beside the model and the checkpoint (plain tensors
+and numbers, loaded with torch.load(weights_only=True)). See training/.
+"""
+import os
+import sys
+
+from types import SimpleNamespace
+
+from amfe.errors import AmfeError
+
+# amfe.training.train.TrainConfig's defaults, without importing torch to build the parser
+# (tests/test_training.py checks that they agree).
+DEFAULTS = SimpleNamespace(arch="custom", epochs=80, batch_size=100, lr=1e-3, schedule="constant",
+                           weight_decay=0.0, seed=0, members=1, split_seed=0, val_fraction=0.2,
+                           augment="none", flag_percentile=95.0, inputs=("fill",))
+
+
+def register(sub):
+    from amfe.training import ARCH_NAMES, AUGMENTATIONS, SCHEDULES
+
+    d = DEFAULTS
+    p = sub.add_parser("train", help="train a CNN surrogate on a data set (checkpoint + curve)",
+                       description=__doc__.split("\n\n")[0])
+    p.add_argument("data", metavar="DATA.h5", help="data set made by amfe dataset")
+    p.add_argument("-o", "--output", metavar="MODEL.pt", required=True, help="checkpoint to write")
+    p.add_argument("--arch", choices=list(ARCH_NAMES), default=d.arch,
+                   help="network (default custom: the paper's Custom Net)")
+    p.add_argument("--epochs", type=int, default=d.epochs, help=f"default {d.epochs}")
+    p.add_argument("--batch-size", type=int, default=d.batch_size, help=f"default {d.batch_size}")
+    p.add_argument("--lr", type=float, default=d.lr, help=f"Adam learning rate (default {d.lr:g})")
+    p.add_argument("--schedule", choices=SCHEDULES, default=d.schedule,
+                   help="learning rate: constant (the paper's) or cosine decay to 0")
+    p.add_argument("--weight-decay", type=float, default=d.weight_decay, help="Adam weight decay")
+    p.add_argument("--seed", type=int, default=d.seed,
+                   help="seed of the first member (member k: seed + k; default 0)")
+    p.add_argument("--members", type=int, default=d.members,
+                   help="ensemble size (default 1); >1 calibrates the out-of-distribution flag")
+    p.add_argument("--split-seed", type=int, default=d.split_seed,
+                   help="seed of the train/validation split (default 0)")
+    p.add_argument("--val-fraction", type=float, default=d.val_fraction,
+                   help="validation share (default 0.2, the paper's 400 of 2000)")
+    p.add_argument("--linear-moduli", action="store_true",
+                   help="standardise Ex, Ey, Ez themselves instead of their logarithms")
+    p.add_argument("--augment", choices=AUGMENTATIONS, default=d.augment,
+                   help="label-preserving symmetries: flips (mirror x, y) or d4 (also swap x, y)")
+    p.add_argument("--tta", choices=("none", "flips", "d4"), default="none",
+                   help="test-time augmentation: predict the mean over a bed's four mirror images "
+                        "(flips) or its eight symmetric images (d4); default none")
+    p.add_argument("--flag-percentile", type=float, default=d.flag_percentile,
+                   help="ensemble flag threshold: this percentile of the validation spread "
+                        "score (default 95)")
+    p.add_argument("--inputs", default=",".join(d.inputs), metavar="KINDS",
+                   help="image kinds stacked as input channels: fill (volume fraction, the "
+                        "paper's) or fill,bonds (plus the bond-stiffness image; the data set "
+                        "needs /bond_images) (default fill)")
+    p.add_argument("--width", type=float, help="alexnet/vgg: channel-count multiplier (default 1)")
+    p.add_argument("--hidden", type=int, nargs="+",
+                   help="alexnet/vgg: widths of the hidden FC layers (default 4096 4096)")
+    p.add_argument("--batch-norm", action="store_true", help="vgg: batch normalisation")
+    p.add_argument("--max-train", type=int, default=0, metavar="N",
+                   help="train on at most N of the training beds (error versus data size)")
+    p.add_argument("--test", metavar="HELDOUT.h5",
+                   help="also evaluate on this held-out data set (stored in the checkpoint)")
+    p.add_argument("--curve", metavar="PNG", help="learning-curve file (default MODEL.png)")
+    p.add_argument("--threads", type=int, help="torch CPU threads (default: torch's)")
+    p.add_argument("--workers", type=int, default=0,
+                   help="DataLoader workers when the data set is read lazily (default 0)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar or per-epoch lines")
+    p.set_defaults(func=run)
+
+
+def arch_args_of(args):
+    out = {}
+    if args.width is not None:
+        out["width"] = args.width
+    if args.hidden:
+        out["hidden"] = list(args.hidden)
+    if args.batch_norm:
+        out["batch_norm"] = True
+    return out
+
+
+def run(args):
+    import torch
+
+    from amfe.training.checkpoint import save_checkpoint
+    from amfe.training.metrics import metrics_line
+    from amfe.training.plots import plot_learning_curves
+    from amfe.training.predict import Surrogate
+    from amfe.training.train import TrainConfig, evaluate_file, train_model
+
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    if not str(args.output).endswith(".pt"):
+        raise AmfeError(f"the model file should end in .pt, got {args.output}")
+    cfg = TrainConfig(arch=args.arch, arch_args=arch_args_of(args), epochs=args.epochs,
+                      batch_size=args.batch_size, lr=args.lr, weight_decay=args.weight_decay,
+                      schedule=args.schedule, seed=args.seed, members=args.members,
+                      split_seed=args.split_seed, val_fraction=args.val_fraction,
+                      log_moduli=not args.linear_moduli, augment=args.augment, tta=args.tta,
+                      flag_percentile=args.flag_percentile, workers=args.workers,
+                      max_train=args.max_train, inputs=args.inputs)
+
+    def log(line):
+        if not args.quiet:
+            print(line, file=sys.stderr, flush=True)
+
+    ckpt = train_model(args.data, cfg, progress=not args.quiet, log=log)
+    lines = [f"amfe train: {args.arch}, {ckpt['n_parameters']:,} parameters, "
+             f"{len(ckpt['members'])} member(s), trained in {ckpt['training']['seconds']:.1f} s"]
+    val = ckpt["metrics"].get("validation")
+    if val:
+        lines.append("  validation mean relative error %: " + metrics_line(val))
+        lines.append("  validation R^2:                   " + metrics_line(val, "r2", 1, "{:.4f}"))
+    if args.test:
+        m, _, _ = evaluate_file(Surrogate(ckpt, args.output), args.test)
+        ckpt["metrics"]["test"] = dict(m, path=str(args.test))
+        lines.append(f"  held-out {args.test} ({m['n']} beds) mean relative error %: "
+                     + metrics_line(m))
+        lines.append("  held-out R^2: " + metrics_line(m, "r2", 1, "{:.4f}"))
+    save_checkpoint(args.output, ckpt)
+    curve = args.curve or os.path.splitext(args.output)[0] + ".png"
+    plot_learning_curves({args.arch: ckpt["history"]}, curve,
+                         f"{args.arch} on {os.path.basename(args.data)}")
+    lines.append(f"wrote {args.output} ({os.path.getsize(args.output) / 1e6:.2f} MB) and {curve}")
+    print("\n".join(lines))
+    return 0

@@ -1,0 +1,291 @@
+"""Data-set files (docs/model.md, section 6): one record per bed, written kill-safe, merged, checked.
+
+While ``amfe dataset -o DATA.h5`` runs, every finished record (or failure) is
+its own small file ``DATA.h5.parts/rec_KKKKKKKK.npz``, written under a
+temporary name, fsync'ed and renamed into place (os.replace), so a part file
+is either complete or absent whatever moment the job is killed.
+``DATA.h5.parts/params.json`` holds the parameters that define the records
+(scale, seed, count, rtol, amfe version): a rerun with other parameters is
+refused. When every record exists, :func:`merge_parts` writes DATA.h5 (again
+through a temporary file and os.replace) and removes the parts directory.
+
+DATA.h5 layout, one row per record, rows sorted by record index 0..M-1:
+
+    images      (M, layers, H, W) float32  volume fraction per cell (docs/model.md, section 7)
+    bond_images (M, layers, H, W) float32  bond-stiffness image (amfe.dataset.bondimage), same grid;
+                absent in files made before it existed: add it with
+                ``amfe dataset --add-bond-images DATA.h5`` (:func:`add_bond_images`)
+    labels      (M, 6) float64  Ex, Ey, Ez [Pa], nu_yz, nu_xz, nu_xy [-]
+    C           (M, 6, 6) float64  stiffness [Pa], Voigt xx, yy, zz, yz, xz, xy
+    density     (M,) float64  packing density = mean of the image
+    index       (M,) int64    the record number k
+    seed        (M,) int64    the bed's own seed, record_seed(dataset seed, k)
+    status      (M,) uint8    0 ok, 1 failed
+    reason      (M,) str      why a record failed ("" when ok)
+    iterations  (M, 6) int32  CG iterations per load case (-1 if not solved)
+    n_particles (M,) int64    particles of the generated bed (-1 if none)
+    n_removed   (M,) int64    of them not load-carrying (-1 if not solved)
+    n_bonds     (M,) int64    bonds of the load-carrying frame (-1 if not solved)
+    volume      (M,) float64  homogenization volume [m^3] (hull of the kept centres)
+    seconds     (M, 3) float64  generate, image, homogenize wall times [s]
+    solver      (M,) str      JSON of homogenize_bed's solver record ("" if not solved)
+    params/NAME (M,) float64  the bed's generation parameters (amfe.model.scales.PARAM_NAMES)
+
+Failed rows have NaN labels, C and volume; their image and density are those
+of the generated bed when generation succeeded, zeros and NaN otherwise.
+Root attributes: format, format_version, scale, seed, count, rtol,
+amfe_version, label_names, created (UTC, ISO 8601), bed_size [m],
+layer_thickness [m], image_cell [m], image_shape, image_spacing [m] (the
+sample spacing given to amfe.dataset.images.pixelate), density_definition,
+status_codes. A record's image is
+``pixelate(bed, cell, layer_thickness, box=((0, 0, 0), bed_size),
+spacing=image_spacing)`` of the bed ``amfe pack --scale SCALE --seed SEED``
+regenerates; its bond image is ``bond_image`` of that bed on the same grid.
+"""
+import datetime
+import os
+import shutil
+
+import numpy as np
+
+from amfe.io.atomic import atomic_write
+from amfe.errors import AmfeError, _list_items
+from amfe.model.scales import PARAM_NAMES, PARAM_UNITS, get_scale, record_seed
+
+from amfe.vocab import LABEL_NAMES
+from amfe.io.datasetparts import (STATUS_FAILED, STATUS_OK, done_indices, part_path,
+                                  read_part)
+SECONDS_NAMES = ("generate", "image", "homogenize")
+DENSITY_DEFINITION = ("mean of the image: the volume fraction of the box [0,Lx]x[0,Ly]x[0,Lz] "
+                      "filled by the union of the spheres")
+BOND_IMAGE_DEFINITION = ("sum over the bonds whose midpoint lies in the cell of k_n L^2 / "
+                         "(E V_cell), dimensionless (amfe.dataset.bondimage)")
+
+
+# ---------------------------------------------------------------- parts
+
+
+def _image_dataset(f, name, count, shape, data=None):
+    """An (count, *shape) float32 image dataset, one gzip'ed chunk per record."""
+    ds = f.create_dataset(name, (count, *shape), np.float32, data=data, chunks=(1, *shape),
+                          compression="gzip", compression_opts=1, shuffle=True)
+    ds.attrs["axes"] = "record, layer (z), y, x"
+    if name == "bond_images":
+        ds.attrs["definition"] = BOND_IMAGE_DEFINITION
+    return ds
+
+
+# ---------------------------------------------------------------- merge
+
+def merge_parts(output, parts, params):
+    """Write every record 0..count-1 of ``parts`` into the HDF5 file ``output``; remove ``parts``.
+
+    The file is written under a temporary name and renamed into place, so a
+    kill during the merge leaves the parts intact and no ``output``; a rerun
+    redoes the merge. Raises AmfeError naming missing or unreadable records
+    (an unreadable part is removed, so that a rerun recomputes it).
+    """
+    import h5py
+
+    count = int(params["count"])
+    sc = get_scale(params["scale"])
+    missing = sorted(set(range(count)) - set(done_indices(parts, count)))
+    if missing:
+        raise AmfeError(f"cannot merge {output}: {len(missing)} record(s) missing in {parts} "
+                        f"({_list_items(missing)}); run the same command again")
+    shape = sc.image_shape
+
+    def write(tmp):
+        with h5py.File(tmp, "w") as f:
+            d = {
+                "images": _image_dataset(f, "images", count, shape),
+                "labels": f.create_dataset("labels", (count, 6), np.float64),
+                "C": f.create_dataset("C", (count, 6, 6), np.float64),
+                "density": f.create_dataset("density", (count,), np.float64),
+                "index": f.create_dataset("index", (count,), np.int64),
+                "seed": f.create_dataset("seed", (count,), np.int64),
+                "status": f.create_dataset("status", (count,), np.uint8),
+                "reason": f.create_dataset("reason", (count,), h5py.string_dtype()),
+                "iterations": f.create_dataset("iterations", (count, 6), np.int32),
+                "n_particles": f.create_dataset("n_particles", (count,), np.int64),
+                "n_removed": f.create_dataset("n_removed", (count,), np.int64),
+                "n_bonds": f.create_dataset("n_bonds", (count,), np.int64),
+                "volume": f.create_dataset("volume", (count,), np.float64),
+                "seconds": f.create_dataset("seconds", (count, 3), np.float64),
+                "solver": f.create_dataset("solver", (count,), h5py.string_dtype()),
+            }
+            bonds = _image_dataset(f, "bond_images", count, shape)
+            all_bonds = True   # parts written before bond images existed have none
+            pg = f.create_group("params")
+            pdata = np.empty((count, len(PARAM_NAMES)))
+            for k in range(count):
+                path = part_path(parts, k)
+                try:
+                    rec = read_part(path)
+                except AmfeError:
+                    os.remove(path)
+                    raise AmfeError(f"record file {path} was damaged and has been removed; run "
+                                    "the same command again to recompute it") from None
+                if rec["index"] != k or rec["image"].shape != shape:
+                    os.remove(path)
+                    raise AmfeError(f"record file {path} does not hold record {k} of shape "
+                                    f"{shape} (index {rec['index']}, image "
+                                    f"{rec['image'].shape}); it has been removed, run the same "
+                                    "command again")
+                for name, ds in d.items():
+                    ds[k] = rec["image" if name == "images" else name]
+                if "bond_image" in rec and rec["bond_image"].shape == shape:
+                    bonds[k] = rec["bond_image"]
+                else:
+                    all_bonds = False
+                pdata[k] = rec["params"]
+            if not all_bonds:
+                del f["bond_images"]
+            for j, name in enumerate(PARAM_NAMES):
+                ds = pg.create_dataset(name, data=pdata[:, j])
+                ds.attrs["units"] = PARAM_UNITS[name]
+            d["labels"].attrs["columns"] = list(LABEL_NAMES)
+            d["labels"].attrs["units"] = "Pa for Ex, Ey, Ez; - for the Poisson ratios"
+            d["C"].attrs["units"] = "Pa"
+            d["seconds"].attrs["columns"] = list(SECONDS_NAMES)
+            f.attrs.update({k: v for k, v in params.items()})
+            f.attrs.update({
+                "label_names": list(LABEL_NAMES),
+                "created": datetime.datetime.now(datetime.timezone.utc).isoformat(
+                    timespec="seconds"),
+                "bed_size": list(sc.size), "layer_thickness": sc.layer_thickness,
+                "image_cell": [sc.cell[0], sc.cell[1], sc.layer_thickness],
+                "image_shape": list(shape),
+                "image_spacing": sc.image_spacing,
+                "density_definition": DENSITY_DEFINITION,
+                "status_codes": "0 ok, 1 failed (see reason)",
+            })
+
+    atomic_write(output, write, by_name=True)
+    shutil.rmtree(parts, ignore_errors=True)
+
+
+# ---------------------------------------------------------------- check and summary
+
+IMAGE_DATASETS = ("images", "bond_images")
+REQUIRED = {  # name: (trailing shape or None for the image's, dtype kinds)
+    "images": (None, "f"), "labels": ((6,), "f"), "C": ((6, 6), "f"), "density": ((), "f"),
+    "index": ((), "iu"), "seed": ((), "iu"), "status": ((), "iu"), "reason": ((), "OSU"),
+}
+
+
+def load_dataset(path, images=True):
+    """All arrays of a data-set file as a dict (params as a nested dict), and its attrs."""
+    import h5py
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise AmfeError(f"data set {path} does not exist")
+    if not h5py.is_hdf5(path):
+        raise AmfeError(f"{path} is not an HDF5 file")
+    with h5py.File(path, "r") as f:
+        data = {}
+        for name, obj in f.items():
+            if isinstance(obj, h5py.Dataset) and (images or name not in IMAGE_DATASETS):
+                data[name] = obj.asstr()[()] if obj.dtype.kind == "O" else obj[()]
+        data["params"] = {n: f["params"][n][()] for n in f["params"]} if "params" in f else {}
+        attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in f.attrs.items()}
+    return data, attrs
+
+
+def check_dataset(path):
+    """Validate a data-set file: returns (problems: list of str, data, attrs).
+
+    Checks: the datasets of the layout exist with consistent shapes (one row
+    per record, M = attrs count, images of the scale's shape); index is
+    exactly 0..M-1 (duplicates and missing indices named); seed matches
+    record_seed(attrs seed, index); status is 0 or 1; ok rows have finite
+    labels, C and density, positive moduli; failed rows have a reason; image
+    values are finite and in [0, 1].
+    """
+    try:
+        data, attrs = load_dataset(path)
+    except OSError as exc:
+        raise AmfeError(f"cannot read {path}: {exc}") from None
+    problems = []
+    for name, (tail, kinds) in REQUIRED.items():
+        if name not in data:
+            problems.append(f"missing dataset /{name}")
+        elif data[name].dtype.kind not in kinds:
+            problems.append(f"/{name} has dtype {data[name].dtype}")
+    if problems:
+        return problems, data, attrs
+    M = data["index"].shape[0]
+    count = attrs.get("count")
+    if count is None:
+        problems.append("no 'count' attribute")
+    elif int(count) != M:
+        problems.append(f"{M} rows but the count attribute says {int(count)}")
+    for name, (tail, _) in REQUIRED.items():
+        arr = data[name]
+        if arr.shape[:1] != (M,):
+            problems.append(f"/{name} has {arr.shape[0] if arr.ndim else 0} rows, /index {M}")
+        elif tail is not None and arr.shape[1:] != tail:
+            problems.append(f"/{name} rows have shape {arr.shape[1:]}, expected {tail}")
+    img = data["images"]
+    try:
+        expect = get_scale(attrs.get("scale")).image_shape
+    except AmfeError as exc:
+        problems.append(str(exc))
+        expect = None
+    if img.ndim != 4:
+        problems.append(f"/images must be (M, layers, H, W), got shape {img.shape}")
+    elif expect is not None and img.shape[1:] != tuple(expect):
+        problems.append(f"/images rows have shape {img.shape[1:]}, scale {attrs.get('scale')} "
+                        f"makes {tuple(expect)}")
+    if problems:
+        return problems, data, attrs
+
+    index = data["index"].astype(np.int64)
+    uniq, counts = np.unique(index, return_counts=True)
+    dup = uniq[counts > 1]
+    if dup.size:
+        problems.append(f"duplicate record indices: {_list_items(np.ravel(dup), 8)}")
+    missing = np.setdiff1d(np.arange(M), index)
+    if missing.size:
+        problems.append(f"missing record indices: {_list_items(np.ravel(missing), 8)}")
+    if not dup.size and not missing.size and np.any(index != np.arange(M)):
+        problems.append("rows are not sorted by record index")
+    if "seed" in attrs and not dup.size:
+        want = np.array([record_seed(int(attrs["seed"]), int(k)) for k in index if k >= 0])
+        have = data["seed"].astype(np.int64)[index >= 0]
+        bad = np.flatnonzero(want != have)
+        if bad.size:
+            problems.append(f"bed seeds do not match record_seed(data set seed, index) for "
+                            f"records {_list_items(np.ravel(index[index >= 0][bad]), 8)}")
+    status = data["status"].astype(np.int64)
+    bad = np.flatnonzero((status != STATUS_OK) & (status != STATUS_FAILED))
+    if bad.size:
+        problems.append(f"unknown status values at rows {_list_items(np.ravel(bad), 8)}")
+    ok = status == STATUS_OK
+    lab, C, dens = data["labels"], data["C"], data["density"]
+    bad = np.flatnonzero(ok & ~(np.all(np.isfinite(lab), 1) & np.all(np.isfinite(C), (1, 2))
+                                & np.isfinite(dens)))
+    if bad.size:
+        problems.append("ok records with non-finite labels, C or density: "
+                        f"{_list_items(np.ravel(index[bad]), 8)}")
+    bad = np.flatnonzero(ok & np.isfinite(lab).all(1) & np.any(lab[:, :3] <= 0, axis=1))
+    if bad.size:
+        problems.append(f"ok records with non-positive moduli: {_list_items(np.ravel(index[bad]), 8)}")
+    reasons = data["reason"]
+    bad = np.flatnonzero((status == STATUS_FAILED) & (np.char.str_len(reasons.astype(str)) == 0))
+    if bad.size:
+        problems.append(f"failed records without a reason: {_list_items(np.ravel(index[bad]), 8)}")
+    if not np.all(np.isfinite(img)) or img.min(initial=0) < -1e-6 or img.max(initial=0) > 1 + 1e-6:
+        problems.append("image values outside [0, 1] or not finite")
+    fin = np.isfinite(dens)
+    if np.any((dens[fin] < 0) | (dens[fin] > 1)):
+        problems.append("packing densities outside [0, 1]")
+    if "bond_images" in data:
+        b = data["bond_images"]
+        if b.shape != img.shape:
+            problems.append(f"/bond_images has shape {b.shape}, /images {img.shape}")
+        elif not np.all(np.isfinite(b)) or b.min(initial=0) < 0:
+            problems.append("bond image values negative or not finite")
+    return problems, data, attrs
+
+

@@ -1,0 +1,151 @@
+"""A data set's part files: one ``rec_NNNNNNNN.npz`` per finished record, and params.json.
+
+``amfe dataset`` writes each record as soon as it is solved (atomically), so a
+killed run loses only the beds in flight; :mod:`amfe.io.datasetfile` merges
+the parts into the HDF5 file (docs/datasets.md).
+"""
+import json
+import os
+import re
+
+import numpy as np
+
+from amfe.errors import AmfeError
+from amfe.io.atomic import atomic_write
+from amfe.model.scales import PARAM_NAMES
+from amfe.version import __version__
+
+FORMAT = "amfe.dataset"
+FORMAT_VERSION = 1
+STATUS_OK, STATUS_FAILED = 0, 1
+PARAMS_JSON = "params.json"
+_PART = re.compile(r"^rec_(\d{8})\.npz$")
+
+
+def parts_dir(output):
+    """The parts directory of data-set file ``output``: ``OUTPUT.parts``."""
+    return os.fspath(output) + ".parts"
+
+
+
+def part_path(parts, k):
+    return os.path.join(parts, f"rec_{k:08d}.npz")
+
+
+
+def run_params(scale, seed, count, rtol):
+    """The parameters that define a data set's records (what params.json and the attrs hold)."""
+    return {"format": FORMAT, "format_version": FORMAT_VERSION, "scale": str(scale),
+            "seed": int(seed), "count": int(count), "rtol": float(rtol),
+            "amfe_version": __version__}
+
+
+
+def remove_stale_tmp(directory, prefix):
+    """Remove temporary files ``.PREFIX*.tmp`` left in ``directory`` by a killed run."""
+    removed = 0
+    try:
+        names = os.listdir(directory)
+    except FileNotFoundError:
+        return 0
+    for name in names:
+        if name.startswith("." + prefix) and name.endswith(".tmp"):
+            try:
+                os.remove(os.path.join(directory, name))
+                removed += 1
+            except FileNotFoundError:
+                pass
+    return removed
+
+
+
+def empty_record(k, bed_seed, image_shape):
+    """A record with nothing computed yet (NaN labels, zero image), status failed."""
+    return {
+        "index": int(k), "seed": int(bed_seed), "status": STATUS_FAILED, "reason": "",
+        "image": np.zeros(image_shape, np.float32),
+        "bond_image": np.zeros(image_shape, np.float32),
+        "labels": np.full(6, np.nan), "C": np.full((6, 6), np.nan), "density": np.nan,
+        "iterations": np.full(6, -1, np.int32), "n_particles": -1, "n_removed": -1,
+        "n_bonds": -1, "volume": np.nan, "seconds": np.zeros(3), "solver": "",
+        "params": np.full(len(PARAM_NAMES), np.nan),
+    }
+
+
+
+def write_part(parts, rec):
+    """Write one record as ``parts/rec_KKKKKKKK.npz``, atomically (tmp, fsync, os.replace)."""
+    arrays = {
+        "index": np.int64(rec["index"]), "seed": np.int64(rec["seed"]),
+        "status": np.uint8(rec["status"]), "reason": np.str_(rec["reason"]),
+        "image": np.asarray(rec["image"], np.float32),
+        "bond_image": np.asarray(rec["bond_image"], np.float32),
+        "labels": np.asarray(rec["labels"], np.float64).reshape(6),
+        "C": np.asarray(rec["C"], np.float64).reshape(6, 6),
+        "density": np.float64(rec["density"]),
+        "iterations": np.asarray(rec["iterations"], np.int32).reshape(6),
+        "n_particles": np.int64(rec["n_particles"]), "n_removed": np.int64(rec["n_removed"]),
+        "n_bonds": np.int64(rec["n_bonds"]), "volume": np.float64(rec["volume"]),
+        "seconds": np.asarray(rec["seconds"], np.float64).reshape(3),
+        "solver": np.str_(rec["solver"]),
+        "params": np.asarray(rec["params"], np.float64).reshape(len(PARAM_NAMES)),
+    }
+    path = part_path(parts, rec["index"])
+    atomic_write(path, lambda fh: np.savez(fh, **arrays))
+    return path
+
+
+
+def read_part(path):
+    """One part file as a record dict (AmfeError if it cannot be read)."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            rec = {k: z[k] for k in z.files}
+    except Exception as exc:  # noqa: BLE001 - any damage is reported the same way
+        raise AmfeError(f"cannot read record file {path}: {exc}") from None
+    for key in ("index", "seed", "status", "n_particles", "n_removed", "n_bonds"):
+        rec[key] = int(rec[key])
+    for key in ("density", "volume"):
+        rec[key] = float(rec[key])
+    rec["reason"], rec["solver"] = str(rec["reason"]), str(rec["solver"])
+    return rec
+
+
+
+def done_indices(parts, count):
+    """Sorted record indices < count whose part file exists."""
+    try:
+        names = os.listdir(parts)
+    except FileNotFoundError:
+        return []
+    out = []
+    for name in names:
+        m = _PART.match(name)
+        if m and int(m.group(1)) < count:
+            out.append(int(m.group(1)))
+    return sorted(out)
+
+
+
+def read_params_json(parts):
+    path = os.path.join(parts, PARAMS_JSON)
+    try:
+        with open(path) as fh:
+            return json.load(fh)
+    except FileNotFoundError:
+        return None
+    except (OSError, ValueError) as exc:
+        raise AmfeError(f"cannot read {path}: {exc}; remove the directory {parts} to start "
+                        "afresh") from None
+
+
+
+def write_params_json(parts, params):
+    data = json.dumps(params, indent=2).encode() + b"\n"
+    atomic_write(os.path.join(parts, PARAMS_JSON), lambda fh: fh.write(data))
+
+
+
+def describe_params(p):
+    return (f"scale {p.get('scale')}, seed {p.get('seed')}, count {p.get('count')}, "
+            f"rtol {p.get('rtol')}, amfe {p.get('amfe_version')}")

@@ -1,0 +1,178 @@
+"""Bond detection and contact geometry (docs/model.md, section 3), vectorised numpy.
+
+Particles i, j are bonded iff L = |x_j - x_i| < R_i + R_j. For each bond the
+contact plane sits at distance d_i from centre i and d_j = L - d_i from centre
+j; its radius is a, the effective radius R = R_i R_j / (R_i + R_j), a* = a / R.
+"""
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from amfe.errors import AmfeError, _list_items
+from amfe.model.material import Material
+from amfe.model.springs import A_STAR_MARGIN, critical_a_star, spring_constants
+
+
+def validate_particles(centers, radii):
+    """Return (centers (N,3), radii (N,)) as float64 arrays, or raise AmfeError.
+
+    Rejects wrong shapes, non-finite coordinates and non-finite or non-positive
+    radii, naming the offending particles.
+    """
+    centers = np.asarray(centers, dtype=float)
+    radii = np.asarray(radii, dtype=float)
+    if centers.ndim != 2 or centers.shape[1] != 3:
+        raise AmfeError(f"particle centres must have shape (N, 3), got {centers.shape}")
+    if radii.shape != (centers.shape[0],):
+        raise AmfeError(f"radii must have shape ({centers.shape[0]},) to match the centres, "
+                        f"got {radii.shape}")
+    if centers.shape[0] == 0:
+        raise AmfeError("the bed has no particles")
+    bad = np.flatnonzero(~np.isfinite(centers).all(axis=1))
+    if bad.size:
+        raise AmfeError(f"{bad.size} particles have non-finite centres: particles {_list_items(bad)}")
+    bad = np.flatnonzero(~(np.isfinite(radii) & (radii > 0)))
+    if bad.size:
+        raise AmfeError(f"{bad.size} particles have non-finite or non-positive radii: "
+                        + _list_items(f"{k} (R={radii[k]!r})" for k in bad))
+    return centers, radii
+
+
+def find_pairs(centers, radii):
+    """Bonded pairs (i, j), i < j, as two (M,) int64 arrays sorted by (i, j).
+
+    A KD-tree proposes pairs closer than twice the largest radius; the exact
+    test L < R_i + R_j keeps the bonds.
+    """
+    tree = cKDTree(centers)
+    pairs = tree.query_pairs(r=2.0 * float(radii.max()), output_type="ndarray")
+    if pairs.size == 0:
+        return np.empty(0, np.int64), np.empty(0, np.int64)
+    i, j = pairs[:, 0].astype(np.int64), pairs[:, 1].astype(np.int64)
+    lo, hi = np.minimum(i, j), np.maximum(i, j)
+    dist2 = np.einsum("ij,ij->i", centers[hi] - centers[lo], centers[hi] - centers[lo])
+    keep = dist2 < (radii[lo] + radii[hi]) ** 2
+    lo, hi = lo[keep], hi[keep]
+    order = np.lexsort((hi, lo))
+    return lo[order], hi[order]
+
+
+@dataclass
+class Bonds:
+    """Geometry of M bonds. Lengths in the caller's unit; arrays (M,) unless noted.
+
+    i, j: particle indices (i < j); normal (M,3): unit vector from i to j;
+    length: L; d_i, d_j: distances of the contact plane from centres i and j
+    (d_i + d_j = L); a: contact radius; r_eff: R_i R_j / (R_i + R_j);
+    a_star: a / r_eff.
+    """
+
+    i: np.ndarray
+    j: np.ndarray
+    normal: np.ndarray
+    length: np.ndarray
+    d_i: np.ndarray
+    d_j: np.ndarray
+    a: np.ndarray
+    r_eff: np.ndarray
+    a_star: np.ndarray
+
+    def __len__(self):
+        return self.i.size
+
+    def subset(self, mask):
+        """The bonds selected by a boolean or index array."""
+        return Bonds(**{k: v[mask] for k, v in self.__dict__.items()})
+
+
+def contact_geometry(centers, radii, i, j):
+    """Contact geometry of the bonds (i, j); raises AmfeError on degenerate pairs.
+
+    Degenerate: coincident centres (L = 0) and a contact plane outside the
+    segment between the centres (d_i <= 0 or d_j <= 0: a small sphere deep
+    inside a large one). The contact radius uses the symmetric (Heron) form,
+    which stays accurate for shallow overlaps where R_i^2 - d_i^2 cancels.
+    """
+    Ri, Rj = radii[i], radii[j]
+    branch = centers[j] - centers[i]
+    L = np.sqrt(np.einsum("ij,ij->i", branch, branch))
+    tiny = L <= 1e-12 * np.maximum(Ri, Rj)
+    if tiny.any():
+        raise AmfeError(f"{int(tiny.sum())} pairs of particles have coincident centres: "
+                        + _list_items(f"({a}, {b})" for a, b in zip(i[tiny], j[tiny]))
+                        + ". Remove the duplicates from the bed.")
+    d_i = (L**2 + Ri**2 - Rj**2) / (2.0 * L)
+    d_j = L - d_i
+    inside = (d_i <= 0) | (d_j <= 0)
+    if inside.any():
+        raise AmfeError(f"{int(inside.sum())} bonds have their contact plane outside the segment "
+                        "between the centres (a small sphere deep inside a large one): "
+                        + _list_items(f"({a}, {b})" for a, b in zip(i[inside], j[inside]))
+                        + ". Such overlaps are not sintered necks; fix the radii or positions.")
+    heron = (Ri + Rj - L) * (L + Ri - Rj) * (L - Ri + Rj) * (Ri + Rj + L)
+    a = np.sqrt(np.maximum(heron, 0.0)) / (2.0 * L)
+    r_eff = Ri * Rj / (Ri + Rj)
+    return Bonds(i=i, j=j, normal=branch / L[:, None], length=L, d_i=d_i, d_j=d_j,
+                 a=a, r_eff=r_eff, a_star=a / r_eff)
+
+
+def find_bonds(centers, radii):
+    """Validate the particles, detect the bonds and return their :class:`Bonds`."""
+    centers, radii = validate_particles(centers, radii)
+    i, j = find_pairs(centers, radii)
+    return contact_geometry(centers, radii, i, j)
+
+
+def bond_springs(bonds: Bonds, material: Material, a_star_cap=None, labels=None):
+    """Springs of every bond: (k_n, k_t, kappa_n, kappa_t, n_capped).
+
+    Units follow the inputs: with lengths in m and E in Pa, k in N/m and kappa
+    in N m. A bond at or past the critical a* (where the k_n denominator of
+    eq. 1 vanishes, 0.9934 for the paper's nu and psi) has no physical spring:
+    by default that is an error naming the bonds. With ``a_star_cap`` (< the
+    critical value) such bonds, and any above the cap, are evaluated at
+    a* = a_star_cap instead, and their number is returned as n_capped; bonds
+    with a* >= 1 (overlaps too deep for a neck: nearly coincident spheres)
+    stay errors. ``labels`` (N,) names particles in messages (default: their
+    index in the arrays the bonds refer to).
+    """
+    crit = critical_a_star(material.nu, material.psi)
+    limit = crit - A_STAR_MARGIN  # closer than this no solve keeps accuracy
+    a_star = bonds.a_star
+    name = (lambda k: k) if labels is None else (lambda k: labels[k])  # noqa: E731
+    if a_star_cap is None:
+        bad = np.flatnonzero(a_star >= limit)
+        if bad.size:
+            worst = bad[np.argsort(-a_star[bad])]
+            raise AmfeError(
+                f"{bad.size} bonds reach a* >= {crit:.6f}, where the k_n and kappa_t "
+                f"denominators of paper eqs. 1 and 4 vanish (nu={material.nu}, psi={material.psi}; "
+                f"refused from {A_STAR_MARGIN:g} below it); their stiffness would be infinite, "
+                "negative or beyond any solver's accuracy. Bonds (i, j, a*): "
+                + _list_items(f"({name(bonds.i[k])}, {name(bonds.j[k])}, {a_star[k]:.6f})"
+                              for k in worst)
+                + ". Reduce the particle overlaps, or cap a* explicitly "
+                "(--cap-a-star A with A < the critical value; the count of capped bonds is reported)."
+            )
+        capped = np.zeros(a_star.shape, bool)
+        s = a_star
+    else:
+        a_star_cap = float(a_star_cap)
+        if not (0.0 < a_star_cap < limit):
+            raise AmfeError(f"the a* cap must lie in (0, {limit:.10f}) ({A_STAR_MARGIN:g} below "
+                            f"the critical a* {crit:.10f} for nu={material.nu}, psi={material.psi}), "
+                            f"got {a_star_cap}")
+        deep = np.flatnonzero(a_star >= 1.0)
+        if deep.size:
+            raise AmfeError(
+                f"{deep.size} bonds have a* >= 1, overlaps too deep for a sintered neck (nearly "
+                "coincident spheres; eqs. 1-4 are imaginary there), which no a* cap covers. "
+                "Bonds (i, j, a*): "
+                + _list_items(f"({name(bonds.i[k])}, {name(bonds.j[k])}, {a_star[k]:.6f})"
+                              for k in deep[np.argsort(-a_star[deep])])
+                + ". Remove the duplicated particles.")
+        capped = a_star > a_star_cap
+        s = np.minimum(a_star, a_star_cap)
+    k_n, k_t, kappa_n, kappa_t = spring_constants(s * bonds.r_eff, bonds.r_eff, material)
+    return k_n, k_t, kappa_n, kappa_t, int(capped.sum())

@@ -1,0 +1,133 @@
+"""The load-carrying space frame of a bed, non-dimensionalised (docs/model.md, sections 1 and 5).
+
+Only what carries load is modelled: the bond graph's largest connected
+component is kept and every other particle is dropped before anything else.
+Lengths are divided by the mean input radius ``length_scale`` and forces by
+``force_scale = E * length_scale**2``; then k_n, k_t and kappa_n, kappa_t are
+all O(1) instead of ~1e5 N/m against ~1e-5 N m, which keeps the global matrix
+well scaled for the iterative solver and makes results independent of the
+caller's unit system.
+"""
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+from amfe.model.bonds import Bonds, bond_springs, contact_geometry, find_pairs, validate_particles
+from amfe.errors import AmfeError
+from amfe.model.material import STEEL, Material
+
+
+@dataclass
+class Frame:
+    """A connected bonded frame in non-dimensional units.
+
+    centers (n,3), radii (n,): kept particles, lengths / length_scale, in
+    locality (Morton) order; kept (n,): their indices in the input bed;
+    bonds: :class:`amfe.model.bonds.Bonds` between kept particles (renumbered);
+    k_n, k_t (M,) [force_scale / length_scale]; kappa_n, kappa_t (M,)
+    [force_scale * length_scale]; n_input: particles in the input;
+    n_capped: bonds whose a* was capped; length_scale [m]; force_scale [N].
+    """
+
+    centers: np.ndarray
+    radii: np.ndarray
+    kept: np.ndarray
+    bonds: Bonds
+    k_n: np.ndarray
+    k_t: np.ndarray
+    kappa_n: np.ndarray
+    kappa_t: np.ndarray
+    n_input: int
+    n_capped: int
+    length_scale: float
+    force_scale: float
+    material: Material
+
+    @property
+    def n_particles(self):
+        return self.centers.shape[0]
+
+    @property
+    def n_removed(self):
+        return self.n_input - self.n_particles
+
+    @property
+    def stress_scale(self):
+        """Pa per non-dimensional stress unit (= E)."""
+        return self.force_scale / self.length_scale**2
+
+
+def morton_order(points, bits=10):
+    """Permutation (n,) sorting points along a Z-order curve (locality for row blocks)."""
+    lo = points.min(axis=0)
+    span = np.maximum(points.max(axis=0) - lo, 1e-300)
+    q = np.minimum(((points - lo) / span * (2**bits - 1)).astype(np.uint64), 2**bits - 1)
+    code = np.zeros(points.shape[0], np.uint64)
+    for b in range(bits):
+        for axis in range(3):
+            code |= ((q[:, axis] >> np.uint64(b)) & np.uint64(1)) << np.uint64(3 * b + axis)
+    return np.argsort(code, kind="stable")
+
+
+def largest_component(n, i, j):
+    """Boolean mask (n,) of the largest connected component of the graph (i, j).
+
+    Ties go to the component holding the lowest particle index.
+    """
+    graph = coo_matrix((np.ones(i.size), (i, j)), shape=(n, n))
+    _, labels = connected_components(graph, directed=False)
+    sizes = np.bincount(labels)
+    return labels == np.argmax(sizes)
+
+
+def build_frame(centers, radii, material: Material = STEEL, a_star_cap=None, nondimensional=True):
+    """The largest connected, non-dimensionalised frame of a bed.
+
+    centers (N,3) [m], radii (N,) [m]. Raises AmfeError for invalid particles,
+    degenerate contacts, a bed without bonds, a load-carrying part too small to
+    span a volume, or (unless ``a_star_cap`` is given) bonds at or past the
+    critical a* (see :func:`amfe.model.bonds.bond_springs`).
+    ``nondimensional=False`` keeps SI units (length_scale = force_scale = 1):
+    only for showing what the scaling buys.
+    """
+    centers, radii = validate_particles(centers, radii)
+    n_input = centers.shape[0]
+    length = float(radii.mean()) if nondimensional else 1.0
+    x = centers / length
+    r = radii / length
+
+    i, j = find_pairs(x, r)
+    if i.size == 0:
+        raise AmfeError(f"the bed has no bonds: none of its {n_input} particles overlap "
+                        "(bonded means |x_j - x_i| < R_i + R_j)")
+    contact_geometry(x, r, i, j)  # degenerate contacts are errors anywhere in the bed
+    keep = largest_component(n_input, i, j)
+    kept = np.flatnonzero(keep)
+    if kept.size < 4:
+        raise AmfeError(f"the largest bonded cluster has only {kept.size} particles; "
+                        "at least 4 non-coplanar centres are needed to span a volume")
+    kept = kept[morton_order(x[kept])]
+    new_index = np.full(n_input, -1, np.int64)
+    new_index[kept] = np.arange(kept.size)
+    both = keep[i]  # a bond lies in the component iff either end does
+    bi, bj = new_index[i[both]], new_index[j[both]]
+    lo, hi = np.minimum(bi, bj), np.maximum(bi, bj)
+    order = np.lexsort((hi, lo))
+    x, r = x[kept], r[kept]
+    extent = (x.max(axis=0) - x.min(axis=0)) / r.mean()  # in mean radii
+    if extent.min() < 1.0:
+        axis = "xyz"[int(np.argmin(extent))]
+        raise AmfeError(
+            f"the load-carrying particles form a sheet or a line: their centres span only "
+            f"{extent.min():.3g} mean radii along {axis}, less than one radius, so they span "
+            "no volume to average over; a bed needs at least two particle layers in every "
+            "direction")
+    bonds = contact_geometry(x, r, lo[order], hi[order])
+    E = 1.0 if nondimensional else material.E
+    unit = Material(E=E, nu=material.nu, psi=material.psi, density=material.density)
+    k_n, k_t, kappa_n, kappa_t, n_capped = bond_springs(bonds, unit, a_star_cap, labels=kept)
+    return Frame(centers=x, radii=r, kept=kept, bonds=bonds, k_n=k_n, k_t=k_t,
+                 kappa_n=kappa_n, kappa_t=kappa_t, n_input=n_input, n_capped=n_capped,
+                 length_scale=length, force_scale=material.E / E * length**2, material=material)

@@ -1,0 +1,50 @@
+"""Load cases as plain data: which DOFs a boundary condition prescribes, and to what.
+
+A :class:`Group` is a set of load cases that prescribe the same DOFs (with
+different values): the solvers build one constrained operator and one
+preconditioner per group and solve each case against it (docs/model.md,
+section 5). KUBC is one group of six cases; the mixed conditions are six
+groups of one. Pure numpy: the boundary-condition modules build groups, the
+PETSc layer (amfe.solvers) solves them.
+"""
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass
+class Group:
+    """Load cases sharing their prescribed DOFs.
+
+    fixed (n,6) bool: prescribed DOFs; values: list of (n,6) arrays, one per
+    case (entries outside ``fixed`` are ignored); names: case names;
+    null_modes: (m, n, 6) rigid modes the constraints leave free (the
+    operator is then singular and CG works in their orthogonal complement;
+    the right-hand sides are consistent because K annihilates them);
+    guesses: optional list of (n,6) initial guesses, one per case.
+    """
+
+    fixed: np.ndarray
+    values: list
+    names: list
+    null_modes: np.ndarray = field(default=None)
+    guesses: list = field(default=None)
+
+
+def rigid_body_modes(points, center=None):
+    """(6, 6n) rigid-body modes of n nodes with DOFs (u_x, u_y, u_z, th_x, th_y, th_z).
+
+    Modes 0-2 translate; modes 3-5 rotate about the axes through ``center``
+    (default: the centroid of ``points`` (n,3)): a rotation omega moves u by
+    omega x (x - center) AND sets theta = omega. (PETSc's
+    MatNullSpaceCreateRigidBody covers 3-DOF nodes only.)
+    """
+    center = points.mean(axis=0) if center is None else np.asarray(center, float)
+    rel = points - center
+    modes = np.zeros((6, points.shape[0], 6))
+    for a in range(3):
+        omega = np.eye(3)[a]
+        modes[a, :, a] = 1.0
+        modes[3 + a, :, :3] = np.cross(omega, rel)
+        modes[3 + a, :, 3 + a] = 1.0
+    return modes.reshape(6, -1)

@@ -1,0 +1,204 @@
+"""One group's constrained operator: built once, then one solve per load case.
+
+A group (:class:`amfe.model.loadcase.Group`) is a set of load cases that
+prescribe the same DOFs. :class:`ConstrainedOperator` assembles the frame's
+matrix, imposes the prescribed DOFs with MatZeroRowsColumns (identity rows and
+columns that keep their own diagonal entry, the values lifted into the
+right-hand sides), which keeps the AIJ block size 6 and the near null space
+that GAMG needs, sets the preconditioner up once, and then solves each case
+(:meth:`ConstrainedOperator.solve`). Reactions come from the unconstrained
+rows of the constrained particles' translations (docs/model.md, section 5).
+
+CG multiplies with a symmetric-block (SBAIJ) copy of the constrained matrix:
+CG and the fine-level smoother are bound by MatMult's memory traffic, and the
+upper 6x6 blocks with one index per block move about a third of AIJ's bytes.
+GAMG is built from the AIJ matrix (it cannot use (S)BAIJ in PETSc 3.18). The
+PETSc option -amfe_operator_type aij turns the copy off.
+"""
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from amfe.model.averages import bagi_stress
+from amfe.solvers.assembly import aij_from_blocks, sbaij_operator
+from amfe.solvers.ksp import check_converged, make_ksp, petsc_options
+from amfe.solvers.nullspace import near_nullspace, orthonormal_nullspace
+
+
+@dataclass
+class SetupRecord:
+    """What building one group's operator cost and chose.
+
+    assembly_seconds, setup_seconds [s]; ksp_type, pc_type, rtol as PETSc
+    resolved them (command-line options included); pc_complexity: GAMG's
+    level sizes and complexities when diagnosing (else empty).
+    """
+
+    assembly_seconds: float
+    setup_seconds: float
+    ksp_type: str
+    pc_type: str
+    rtol: float
+    pc_complexity: dict = field(default_factory=dict)
+
+
+@dataclass
+class CaseSolution:
+    """One load case's solution.
+
+    u: (n, 6) DOFs on rank 0 (None elsewhere, or when not gathered), in the
+    frame's units; moment: (3, 3) sum over constrained particles of
+    f (x) (x - center), summed over ranks; residual: true relative residual
+    ||b - A x|| / ||b||; eigenvalue estimates only when diagnosing.
+    """
+
+    name: str
+    iterations: int
+    residual: float
+    seconds: float
+    moment: np.ndarray
+    u: np.ndarray = None
+    eig: dict = field(default_factory=dict)
+
+
+class ConstrainedOperator:
+    """The constrained operator of one group on a row block [r0, r1) of particles.
+
+    Build it once (the assembly and the preconditioner set-up), call
+    :meth:`solve` for each case, then :meth:`destroy`. Collective on ``comm``.
+    """
+
+    def __init__(self, PETSc, frame, comm, r0, r1, block_rows, group, *, rtol, max_it=None,
+                 ksp_options=None, diagnose=False):
+        self.PETSc, self.comm, self.r0, self.r1 = PETSc, comm, r0, r1
+        self.frame, self.group, self.diagnose = frame, group, diagnose
+        n, nloc = frame.n_particles, r1 - r0
+        t0 = time.perf_counter()
+        A = aij_from_blocks(PETSc, comm, n, r0, r1, *block_rows)
+        fixed_loc = group.fixed[r0:r1]
+        dofs = (np.flatnonzero(fixed_loc.ravel()) + 6 * r0).astype(PETSc.IntType)
+        self.held = np.flatnonzero(fixed_loc.any(axis=1)) + r0  # particles with a reaction
+        rdofs = (6 * self.held[:, None] + np.arange(3)).ravel().astype(PETSc.IntType)
+        self._isrow = PETSc.IS().createGeneral(rdofs, comm=comm)
+        self._iscol = PETSc.IS().createStride(6 * nloc, first=6 * r0, step=1, comm=comm)
+        self.A_r = A.createSubMatrix(self._isrow, self._iscol)  # unconstrained rows: reactions
+        # Lift every case's prescribed values into its right-hand side while A
+        # is still unconstrained (b = -A x0 on the free rows).
+        self._x0, self._b = [], []
+        for values in group.values:
+            x0 = A.createVecRight()
+            x0.setArray(np.where(fixed_loc, values[r0:r1], 0.0).ravel())
+            b = A.createVecLeft()
+            A.mult(x0, b)
+            b.scale(-1.0)
+            self._x0.append(x0)
+            self._b.append(b)
+        # A prescribed DOF keeps its own diagonal entry on its identity row: one
+        # scale for all of them (say the mean diagonal) lets a few very stiff bonds
+        # dominate ||b||, and rtol * ||b|| then no longer controls the free rows.
+        diag = A.getDiagonal()
+        A.zeroRowsColumns(dofs, diag=1.0)
+        self._local_dofs = dofs - 6 * r0
+        self._dvals = diag.getArray()[self._local_dofs].copy()
+        d = A.getDiagonal()
+        d.getArray()[self._local_dofs] = self._dvals
+        A.setDiagonal(d)
+        d.destroy()
+        diag.destroy()
+        for x0, b in zip(self._x0, self._b):
+            b.getArray()[self._local_dofs] = self._dvals * x0.getArray()[self._local_dofs]
+        x = frame.centers
+        A.setNearNullSpace(near_nullspace(PETSc, A, x[r0:r1], x.mean(axis=0)))
+        if PETSc.Options().getString("amfe_operator_type", "sbaij") == "aij":
+            A_op = A
+        else:
+            A_op = sbaij_operator(PETSc, comm, n, r0, r1, *block_rows, fixed=group.fixed)
+        self.nullspace = None
+        if group.null_modes is not None:
+            self.nullspace = orthonormal_nullspace(PETSc, A, group.null_modes[:, r0:r1])
+            A.setNullSpace(self.nullspace)
+            A_op.setNullSpace(self.nullspace)
+        self.A, self.A_op = A, A_op
+        t_assembly = time.perf_counter() - t0
+        with petsc_options(PETSc, ksp_options):
+            ksp = make_ksp(PETSc, A_op, A, rtol=rtol, max_it=max_it)
+            if diagnose:
+                ksp.setComputeEigenvalues(True)
+            t0 = time.perf_counter()
+            ksp.setUp()
+            t_setup = time.perf_counter() - t0
+        self.ksp = ksp
+        self.record = SetupRecord(t_assembly, t_setup, ksp.getType(), ksp.getPC().getType(),
+                                  float(ksp.getTolerances()[0]),
+                                  pc_complexity(PETSc, ksp) if diagnose else {})
+        self._r = A.createVecLeft()
+        self._f = self.A_r.createVecLeft()
+        self._scatter, self._u0 = PETSc.Scatter.toZero(self._r)
+
+    def solve(self, k, center, guess=None, gather=True):
+        """Solve the group's case ``k``; returns a :class:`CaseSolution`.
+
+        center (3,): the point the reaction moments are taken about;
+        guess: optional (n, 6) initial guess (ignored by direct solvers).
+        """
+        PETSc, ksp, r0, r1 = self.PETSc, self.ksp, self.r0, self.r1
+        name, b = self.group.names[k], self._b[k]
+        u = self.A.createVecRight()
+        # (a direct solve, KSP preonly, takes no initial guess)
+        use_guess = guess is not None and ksp.getType() != "preonly"
+        ksp.setInitialGuessNonzero(use_guess)
+        if use_guess:
+            u.setArray(guess[r0:r1].ravel())
+        t0 = time.perf_counter()
+        ksp.solve(b, u)
+        seconds = time.perf_counter() - t0
+        check_converged(PETSc, ksp, f"load case {name}")
+        self.A.mult(u, self._r)
+        self._r.aypx(-1.0, b)
+        bnorm = b.norm()  # zero when a case prescribes nothing but zeros
+        residual = float(self._r.norm() / bnorm if bnorm > 0 else self._r.norm())
+        eig = {}
+        if self.diagnose:
+            smax, smin = ksp.computeExtremeSingularValues()
+            eig = dict(eig_max=float(smax), eig_min=float(smin),
+                       condition=float(smax / smin) if smin > 0 else float("inf"))
+        self.A_r.mult(u, self._f)
+        local = bagi_stress(self._f.getArray().reshape(-1, 3), self.frame.centers[self.held],
+                            center, 1.0)
+        moment = self.comm.tompi4py().allreduce(local)
+        u_root = None
+        if gather:
+            self._scatter.scatter(u, self._u0, addv=PETSc.InsertMode.INSERT,
+                                  mode=PETSc.ScatterMode.FORWARD)
+            if self.comm.getRank() == 0:
+                u_root = self._u0.getArray().reshape(-1, 6).copy()
+        iterations = int(ksp.getIterationNumber())
+        u.destroy()
+        return CaseSolution(name, iterations, residual, seconds, moment, u_root, eig)
+
+    def destroy(self):
+        objs = [self.ksp, self.A_op, self.A, self.A_r, self._isrow, self._iscol,
+                self._scatter, self._u0, self._r, self._f, *self._x0, *self._b]
+        if self.nullspace is not None:
+            objs.append(self.nullspace)
+        seen = set()
+        for obj in objs:
+            if id(obj) not in seen:  # A_op may be A
+                seen.add(id(obj))
+                obj.destroy()
+
+
+def pc_complexity(PETSc, ksp):
+    """GAMG/MG grid and operator complexity and level sizes (empty for other PCs)."""
+    pc = ksp.getPC()
+    if pc.getType() not in ("gamg", "mg"):
+        return {}
+    rows, nnz = [], []
+    for level in range(pc.getMGLevels()):
+        P = pc.getMGSmoother(level).getOperators()[1]
+        rows.append(int(P.getSize()[0]))
+        nnz.append(int(P.getInfo(PETSc.Mat.InfoType.GLOBAL_SUM)["nz_used"]))
+    return {"levels": rows[::-1],
+            "grid_complexity": float(sum(rows) / rows[-1]),
+            "operator_complexity": float(sum(nnz) / nnz[-1])}

@@ -1,0 +1,148 @@
+"""The package's shape, checked from the source: one top-level package, layers, file sizes.
+
+Layers, bottom to top (README, Layout): core (errors, vocab, version), model,
+io, solvers, dataset, training, face (amfe/__init__, api, cli). No module
+imports from a layer above its own, indented (lazy) imports included.
+"""
+import ast
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+LAYERS = ["core", "model", "io", "solvers", "dataset", "training", "face"]
+# Heavy dependencies each layer may not import at all.
+FORBIDDEN = {"core": {"petsc4py", "mpi4py", "torch", "h5py"},
+             "model": {"petsc4py", "mpi4py", "torch"},
+             "io": {"petsc4py", "torch"},
+             "solvers": {"torch"},
+             "dataset": {"torch"}}
+
+
+def source_files():
+    for top, package in (("amfe", "amfe"), ("solvers", "amfe.solvers"),
+                         ("training", "amfe.training")):
+        for path in sorted((ROOT / top).rglob("*.py")):
+            rel = path.relative_to(ROOT / top).with_suffix("")
+            parts = [p for p in rel.parts if p != "__init__"]
+            yield path, ".".join([package, *parts])
+
+
+def layer_of(module):
+    parts = module.split(".")
+    if parts[0] != "amfe":
+        return None
+    if len(parts) == 1 or parts[1] in ("api", "cli", "__main__"):
+        return "face"
+    if parts[1] in ("errors", "vocab", "version"):
+        return "core"
+    if parts[1] in ("model", "io", "solvers", "dataset", "training"):
+        return parts[1]
+    raise AssertionError(f"module {module} belongs to no layer: add it to the layout")
+
+
+def imports_of(path, module):
+    tree = ast.parse(path.read_text())
+    package = module if path.name == "__init__.py" else module.rsplit(".", 1)[0]
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                yield node.lineno, alias.name
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")[:len(package.split(".")) - node.level + 1]
+                name = ".".join(base + ([node.module] if node.module else []))
+            else:
+                name = node.module
+            yield node.lineno, name
+            for alias in node.names:  # `from amfe import model` imports amfe.model
+                yield node.lineno, f"{name}.{alias.name}"
+
+
+def test_no_import_runs_upward():
+    bad = []
+    for path, module in source_files():
+        mine = LAYERS.index(layer_of(module))
+        for line, name in imports_of(path, module):
+            top = name.split(".")[0]
+            if top in ("solvers", "training"):
+                bad.append(f"{path.relative_to(ROOT)}:{line} imports top-level {name}")
+                continue
+            if top in FORBIDDEN.get(layer_of(module), ()):
+                bad.append(f"{path.relative_to(ROOT)}:{line} ({layer_of(module)}) imports {name}")
+            if top != "amfe":
+                continue
+            try:
+                theirs = layer_of(name)
+            except AssertionError:
+                continue  # `from amfe.x import name`: the module itself was checked
+            if name == "amfe.version" or name.startswith("amfe.version."):
+                continue
+            if theirs and LAYERS.index(theirs) > mine:
+                bad.append(f"{path.relative_to(ROOT)}:{line} ({layer_of(module)}) imports "
+                           f"{name} ({theirs})")
+    assert not bad, "imports that run upward:\n" + "\n".join(bad)
+
+
+def test_the_checker_sees_an_upward_import(tmp_path):
+    # The test above must be able to fail: an upward import is caught.
+    path = tmp_path / "bonds.py"
+    path.write_text("def f():\n    from amfe.solvers.driver import homogenize_bed\n")
+    found = [name for _, name in imports_of(path, "amfe.model.bonds")]
+    assert "amfe.solvers.driver" in found
+    assert LAYERS.index(layer_of("amfe.solvers.driver")) > LAYERS.index(layer_of("amfe.model.bonds"))
+
+
+def test_no_file_over_400_lines():
+    long = [f"{p.relative_to(ROOT)}: {n}" for p, _ in source_files()
+            if (n := len(p.read_text().splitlines())) > 400]
+    assert not long, "files over 400 lines:\n" + "\n".join(long)
+
+
+def test_code_cites_only_docs_the_repository_has():
+    bad = []
+    for path, _ in source_files():
+        for k, line in enumerate(path.read_text().splitlines(), 1):
+            if "DESIGN" in line:
+                bad.append(f"{path.relative_to(ROOT)}:{k}: {line.strip()}")
+    assert not bad, "cite docs/model.md, not DESIGN:\n" + "\n".join(bad)
+
+
+def test_one_top_level_package_installed(tmp_path):
+    # From outside the checkout only `amfe` is importable; solvers and training live under it.
+    code = ("import importlib.util as u, sys\n"
+            "print(u.find_spec('amfe') is not None, u.find_spec('solvers'), "
+            "u.find_spec('training'))\n"
+            "import amfe.solvers.ksp, amfe.training\n")
+    out = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True,
+                         text=True, env={**os.environ, "PYTHONPATH": ""})
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["True", "None", "None"]
+
+
+def test_import_amfe_pulls_in_neither_petsc_nor_torch(tmp_path):
+    code = ("import sys, amfe, amfe.model.bed, amfe.io.bedfile\n"
+            "print(sorted(m for m in ('petsc4py', 'torch', 'mpi4py') if m in sys.modules))\n")
+    out = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True,
+                         text=True)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "[]"
+
+
+@pytest.mark.parametrize("name", ["homogenize", "Result", "Fields", "read_bed", "Bed",
+                                  "generate_bed", "Surrogate", "homogenize_bed", "AmfeError"])
+def test_the_face_lists_the_api(name):
+    import amfe
+    assert name in dir(amfe) and name in amfe.__all__
+    assert getattr(amfe, name) is not None
+
+
+def test_version_and_python_m_amfe():
+    import amfe
+    out = subprocess.run([sys.executable, "-m", "amfe", "--version"], capture_output=True,
+                         text=True)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == f"amfe {amfe.__version__}"
