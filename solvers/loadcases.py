@@ -129,13 +129,11 @@ def _solve_group(PETSc, frame, comm, r0, r1, block_rows, group, center, rtol, ma
         if log:
             log(f"operator for {', '.join(group.names)}: assembled in {rec.assembly_seconds:.2f} s, "
                 f"{rec.pc_type} set up in {rec.setup_seconds:.2f} s")
-        cases = []
-        for k, name in enumerate(group.names):
-            guess = group.guesses[k] if group.guesses is not None else None
-            case = op.solve(k, center, guess=guess)
-            if log:
-                log(f"load case {name}: {case.iterations} iterations, {case.seconds:.2f} s")
-            cases.append(case)
+        cases = op.solve_all(center, group.guesses)
+        if log:
+            for case in cases:
+                log(f"load case {case.name}: {case.iterations} iterations, {case.seconds:.2f} s "
+                    f"({rec.path})")
         return cases, rec
     finally:
         op.destroy()

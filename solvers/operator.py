@@ -22,6 +22,7 @@ import numpy as np
 
 from amfe.model.averages import bagi_stress
 from amfe.solvers.assembly import aij_from_blocks, sbaij_operator
+from amfe.solvers.blocksolve import block_path_applies, solve_block
 from amfe.solvers.ksp import check_converged, make_ksp, petsc_options
 from amfe.solvers.nullspace import near_nullspace, orthonormal_nullspace
 
@@ -41,6 +42,7 @@ class SetupRecord:
     pc_type: str
     rtol: float
     pc_complexity: dict = field(default_factory=dict)
+    path: str = "one at a time"  # or "block" (ConstrainedOperator.solve_all)
 
 
 @dataclass
@@ -125,6 +127,7 @@ class ConstrainedOperator:
             ksp = make_ksp(PETSc, A_op, A, rtol=rtol, max_it=max_it)
             if diagnose:
                 ksp.setComputeEigenvalues(True)
+            self.block_option = PETSc.Options().getString("amfe_block", "yes")
             t0 = time.perf_counter()
             ksp.setUp()
             t_setup = time.perf_counter() - t0
@@ -176,6 +179,47 @@ class ConstrainedOperator:
         iterations = int(ksp.getIterationNumber())
         u.destroy()
         return CaseSolution(name, iterations, residual, seconds, moment, u_root, eig)
+
+    def solve_all(self, center, guesses=None, gather=True):
+        """Solve every case of the group; a list of :class:`CaseSolution`, in its order.
+
+        Two or more cases with CG + GAMG (Chebyshev/Jacobi levels) go through
+        one block CG that shares every product and V-cycle
+        (:func:`amfe.solvers.blocksolve.solve_block`, the same iterations and
+        solutions); -amfe_block no, a single case, diagnosis or another
+        solver solve one at a time (:meth:`solve`). guesses: optional list of
+        (n, 6) initial guesses, one per case. ``record.path`` says which ran.
+        """
+        names, r0, r1 = self.group.names, self.r0, self.r1
+        cols = None
+        if block_path_applies(self.ksp, len(names), self.block_option, self.diagnose):
+            X0 = None if guesses is None else [g[r0:r1].ravel() for g in guesses]
+            cols = solve_block(self.PETSc, self.ksp, self._b, X0, names)
+        if cols is None:
+            return [self.solve(k, center, None if guesses is None else guesses[k], gather)
+                    for k in range(len(names))]
+        self.record.path = "block"
+        out = []
+        for name, col in zip(names, cols):
+            moment, u_root = self._reactions(col.u, center, gather)
+            out.append(CaseSolution(name, col.iterations, col.residual, col.seconds, moment,
+                                    u_root))
+            col.u.destroy()
+        return out
+
+    def _reactions(self, u, center, gather):
+        """(moment (3, 3) about ``center``, summed over ranks; u (n, 6) on rank 0 or None)."""
+        self.A_r.mult(u, self._f)
+        local = bagi_stress(self._f.getArray().reshape(-1, 3), self.frame.centers[self.held],
+                            center, 1.0)
+        moment = self.comm.tompi4py().allreduce(local)
+        u_root = None
+        if gather:
+            self._scatter.scatter(u, self._u0, addv=self.PETSc.InsertMode.INSERT,
+                                  mode=self.PETSc.ScatterMode.FORWARD)
+            if self.comm.getRank() == 0:
+                u_root = self._u0.getArray().reshape(-1, 6).copy()
+        return moment, u_root
 
     def destroy(self):
         objs = [self.ksp, self.A_op, self.A, self.A_r, self._isrow, self._iscol,

@@ -1,0 +1,267 @@
+"""GAMG's V-cycle applied to k right-hand sides at once, on GAMG's own hierarchy.
+
+PETSc 3.18 applies PCMG/GAMG to a block column by column (PCMatApply: 72
+MatMults for 6 columns), so six load cases read every level's matrix six times
+per sweep. :class:`BlockVCycle` takes a set-up PCGAMG (or PCMG) with Chebyshev
++ Jacobi smoothers and does the same multiplicative V-cycle on (rows, k)
+blocks, with every product a k-column product (:mod:`amfe.solvers.maij`):
+
+- level l > 0: Chebyshev of degree = the smoother's max_it, preconditioned by
+  the inverse diagonal of the level matrix, on the target interval GAMG chose;
+  pre-smoothing from zero, restriction by P_l^T, the coarser cycle,
+  interpolation by P_l, post-smoothing from that guess;
+- level 0: an exact solve of all k columns, a Cholesky factor of the gathered
+  coarse matrix on every rank (GAMG's coarse solver is a direct LU too), or
+  the coarse KSP column by column above ``dense_limit`` rows.
+
+PETSc prints the Chebyshev targets with six digits (KSPView) and has no getter
+in 3.18, so the targets are read from the view and then set back on PETSc's own
+smoothers (KSPChebyshevSetEigenvalues: a change below 5e-7 relative). Both
+paths then apply the same preconditioner, which :meth:`BlockVCycle.check`
+verifies against PCApply (measured: 1e-15 relative).
+
+Every product uses the level's preconditioner matrix (AIJ, the matrix GAMG
+was built from); on the fine level that is the constrained AIJ matrix, whose
+values equal the SBAIJ copy's (docs/model.md, section 5).
+"""
+import os
+import re
+import tempfile
+
+import numpy as np
+
+from amfe.errors import AmfeError
+from amfe.solvers.maij import block_product, set_chebyshev_targets
+
+
+class BlockUnsupported(AmfeError):
+    """The preconditioner is not one the block V-cycle reproduces (use one at a time)."""
+
+
+def view_text(PETSc, obj):
+    """The ASCII view of a PETSc object, as a string on every rank (collective)."""
+    mpi = obj.getComm().tompi4py()
+    name = None
+    if mpi.rank == 0:
+        fd, name = tempfile.mkstemp(prefix="amfe_view_", suffix=".txt")
+        os.close(fd)
+    name = mpi.bcast(name, root=0)
+    viewer = PETSc.Viewer().createASCII(name, comm=obj.getComm())
+    obj.view(viewer)
+    viewer.destroy()
+    text = None
+    if mpi.rank == 0:
+        with open(name) as f:
+            text = f.read()
+        os.unlink(name)
+    return mpi.bcast(text, root=0)
+
+
+_NUM = r"([-+.\deE]+)"
+
+
+def level_smoothers(PETSc, pc):
+    """[(emin, emax)] Chebyshev targets of levels 1..L-1, from the PC's view.
+
+    Raises BlockUnsupported unless the PC is a multiplicative V-cycle (one per
+    apply) whose levels all smooth with Chebyshev + point Jacobi, the same
+    smoother up and down.
+    """
+    if pc.getType() not in ("gamg", "mg"):
+        raise BlockUnsupported(f"the preconditioner is {pc.getType()}, not GAMG")
+    text = view_text(PETSc, pc)
+    nlev = pc.getMGLevels()
+    if not re.search(rf"type is MULTIPLICATIVE, levels={nlev} cycles=v", text) or \
+            not re.search(r"Cycles per PCApply=1\b", text):
+        raise BlockUnsupported("the multigrid cycle is not one multiplicative V-cycle")
+    sections = re.split(r"Down solver \(pre-smoother\) on level (\d+) -+", text)[1:]
+    targets = []
+    for level, body in zip(sections[::2], sections[1::2]):
+        m = re.search(rf"eigenvalue targets used: min {_NUM}, max {_NUM}", body)
+        if (not re.search(r"type: chebyshev", body) or not re.search(r"type: jacobi\s+type DIAGONAL", body)
+                or "Up solver (post-smoother) same as down solver" not in body or m is None):
+            raise BlockUnsupported(f"level {level} does not smooth with Chebyshev + Jacobi "
+                                   "(the same up and down)")
+        targets.append((float(m.group(1)), float(m.group(2))))
+    if len(targets) != nlev - 1 or any(not 0 < lo < hi for lo, hi in targets):
+        raise BlockUnsupported("the Chebyshev targets could not be read from GAMG's view")
+    return targets
+
+
+class DenseCoarse:
+    """All k columns through one Cholesky factor of the coarse matrix, on every rank."""
+
+    def __init__(self, Ac, dense_limit=5000):
+        n = Ac.getSize()[0]
+        if n > dense_limit:
+            raise BlockUnsupported(f"coarse grid of {n} rows")
+        self.mpi = Ac.getComm().tompi4py()
+        self.r0, self.r1 = Ac.getOwnershipRange()
+        ia, ja, va = Ac.getValuesCSR()
+        local = np.zeros((self.r1 - self.r0, n))
+        local[np.repeat(np.arange(self.r1 - self.r0), np.diff(ia)), ja] = va
+        A = np.vstack(self.mpi.allgather(local))
+        try:
+            self.L, self.pinv = np.linalg.cholesky(0.5 * (A + A.T)), None
+        except np.linalg.LinAlgError:  # singular coarse grid: least-squares solve
+            self.L, self.pinv = None, np.linalg.pinv(A, rcond=1e-12, hermitian=True)
+
+    def solve(self, B, X):
+        full = np.vstack(self.mpi.allgather(B))
+        if self.L is not None:
+            full = np.linalg.solve(self.L.T, np.linalg.solve(self.L, full))
+        else:
+            full = self.pinv @ full
+        X[:] = full[self.r0:self.r1]
+
+
+class KspCoarse:
+    """The coarse KSP, one column at a time (coarse grids above the dense limit)."""
+
+    def __init__(self, ksp):
+        self.ksp = ksp
+        self.x, self.b = ksp.getOperators()[1].createVecs()
+
+    def solve(self, B, X):
+        for j in range(B.shape[1]):
+            self.b.setArray(B[:, j])
+            self.ksp.solve(self.b, self.x)
+            X[:, j] = self.x.getArray()
+
+    def destroy(self):
+        self.x.destroy()
+        self.b.destroy()
+
+
+class _Level:
+    """One smoothed level: its k-column products, Jacobi, Chebyshev coefficients, work blocks."""
+
+    def __init__(self, PETSc, pc, l, k, targets, backend):
+        smoother = pc.getMGSmoother(l)
+        M = smoother.getOperators()[1]
+        d = M.getDiagonal()
+        diag = d.getArray().copy()
+        d.destroy()
+        self.dinv = np.where(diag != 0, 1.0 / np.where(diag != 0, diag, 1.0), 1.0)[:, None]
+        self.emin, self.emax = targets
+        self.degree = int(smoother.getTolerances()[3])
+        self.rows = M.getSize()[0]
+        self.nnz = M.getInfo(PETSc.Mat.InfoType.GLOBAL_SUM)["nz_used"]
+        self.A = block_product(PETSc, M, k, backend)
+        P = pc.getMGInterpolation(l)
+        self.p_nnz = P.getInfo(PETSc.Mat.InfoType.GLOBAL_SUM)["nz_used"]
+        self.P = block_product(PETSc, P, k, backend)
+        m = M.getLocalSize()[0]
+        self.R, self.D, self.T = (np.zeros((m, k)) for _ in range(3))
+
+    def smooth(self, B, X, zero_guess, residual):
+        """Chebyshev on A X = B (Saad, Iterative Methods, algorithm 12.1, Jacobi-preconditioned).
+
+        zero_guess: start from X = 0 (else from X); residual: leave B - A X in R.
+        """
+        R, D, T, dinv = self.R, self.D, self.T, self.dinv
+        theta, delta = 0.5 * (self.emax + self.emin), 0.5 * (self.emax - self.emin)
+        sigma = theta / delta
+        rho = 1.0 / sigma
+        if zero_guess:
+            X.fill(0.0)
+            R[:] = B
+        else:
+            np.subtract(B, self.A.mult(X, T), out=R)
+        for i in range(self.degree):
+            if i == 0:
+                np.multiply(R, dinv, out=D)
+                D *= 1.0 / theta
+            else:
+                rho_new = 1.0 / (2.0 * sigma - rho)
+                D *= rho_new * rho
+                np.multiply(R, dinv, out=T)
+                T *= 2.0 * rho_new / delta
+                D += T
+                rho = rho_new
+            X += D
+            if i < self.degree - 1 or residual:
+                R -= self.A.mult(D, T)
+
+    def destroy(self):
+        self.A.destroy()
+        self.P.destroy()
+
+
+class BlockVCycle:
+    """GAMG's V-cycle for (rows, k) blocks; see the module docstring.
+
+    pc: a set-up PCGAMG/PCMG; k: the number of columns; backend: the block
+    products' ("auto", "maij" or "dense", :func:`amfe.solvers.maij.block_product`).
+    Raises BlockUnsupported for a preconditioner it cannot reproduce.
+    Collective on the PC's communicator.
+    """
+
+    def __init__(self, PETSc, pc, k, backend="auto", dense_limit=5000):
+        targets = level_smoothers(PETSc, pc)
+        self.pc, self.k = pc, k
+        self._coarse_ksp = pc.getMGCoarseSolve()
+        Ac = self._coarse_ksp.getOperators()[1]
+        try:
+            self.coarse = DenseCoarse(Ac, dense_limit)
+        except BlockUnsupported:
+            self.coarse = KspCoarse(self._coarse_ksp)
+        m0 = Ac.getLocalSize()[0]
+        self._coarse_blocks = (np.zeros((m0, k)), np.zeros((m0, k)))
+        self.levels = []
+        for l, t in enumerate(targets, start=1):
+            set_chebyshev_targets(pc.getMGSmoother(l), *t)  # the same numbers in both paths
+            self.levels.append(_Level(PETSc, pc, l, k, t, backend))
+        # (B, X) blocks of each coarser level's correction; the finest level uses the caller's
+        self._blocks = [self._coarse_blocks] + [(np.zeros_like(lev.R), np.zeros_like(lev.R))
+                                                for lev in self.levels[:-1]]
+        self.fine = self.levels[-1].A
+
+    def apply(self, B, X):
+        """X = V-cycle(B) for an (m, k) block of the finest level's local rows; returns X."""
+        self._cycle(len(self.levels), B, X)
+        return X
+
+    def _cycle(self, l, B, X):
+        if l == 0:
+            self.coarse.solve(B, X)
+            return
+        lev = self.levels[l - 1]
+        Bc, Xc = self._blocks[l - 1]
+        lev.smooth(B, X, zero_guess=True, residual=True)
+        lev.P.mult_transpose(lev.R, Bc)
+        self._cycle(l - 1, Bc, Xc)
+        X += lev.P.mult(Xc, lev.T)
+        lev.smooth(B, X, zero_guess=False, residual=False)
+
+    def check(self, PETSc, b, z_block):
+        """Max relative difference of one block column ``z_block`` (m,) from PCApply(b)."""
+        z = b.duplicate()
+        self.pc.apply(b, z)
+        mpi = b.getComm().tompi4py()
+        diff = max(mpi.allgather(float(np.abs(z.getArray() - z_block).max(initial=0.0))))
+        scale = z.norm(PETSc.NormType.INFINITY)
+        z.destroy()
+        return diff / scale if scale > 0 else diff
+
+    def describe(self):
+        """Per level, fine to coarse: rows, nonzeros, degree, Chebyshev targets."""
+        return [{"rows": lev.rows, "nnz": lev.nnz, "degree": lev.degree, "emin": lev.emin,
+                 "emax": lev.emax} for lev in reversed(self.levels)]
+
+    def products_per_cycle(self):
+        """[(matrix nonzeros, number of k-column products)] of one V-cycle, all levels.
+
+        2 x degree with each level matrix (pre-smoothing with the residual,
+        post-smoothing with its start), and P^T, P once each.
+        """
+        out = []
+        for lev in self.levels:
+            out += [(lev.nnz, 2 * lev.degree), (lev.p_nnz, 2)]
+        return out
+
+    def destroy(self):
+        for lev in self.levels:
+            lev.destroy()
+        if isinstance(self.coarse, KspCoarse):
+            self.coarse.destroy()

@@ -1,0 +1,224 @@
+"""The load cases of one group through k CGs that share every product and V-cycle.
+
+A group's cases share the operator and GAMG's set-up (docs/model.md, section
+5), so the k solves can read each matrix once per sweep instead of k times:
+k CGs are advanced together, each product is a k-column product and each
+preconditioner application a block V-cycle (:mod:`amfe.solvers.blockcycle`).
+Each column keeps its own alpha, beta, convergence test and stopping reason,
+exactly as PETSc's KSPCG with KSPConvergedDefault (the KSP's norm type, rtol,
+atol, dtol, max_it; with an initial guess the reference is ||M b||), so the
+iteration counts are those of the one-at-a-time path. Every decision uses
+globally reduced numbers: every rank takes the same branch and a column that
+stops (converged or not) is frozen while the others go on, with no hang.
+
+:func:`block_path_applies` says when :meth:`ConstrainedOperator.solve_all
+<amfe.solvers.operator.ConstrainedOperator.solve_all>` takes this path;
+:func:`solve_block` runs it and raises for a case that did not converge.
+"""
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from amfe.errors import AmfeError
+from amfe.solvers.blockcycle import BlockUnsupported, BlockVCycle
+from amfe.solvers.ksp import IndefinitePreconditioner
+
+# KSPConvergedReason values (PETSc 3.18) and their names
+REASONS = {2: "CONVERGED_RTOL", 3: "CONVERGED_ATOL", -3: "DIVERGED_ITS", -4: "DIVERGED_DTOL",
+           -8: "DIVERGED_INDEFINITE_PC", -9: "DIVERGED_NANORINF", -10: "DIVERGED_INDEFINITE_MAT"}
+RTOL, ATOL, ITS, DTOL, INDEF_PC, NANORINF, INDEF_MAT = 2, 3, -3, -4, -8, -9, -10
+NORMS = {1: "preconditioned", 2: "unpreconditioned", 3: "natural"}  # KSPNormType
+CHECK_TOLERANCE = 1e-10
+"""Largest relative difference of a block V-cycle column from PCApply accepted;
+above it the group is solved one case at a time (measured: about 1e-15)."""
+
+
+def block_path_applies(ksp, n_cases, option, diagnose):
+    """True when a group's cases go through the block CG.
+
+    n_cases >= 2, the KSP is CG with GAMG (or MG), -amfe_block is not "no",
+    and no diagnosis is asked for (its eigenvalue estimates come from KSPCG).
+    Level smoothers other than Chebyshev + Jacobi are found later (BlockUnsupported).
+    """
+    if option not in ("yes", "no"):
+        raise AmfeError(f"-amfe_block {option!r}: give yes (six cases in one block CG, the "
+                        "default) or no (one case at a time)")
+    return (option == "yes" and n_cases >= 2 and not diagnose and ksp.getType() == "cg"
+            and ksp.getPC().getType() in ("gamg", "mg"))
+
+
+@dataclass
+class BlockColumn:
+    """One case's outcome of the block CG: u (a PETSc Vec, the caller destroys it),
+    iterations, residual (true ||b - A x|| / ||b||), seconds (the group's time / k)."""
+
+    u: object
+    iterations: int
+    residual: float
+    seconds: float
+
+
+@dataclass
+class BlockCG:
+    """The state of k CGs: blocks (m, k) and per-column scalars, the same on every rank."""
+
+    X: np.ndarray
+    R: np.ndarray
+    Z: np.ndarray
+    rz: np.ndarray
+    ref: np.ndarray
+    reason: np.ndarray
+    its: np.ndarray
+    info: dict = field(default_factory=dict)
+
+    @property
+    def active(self):
+        return self.reason == 0
+
+
+def solve_block(PETSc, ksp, bs, X0, names, backend="auto", info=None):
+    """Solve A x_j = b_j for every case j with k CGs sharing one block V-cycle.
+
+    ksp: a set-up KSP (CG with GAMG); bs: k right-hand side Vecs; X0: None or
+    k local initial guesses (m,) each; names: the cases' names (for errors).
+    Returns a list of :class:`BlockColumn`, or None when the preconditioner is
+    not one the block V-cycle reproduces (the caller then solves one at a time).
+    Raises IndefinitePreconditioner (DIVERGED_INDEFINITE_PC, so the caller can
+    set up again with more eigenvalue-estimate steps) or AmfeError naming each
+    case that did not converge. Collective. ``info`` (a dict) receives the
+    V-cycle check, the levels, the counts of iterations and V-cycles.
+    """
+    t0 = time.perf_counter()
+    k = len(bs)
+    try:
+        V = BlockVCycle(PETSc, ksp.getPC(), k, backend)
+    except BlockUnsupported:
+        return None
+    try:
+        B = np.stack([b.getArray() for b in bs], axis=1)
+        X = np.zeros_like(B) if X0 is None else np.stack(X0, axis=1).astype(float)
+        cg = _iterate(PETSc, ksp, V, bs[0], B, X, X0 is not None)
+        if cg is None:
+            return None
+        residuals = _true_residuals(V.fine, B, cg.X, cg.R, ksp.getComm().tompi4py())
+        if info is not None:
+            info.update(cg.info, products=V.products_per_cycle())
+    finally:
+        V.destroy()
+    _raise_unconverged(ksp, cg, residuals, names)
+    seconds = time.perf_counter() - t0
+    out = []
+    for j in range(k):
+        u = bs[j].duplicate()
+        u.setArray(cg.X[:, j])
+        out.append(BlockColumn(u, int(cg.its[j]), float(residuals[j]), seconds / k))
+    return out
+
+
+def _iterate(PETSc, ksp, V, b0, B, X, guess):
+    """KSPSolve_CG for every column of B at once; None if V-cycle != PCApply."""
+    rtol, atol, dtol, max_it = ksp.getTolerances()
+    norm = NORMS.get(ksp.getNormType())
+    if norm is None or PETSc.Options().hasName("ksp_converged_use_initial_residual_norm"):
+        return None
+    mpi = ksp.getComm().tompi4py()
+    nullsp = ksp.getOperators()[0].getNullSpace()
+    null = [v.getArray() for v in nullsp.getVecs()] if nullsp.handle else []
+
+    def dots(*pairs):  # column-wise inner products of block pairs, summed over ranks
+        return mpi.allreduce(np.array([np.einsum("ij,ij->j", a, b) for a, b in pairs]))
+
+    def precondition(Rb, Zb):  # Z = M R, null space removed (as KSP_PCApply)
+        V.apply(Rb, Zb)
+        for v in null:
+            Zb -= np.outer(v, mpi.allreduce(v @ Zb))
+        return Zb
+
+    Q = np.empty_like(B)
+    MB = V.apply(B, np.empty_like(B))
+    difference = V.check(PETSc, b0, MB[:, 0])  # the same preconditioner as the other path?
+    if not difference <= CHECK_TOLERANCE:
+        return None
+    for v in null:
+        MB -= np.outer(v, mpi.allreduce(v @ MB))
+    R = B - V.fine.mult(X, Q) if guess else B.copy()
+    Z = precondition(R, np.empty_like(B)) if guess else MB.copy()
+    rz, bb, rr, zz, bz = dots((R, Z), (B, B), (R, R), (Z, Z), (B, MB))
+    rnorm = {"preconditioned": zz, "unpreconditioned": rr, "natural": np.abs(rz)}[norm]
+    # KSPConvergedDefault: relative to ||r0|| from a zero guess, to ||b|| in the norm otherwise
+    ref = rnorm if not guess else {"preconditioned": dots((MB, MB))[0],
+                                   "unpreconditioned": bb, "natural": np.abs(bz)}[norm]
+    k = B.shape[1]
+    cg = BlockCG(X, R, Z, rz, np.sqrt(ref), np.zeros(k, int), np.zeros(k, int),
+                 {"vcycle_check": difference, "norm": norm, "levels": V.describe()})
+    cg.reason[bb == 0] = ATOL  # a zero right-hand side: x = 0, as KSPSolve
+    cg.X[:, bb == 0] = 0.0
+    _test(cg, np.sqrt(rnorm), 0, rtol, atol, dtol)
+    P = np.where(cg.active, Z, 0.0)
+    it = 0
+    while cg.active.any() and it < max_it:
+        it += 1
+        _stop(cg, cg.active & ~np.isfinite(cg.rz), NANORINF, it)
+        _stop(cg, cg.active & (cg.rz == 0), ATOL, it)
+        _stop(cg, cg.active & ~(cg.rz > 0), INDEF_PC, it)  # z'r < 0 (or NaN)
+        pq = dots((P, V.fine.mult(P, Q)))[0]
+        _stop(cg, cg.active & ~np.isfinite(pq), NANORINF, it)
+        _stop(cg, cg.active & ~(pq > 0), INDEF_MAT, it)
+        alpha = np.where(cg.active, cg.rz / np.where(cg.active, pq, 1.0), 0.0)
+        X += P * alpha
+        R -= Q * alpha
+        precondition(R, Z)
+        rz_new, rr, zz = dots((R, Z), (R, R), (Z, Z))
+        _test(cg, np.sqrt({"preconditioned": zz, "unpreconditioned": rr,
+                           "natural": np.abs(rz_new)}[norm]), it, rtol, atol, dtol)
+        beta = np.where(cg.active, rz_new / np.where(cg.rz != 0, cg.rz, 1.0), 0.0)
+        cg.rz = np.where(cg.active, rz_new, cg.rz)
+        P *= beta
+        P += Z
+        P[:, ~cg.active] = 0.0  # stopped columns stay where they are
+    _stop(cg, cg.active, ITS, it)
+    cg.info.update(iterations=it, vcycles=it + 1 + (1 if guess else 0))
+    return cg
+
+
+def _stop(cg, mask, reason, it):
+    cg.reason[mask] = reason
+    cg.its[mask] = it
+
+
+def _test(cg, rnorm, it, rtol, atol, dtol):
+    """KSPConvergedDefault on every active column at iteration ``it``."""
+    active = cg.active
+    _stop(cg, active & ~np.isfinite(rnorm), NANORINF, it)
+    ttol = np.maximum(rtol * cg.ref, atol)
+    done = cg.active & (rnorm <= ttol)
+    _stop(cg, done & (rnorm < atol), ATOL, it)
+    _stop(cg, done & ~(rnorm < atol), RTOL, it)
+    _stop(cg, cg.active & (rnorm >= dtol * cg.ref), DTOL, it)
+    cg.its[cg.active] = it
+
+
+def _true_residuals(A, B, X, work, mpi):
+    """||b_j - A x_j|| / ||b_j|| (||r_j|| where b_j = 0) with the block product."""
+    np.subtract(B, A.mult(X, work), out=work)
+    rr, bb = np.sqrt(mpi.allreduce(np.array([np.einsum("ij,ij->j", work, work),
+                                             np.einsum("ij,ij->j", B, B)])))
+    return np.where(bb > 0, rr / np.where(bb > 0, bb, 1.0), rr)
+
+
+def _raise_unconverged(ksp, cg, residuals, names):
+    """AmfeError (IndefinitePreconditioner if one is) naming every case that did not converge."""
+    failed = [j for j in range(len(names)) if cg.reason[j] <= 0]
+    if not failed:
+        return
+    rtol, _, _, max_it = ksp.getTolerances()
+    parts = [f"load case {names[j]}: the block CG with GAMG did not converge: "
+             f"{REASONS.get(int(cg.reason[j]), cg.reason[j])} after {cg.its[j]} iterations, true "
+             f"relative residual {residuals[j]:.3e}" for j in failed]
+    indefinite = any(cg.reason[j] == INDEF_PC for j in failed)
+    raise (IndefinitePreconditioner if indefinite else AmfeError)(
+        "; ".join(parts) + f" (rtol {rtol:g}, max_it {max_it}; {len(names) - len(failed)} of "
+        f"{len(names)} cases converged). The frame may be ill-conditioned or a near-mechanism; "
+        "try -ksp_monitor_true_residual, -amfe_block no, or a direct solver "
+        "(-ksp_type preonly -pc_type cholesky).")
