@@ -166,16 +166,7 @@ class ConstrainedOperator:
             smax, smin = ksp.computeExtremeSingularValues()
             eig = dict(eig_max=float(smax), eig_min=float(smin),
                        condition=float(smax / smin) if smin > 0 else float("inf"))
-        self.A_r.mult(u, self._f)
-        local = bagi_stress(self._f.getArray().reshape(-1, 3), self.frame.centers[self.held],
-                            center, 1.0)
-        moment = self.comm.tompi4py().allreduce(local)
-        u_root = None
-        if gather:
-            self._scatter.scatter(u, self._u0, addv=PETSc.InsertMode.INSERT,
-                                  mode=PETSc.ScatterMode.FORWARD)
-            if self.comm.getRank() == 0:
-                u_root = self._u0.getArray().reshape(-1, 6).copy()
+        moment, u_root = self._reactions(u, center, gather)
         iterations = int(ksp.getIterationNumber())
         u.destroy()
         return CaseSolution(name, iterations, residual, seconds, moment, u_root, eig)
