@@ -15,10 +15,13 @@ blocks, with every product a k-column product (:mod:`amfe.solvers.maij`):
   the coarse KSP column by column above ``dense_limit`` rows.
 
 PETSc prints the Chebyshev targets with six digits (KSPView) and has no getter
-in 3.18, so the targets are read from the view and then set back on PETSc's own
-smoothers (KSPChebyshevSetEigenvalues: a change below 5e-7 relative). Both
-paths then apply the same preconditioner, which :meth:`BlockVCycle.check`
-verifies against PCApply (measured: 1e-15 relative).
+in 3.18, so the targets read from the view differ from PETSc's by up to 5e-7
+relative, and a block V-cycle column from PCApply by about 1e-6
+(:meth:`BlockVCycle.check`; a larger difference means a preconditioner the
+block cycle does not reproduce). With ``pin=True`` the targets read are set
+back on PETSc's smoothers (KSPChebyshevSetEigenvalues); both then apply the
+same preconditioner to 1e-15 (the tests use this; it would change the
+one-at-a-time path, so the solver does not).
 
 Every product uses the level's preconditioner matrix (AIJ, the matrix GAMG
 was built from); on the fine level that is the constrained AIJ matrix, whose
@@ -193,11 +196,12 @@ class BlockVCycle:
 
     pc: a set-up PCGAMG/PCMG; k: the number of columns; backend: the block
     products' ("auto", "maij" or "dense", :func:`amfe.solvers.maij.block_product`).
-    Raises BlockUnsupported for a preconditioner it cannot reproduce.
-    Collective on the PC's communicator.
+    pin: set the targets read on PETSc's smoothers too (see the module
+    docstring). Raises BlockUnsupported for a preconditioner it cannot
+    reproduce. Collective on the PC's communicator.
     """
 
-    def __init__(self, PETSc, pc, k, backend="auto", dense_limit=5000):
+    def __init__(self, PETSc, pc, k, backend="auto", dense_limit=5000, pin=False):
         targets = level_smoothers(PETSc, pc)
         self.pc, self.k = pc, k
         self._coarse_ksp = pc.getMGCoarseSolve()
@@ -210,7 +214,8 @@ class BlockVCycle:
         self._coarse_blocks = (np.zeros((m0, k)), np.zeros((m0, k)))
         self.levels = []
         for l, t in enumerate(targets, start=1):
-            set_chebyshev_targets(pc.getMGSmoother(l), *t)  # the same numbers in both paths
+            if pin:
+                set_chebyshev_targets(pc.getMGSmoother(l), *t)
             self.levels.append(_Level(PETSc, pc, l, k, t, backend))
         # (B, X) blocks of each coarser level's correction; the finest level uses the caller's
         self._blocks = [self._coarse_blocks] + [(np.zeros_like(lev.R), np.zeros_like(lev.R))
