@@ -131,19 +131,19 @@ def _iterate(PETSc, ksp, V, b0, B, X, guess):
     def dots(*pairs):  # column-wise inner products of block pairs, summed over ranks
         return mpi.allreduce(np.array([np.einsum("ij,ij->j", a, b) for a, b in pairs]))
 
-    def precondition(Rb, Zb):  # Z = M R, null space removed (as KSP_PCApply)
-        V.apply(Rb, Zb)
+    def remove_null(Y):  # as KSP_PCApply does after PCApply
         for v in null:
-            Zb -= np.outer(v, mpi.allreduce(v @ Zb))
-        return Zb
+            Y -= np.outer(v, mpi.allreduce(v @ Y))
+        return Y
+
+    def precondition(Rb, Zb):  # Z = M R
+        return remove_null(V.apply(Rb, Zb))
 
     Q = np.empty_like(B)
-    MB = V.apply(B, np.empty_like(B))
-    difference = V.check(PETSc, b0, MB[:, 0])  # the same preconditioner as the other path?
+    MB = precondition(B, np.empty_like(B))
+    difference = V.check(b0, MB[:, 0], remove_null)  # the same preconditioner as KSPSolve's?
     if not difference <= CHECK_TOLERANCE:
         return None
-    for v in null:
-        MB -= np.outer(v, mpi.allreduce(v @ MB))
     R = B - V.fine.mult(X, Q) if guess else B.copy()
     Z = precondition(R, np.empty_like(B)) if guess else MB.copy()
     rz, bb, rr, zz, bz = dots((R, Z), (B, B), (R, R), (Z, Z), (B, MB))
