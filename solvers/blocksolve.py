@@ -43,11 +43,26 @@ def block_path_applies(ksp, n_cases, option, diagnose):
     and no diagnosis is asked for (its eigenvalue estimates come from KSPCG).
     Level smoothers other than Chebyshev + Jacobi are found later (BlockUnsupported).
     """
+    return (_wanted(option, n_cases, diagnose) and ksp.getType() == "cg"
+            and ksp.getPC().getType() in ("gamg", "mg"))
+
+
+def block_path_expected(PETSc, n_cases, option, diagnose):
+    """:func:`block_path_applies` before the KSP exists, from the options database.
+
+    The operator then skips its SBAIJ copy (the block products use AIJ; a
+    fallback to one case at a time then multiplies with AIJ, same results).
+    """
+    db = PETSc.Options()
+    return (_wanted(option, n_cases, diagnose) and db.getString("ksp_type", "cg") == "cg"
+            and db.getString("pc_type", "gamg") == "gamg")
+
+
+def _wanted(option, n_cases, diagnose):
     if option not in ("yes", "no"):
         raise AmfeError(f"-amfe_block {option!r}: give yes (six cases in one block CG, the "
                         "default) or no (one case at a time)")
-    return (option == "yes" and n_cases >= 2 and not diagnose and ksp.getType() == "cg"
-            and ksp.getPC().getType() in ("gamg", "mg"))
+    return option == "yes" and n_cases >= 2 and not diagnose
 
 
 @dataclass
@@ -98,12 +113,12 @@ def solve_block(PETSc, ksp, bs, X0, names, backend="auto", info=None):
     except BlockUnsupported:
         return None
     try:
-        B = np.stack([b.getArray() for b in bs], axis=1)
-        X = np.zeros_like(B) if X0 is None else np.stack(X0, axis=1).astype(float)
-        cg = _iterate(PETSc, ksp, V, bs[0], B, X, X0 is not None)
+        cg = _iterate(PETSc, ksp, V, bs, X0)
         if cg is None:
             return None
+        B = np.stack([b.getArray() for b in bs], axis=1)  # again: not kept while iterating
         residuals = _true_residuals(V.fine, B, cg.X, cg.R, ksp.getComm().tompi4py())
+        del B
         if info is not None:
             info.update(cg.info, products=V.products_per_cycle())
     finally:
@@ -118,8 +133,12 @@ def solve_block(PETSc, ksp, bs, X0, names, backend="auto", info=None):
     return out
 
 
-def _iterate(PETSc, ksp, V, b0, B, X, guess):
-    """KSPSolve_CG for every column of B at once; None if V-cycle != PCApply."""
+def _iterate(PETSc, ksp, V, bs, X0):
+    """KSPSolve_CG for every right-hand side at once; None if V-cycle != PCApply.
+
+    Eight (m, k) blocks live while iterating: X, R, Z, P, Q and the V-cycle's
+    R, D, T on the fine level (T doubles as the work block between cycles).
+    """
     rtol, atol, dtol, max_it = ksp.getTolerances()
     norm = NORMS.get(ksp.getNormType())
     if norm is None or PETSc.Options().hasName("ksp_converged_use_initial_residual_norm"):
@@ -139,25 +158,31 @@ def _iterate(PETSc, ksp, V, b0, B, X, guess):
     def precondition(Rb, Zb):  # Z = M R
         return remove_null(V.apply(Rb, Zb))
 
+    guess = X0 is not None
+    B = np.stack([b.getArray() for b in bs], axis=1)
+    X = np.stack(X0, axis=1).astype(float) if guess else np.zeros_like(B)
     Q = np.empty_like(B)
     MB = precondition(B, np.empty_like(B))
-    difference = V.check(b0, MB[:, 0], remove_null)  # the same preconditioner as KSPSolve's?
+    difference = V.check(bs[0], MB[:, 0], remove_null)  # the same preconditioner as KSPSolve's?
     if not difference <= CHECK_TOLERANCE:
         return None
-    R = B - V.fine.mult(X, Q) if guess else B.copy()
-    Z = precondition(R, np.empty_like(B)) if guess else MB.copy()
-    rz, bb, rr, zz, bz = dots((R, Z), (B, B), (R, R), (Z, Z), (B, MB))
+    R = np.subtract(B, V.fine.mult(X, Q), out=Q) if guess else B
+    Z = precondition(R, np.empty_like(B)) if guess else MB
+    Q = np.empty_like(B) if guess else Q
+    rz, bb, rr, zz, bz, mbmb = dots((R, Z), (B, B), (R, R), (Z, Z), (B, MB), (MB, MB))
     rnorm = {"preconditioned": zz, "unpreconditioned": rr, "natural": np.abs(rz)}[norm]
     # KSPConvergedDefault: relative to ||r0|| from a zero guess, to ||b|| in the norm otherwise
-    ref = rnorm if not guess else {"preconditioned": dots((MB, MB))[0],
-                                   "unpreconditioned": bb, "natural": np.abs(bz)}[norm]
-    k = B.shape[1]
+    ref = rnorm if not guess else {"preconditioned": mbmb, "unpreconditioned": bb,
+                                   "natural": np.abs(bz)}[norm]
+    del B, MB  # (R and Z may be them: only the names go)
+    k = X.shape[1]
     cg = BlockCG(X, R, Z, rz, np.sqrt(ref), np.zeros(k, int), np.zeros(k, int),
                  {"vcycle_check": difference, "norm": norm, "levels": V.describe()})
     cg.reason[bb == 0] = ATOL  # a zero right-hand side: x = 0, as KSPSolve
     cg.X[:, bb == 0] = 0.0
     _test(cg, np.sqrt(rnorm), 0, rtol, atol, dtol)
     P = np.where(cg.active, Z, 0.0)
+    W = V.scratch
     it = 0
     while cg.active.any() and it < max_it:
         it += 1
@@ -168,8 +193,8 @@ def _iterate(PETSc, ksp, V, b0, B, X, guess):
         _stop(cg, cg.active & ~np.isfinite(pq), NANORINF, it)
         _stop(cg, cg.active & ~(pq > 0), INDEF_MAT, it)
         alpha = np.where(cg.active, cg.rz / np.where(cg.active, pq, 1.0), 0.0)
-        X += P * alpha
-        R -= Q * alpha
+        X += np.multiply(P, alpha, out=W)
+        R -= np.multiply(Q, alpha, out=Q)
         precondition(R, Z)
         rz_new, rr, zz = dots((R, Z), (R, R), (Z, Z))
         _test(cg, np.sqrt({"preconditioned": zz, "unpreconditioned": rr,

@@ -13,7 +13,8 @@ CG multiplies with a symmetric-block (SBAIJ) copy of the constrained matrix:
 CG and the fine-level smoother are bound by MatMult's memory traffic, and the
 upper 6x6 blocks with one index per block move about a third of AIJ's bytes.
 GAMG is built from the AIJ matrix (it cannot use (S)BAIJ in PETSc 3.18). The
-PETSc option -amfe_operator_type aij turns the copy off.
+PETSc option -amfe_operator_type aij turns the copy off; the block path
+(:meth:`ConstrainedOperator.solve_all`) needs none, as its products use AIJ.
 """
 import time
 from dataclasses import dataclass, field
@@ -22,7 +23,7 @@ import numpy as np
 
 from amfe.model.averages import bagi_stress
 from amfe.solvers.assembly import aij_from_blocks, sbaij_operator
-from amfe.solvers.blocksolve import block_path_applies, solve_block
+from amfe.solvers.blocksolve import block_path_applies, block_path_expected, solve_block
 from amfe.solvers.ksp import check_converged, make_ksp, petsc_options
 from amfe.solvers.nullspace import near_nullspace, orthonormal_nullspace
 
@@ -112,7 +113,10 @@ class ConstrainedOperator:
             b.getArray()[self._local_dofs] = self._dvals * x0.getArray()[self._local_dofs]
         x = frame.centers
         A.setNearNullSpace(near_nullspace(PETSc, A, x[r0:r1], x.mean(axis=0)))
-        if PETSc.Options().getString("amfe_operator_type", "sbaij") == "aij":
+        with petsc_options(PETSc, ksp_options):  # this solve's options choose the path
+            self.block_option = PETSc.Options().getString("amfe_block", "yes")
+            block = block_path_expected(PETSc, len(group.values), self.block_option, diagnose)
+        if block or PETSc.Options().getString("amfe_operator_type", "sbaij") == "aij":
             A_op = A
         else:
             A_op = sbaij_operator(PETSc, comm, n, r0, r1, *block_rows, fixed=group.fixed)
@@ -127,7 +131,6 @@ class ConstrainedOperator:
             ksp = make_ksp(PETSc, A_op, A, rtol=rtol, max_it=max_it)
             if diagnose:
                 ksp.setComputeEigenvalues(True)
-            self.block_option = PETSc.Options().getString("amfe_block", "yes")
             t0 = time.perf_counter()
             ksp.setUp()
             t_setup = time.perf_counter() - t0

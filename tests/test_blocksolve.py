@@ -180,10 +180,8 @@ def test_block_path_is_the_default_and_falls_back(options, path):
 
 def test_unknown_block_option_is_a_clear_error():
     frame = tiny_bed()
-    op = operator(frame, kubc_groups(frame)[0], amfe_block="maybe")
     with pytest.raises(AmfeError, match="-amfe_block 'maybe': give yes"):
-        op.solve_all(box_center(frame.centers))
-    op.destroy()
+        operator(frame, kubc_groups(frame)[0], amfe_block="maybe")
 
 
 def test_a_nan_column_is_reported_for_its_case_only():
