@@ -118,7 +118,7 @@ def worker_measure(args, PETSc, comm):
     rank, size = comm.getRank(), comm.getSize()
     ranges = row_ranges(frame.n_particles, size)
     r0, r1 = int(ranges[rank]), int(ranges[rank + 1])
-    with petsc_options(PETSc, petsc_dict(args)):
+    with petsc_options(PETSc, {**petsc_dict(args), "amfe_block": "no"}):  # keep the SBAIJ copy
         op = ConstrainedOperator(PETSc, frame, comm, r0, r1, local_block_rows(frame, r0, r1),
                                  group, rtol=args.rtol)
     S, A = op.A_op, op.A

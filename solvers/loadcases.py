@@ -21,8 +21,10 @@ from amfe.solvers.partition import row_ranges
 # D^-1 A from 10 Krylov steps. Very stiff bonds among the prescribed particles
 # (a* within ~1e-7 of the critical value) can make it too low: the smoother
 # amplifies the top modes and CG stops with DIVERGED_INDEFINITE_PC. The retry
-# estimates with 50 steps (measured: converges, 1e-10 from a direct solve).
-ROBUST_ESTEIG = {"pc_gamg_esteig_ksp_max_it": 50}
+# estimates with 50 steps (measured: converges, 1e-10 from a direct solve):
+# GAMG's estimate with smoothed aggregation, the smoothers' own without (the
+# block path's -pc_gamg_agg_nsmooths 0).
+ROBUST_ESTEIG = {"pc_gamg_esteig_ksp_max_it": 50, "mg_levels_esteig_ksp_max_it": 50}
 
 
 @dataclass
@@ -105,7 +107,7 @@ def solve_load_cases(PETSc, frame, comm, groups, *, rtol, max_it=None, ksp_optio
                 raise
             notes.append(f"cases {', '.join(group.names)}: {str(exc).split(':')[0]} met an "
                          "indefinite preconditioner; set up again with "
-                         "-pc_gamg_esteig_ksp_max_it 50")
+                         "-pc_gamg_esteig_ksp_max_it 50 -mg_levels_esteig_ksp_max_it 50")
             c, rec = _solve_group(PETSc, frame, comm, r0, r1, block_rows, group, center, rtol,
                                   max_it, {**(ksp_options or {}), **ROBUST_ESTEIG}, diagnose, log)
         for case in c:

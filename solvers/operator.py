@@ -23,7 +23,8 @@ import numpy as np
 
 from amfe.model.averages import bagi_stress
 from amfe.solvers.assembly import aij_from_blocks, sbaij_operator
-from amfe.solvers.blocksolve import block_path_applies, block_path_expected, solve_block
+from amfe.solvers.blocksolve import (block_path_applies, block_path_expected, solve_block,
+                                     with_block_defaults)
 from amfe.solvers.ksp import check_converged, make_ksp, petsc_options
 from amfe.solvers.nullspace import near_nullspace, orthonormal_nullspace
 
@@ -116,6 +117,8 @@ class ConstrainedOperator:
         with petsc_options(PETSc, ksp_options):  # this solve's options choose the path
             self.block_option = PETSc.Options().getString("amfe_block", "yes")
             block = block_path_expected(PETSc, len(group.values), self.block_option, diagnose)
+        if block:
+            ksp_options = with_block_defaults(PETSc, ksp_options)
         if block or PETSc.Options().getString("amfe_operator_type", "sbaij") == "aij":
             A_op = A
         else:
