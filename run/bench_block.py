@@ -7,11 +7,12 @@
 
 Runs each path in its own `mpirun -n RANKS` (so each has its own peak memory),
 end to end: bed generation, frame, assembly, GAMG set-up, six solves,
-averaging. Then one more run measures, on the same bed and operator: one
-MatMult with the fine SBAIJ and AIJ matrices, one 6-column product (MAIJ, and
-MatMatMult with a dense block for AIJ and SBAIJ), one block V-cycle, and a
-STREAM-like triad (a = b + s c, numpy in cache-sized chunks, every rank at
-once). It prints the lower bound for the six solves,
+averaging. Then one more run measures, on the same bed: one MatMult with the
+fine SBAIJ and AIJ matrices, one 6-column product (MAIJ, and MatMatMult with a
+dense block for AIJ and SBAIJ), per path one block V-cycle on that path's GAMG
+hierarchy (the block path's options differ), and a STREAM-like triad
+(a = b + s c, numpy in cache-sized chunks, every rank at once). It prints
+each path's lower bound for the six solves,
 
     bound = (V-cycles x bytes of one block V-cycle + products x bytes of one
              fine product) / triad bandwidth,
@@ -102,14 +103,13 @@ def triad_bandwidth(comm, n_total=30_000_000, chunk=1 << 15):
 
 
 def worker_measure(args, PETSc, comm):
-    """Products, a block V-cycle, the hierarchy's bytes and the triad bandwidth."""
+    """Products, the triad bandwidth, and per path its hierarchy's V-cycle bytes and time."""
     import numpy as np
     from amfe.model.frame import build_frame
     from amfe.model.kubc import kubc_groups
     from amfe.solvers.assembly import local_block_rows
-    from amfe.solvers.blockcycle import BlockVCycle
+    from amfe.solvers.blocksolve import with_block_defaults
     from amfe.solvers.ksp import petsc_options
-    from amfe.solvers.maij import block_product
     from amfe.solvers.operator import ConstrainedOperator
     from amfe.solvers.partition import row_ranges
     bed = bed_of(args)
@@ -118,16 +118,31 @@ def worker_measure(args, PETSc, comm):
     rank, size = comm.getRank(), comm.getSize()
     ranges = row_ranges(frame.n_particles, size)
     r0, r1 = int(ranges[rank]), int(ranges[rank + 1])
-    with petsc_options(PETSc, {**petsc_dict(args), "amfe_block": "no"}):  # keep the SBAIJ copy
-        op = ConstrainedOperator(PETSc, frame, comm, r0, r1, local_block_rows(frame, r0, r1),
-                                 group, rtol=args.rtol)
-    S, A = op.A_op, op.A
     out = {}
+    for path in args.paths.split(","):
+        options = petsc_dict(args)
+        if path == "block":  # its hierarchy, but with the SBAIJ copy for the timings
+            options = with_block_defaults(PETSc, options)
+        with petsc_options(PETSc, {**options, "amfe_block": "no"}):
+            op = ConstrainedOperator(PETSc, frame, comm, r0, r1, local_block_rows(frame, r0, r1),
+                                     group, rtol=args.rtol)
+        m = op.A.getLocalSize()[0]
+        X, Y = np.random.default_rng(rank).random((m, 6)), np.empty((m, 6))
+        if "t_sbaij" not in out:
+            out.update(products(PETSc, comm, op, X, Y))
+        out[path] = hierarchy(PETSc, comm, op, X, Y)
+        op.destroy()
+    out["bandwidth"] = triad_bandwidth(comm)
+    out["load"] = os.getloadavg()[0]
+    return out
+
+
+def products(PETSc, comm, op, X, Y):
+    """Seconds of one MatMult (SBAIJ, AIJ) and one 6-column product (MAIJ, MatMatMult)."""
+    from amfe.solvers.maij import block_product
+    S, A = op.A_op, op.A
     x, y = S.createVecs()
-    out["t_sbaij"] = timed(comm, lambda: S.mult(x, y))
-    out["t_aij"] = timed(comm, lambda: A.mult(x, y))
-    m = A.getLocalSize()[0]
-    X, Y = np.random.default_rng(rank).random((m, 6)), np.empty((m, 6))
+    out = {"t_sbaij": timed(comm, lambda: S.mult(x, y)), "t_aij": timed(comm, lambda: A.mult(x, y))}
     for name, M, backend in (("maij", A, "maij"), ("aij_dense", A, "dense"),
                              ("sbaij_dense", S, "dense")):
         try:
@@ -136,26 +151,31 @@ def worker_measure(args, PETSc, comm):
             prod.destroy()
         except PETSc.Error:
             out["t_" + name] = float("nan")
-    V = BlockVCycle(PETSc, op.ksp.getPC(), 6)
-    out["t_vcycle"] = timed(comm, lambda: V.apply(X, Y), 3)
-    pc, b = op.ksp.getPC(), op._b[0]
-    out["t_pcapply"] = timed(comm, lambda: pc.apply(b, x), 3)
-    k, rows = 6, [lev.rows for lev in V.levels]
+    info = S.getInfo(PETSc.Mat.InfoType.GLOBAL_SUM)
+    out.update(sbaij_bytes=info["nz_used"] * 8 * (1 + 1 / 72),
+               aij_bytes=12 * A.getInfo(PETSc.Mat.InfoType.GLOBAL_SUM)["nz_used"])
+    return out
+
+
+def hierarchy(PETSc, comm, op, X, Y, k=6):
+    """A block V-cycle's and a PCApply's seconds; the bytes a V-cycle and a product must move."""
+    from amfe.solvers.blockcycle import BlockVCycle
+    V = BlockVCycle(PETSc, op.ksp.getPC(), k)
+    pc, b, x = op.ksp.getPC(), op._b[0], op._b[0].duplicate()
+    out = {"t_vcycle": timed(comm, lambda: V.apply(X, Y), 3),
+           "t_pcapply": timed(comm, lambda: pc.apply(b, x), 3)}
     vcycle_bytes = 0.0
     for i, lev in enumerate(V.levels):  # coarse to fine
         coarser = V.levels[i - 1].rows if i else V.coarse.b.getSize()
         vcycle_bytes += 2 * lev.degree * (sym_bytes(lev.nnz, lev.rows) + 16 * k * lev.rows)
         vcycle_bytes += 2 * (12 * lev.p_nnz + 8 * k * (lev.rows + coarser))
     fine = V.levels[-1]
-    info = S.getInfo(PETSc.Mat.InfoType.GLOBAL_SUM)
-    out.update(sbaij_bytes=info["nz_used"] * 8 * (1 + 1 / 72), aij_bytes=12 * fine.nnz,
-               product_bytes=sym_bytes(fine.nnz, fine.rows) + 16 * k * fine.rows,
-               vcycle_bytes=vcycle_bytes, levels=rows, degrees=[lev.degree for lev in V.levels],
+    out.update(product_bytes=sym_bytes(fine.nnz, fine.rows) + 16 * k * fine.rows,
+               vcycle_bytes=vcycle_bytes, levels=[V.coarse.b.getSize()] + [lv.rows for lv in V.levels],
+               degrees=[lev.degree for lev in V.levels],
                vcycle_fine_reads=sum(2 * lev.degree * lev.nnz for lev in V.levels) / fine.nnz)
     V.destroy()
-    op.destroy()
-    out["bandwidth"] = triad_bandwidth(comm)
-    out["load"] = os.getloadavg()[0]
+    x.destroy()
     return out
 
 
@@ -215,14 +235,14 @@ def report(args, runs):
         f"{m['t_aij'] * 1e3:.1f} ms ({m['aij_bytes'] / 1e6:.0f} MB); 6 columns: MAIJ(AIJ) "
         f"{m['t_maij'] * 1e3:.1f} ms, MatMatMult AIJ x dense {m['t_aij_dense'] * 1e3:.1f} ms, "
         f"SBAIJ x dense {m['t_sbaij_dense'] * 1e3:.1f} ms")
-    say(f"block V-cycle (6 columns) {m['t_vcycle'] * 1e3:.1f} ms, PCApply (1 column) "
-        f"{m['t_pcapply'] * 1e3:.1f} ms; levels {m['levels']}, degrees {m['degrees']}, "
-        f"{m['vcycle_fine_reads']:.2f} fine-matrix reads a V-cycle")
     bw = m["bandwidth"]
     say(f"triad bandwidth {bw / 1e9:.2f} GB/s (all ranks; load {m['load']:.1f})")
     for path in args.paths.split(","):
-        its = max(runs[path]["iterations"])
-        bound = ((its + 2) * m["vcycle_bytes"] + (its + 2) * m["product_bytes"]) / bw
+        h, its = m[path], max(runs[path]["iterations"])
+        bound = (its + 2) * (h["vcycle_bytes"] + h["product_bytes"]) / bw
+        say(f"{path}: levels {h['levels']}, degrees {h['degrees']}, {h['vcycle_fine_reads']:.2f} "
+            f"fine-matrix reads a V-cycle; block V-cycle (6 columns) {h['t_vcycle'] * 1e3:.1f} ms, "
+            f"PCApply (1 column) {h['t_pcapply'] * 1e3:.1f} ms")
         say(f"{path}: lower bound for the six solves at {its} iterations {bound:.3f} s; "
             f"measured {runs[path]['solve']:.2f} s = {runs[path]['solve'] / bound:.1f}x the bound")
 
