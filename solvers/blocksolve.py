@@ -36,9 +36,10 @@ PETSc's LU shifts, a W-cycle or another smoother make 1e-3 and more."""
 
 BLOCK_DEFAULTS = {"pc_gamg_agg_nsmooths": "0"}
 """PETSc options the block path sets unless given (docs/benchmarks.md, "Six
-right-hand sides at once"). Unsmoothed aggregation: GAMG's set-up 2.7x
-cheaper and 10 % less memory; twice the iterations, which the block path
-makes cheap: end to end 0-12 % faster, 15 % less CPU on 46 800 particles."""
+right-hand sides at once"). Unsmoothed aggregation: GAMG's set-up 2.4-4x
+cheaper (2.9x on the paper's bed) with less memory, for about twice the
+iterations, which the block path makes cheap: end to end never slower in
+four alternated pairs on 46 800 particles, and as fast on `small` beds."""
 
 
 def with_block_defaults(PETSc, ksp_options):
