@@ -171,7 +171,8 @@ def hierarchy(PETSc, comm, op, X, Y, k=6):
         vcycle_bytes += 2 * (12 * lev.p_nnz + 8 * k * (lev.rows + coarser))
     fine = V.levels[-1]
     out.update(product_bytes=sym_bytes(fine.nnz, fine.rows) + 16 * k * fine.rows,
-               vcycle_bytes=vcycle_bytes, levels=[V.coarse.b.getSize()] + [lv.rows for lv in V.levels],
+               vcycle_bytes=vcycle_bytes,
+               levels=[V.coarse.b.getSize()] + [lev.rows for lev in V.levels],
                degrees=[lev.degree for lev in V.levels],
                vcycle_fine_reads=sum(2 * lev.degree * lev.nnz for lev in V.levels) / fine.nnz)
     V.destroy()
@@ -227,7 +228,8 @@ def report(args, runs):
     if "block" in runs and "loop" in runs:
         b, l = runs["block"], runs["loop"]
         say(f"block / one at a time: end to end {b['total'] / l['total']:.2f}, six solves "
-            f"{b['solve'] / l['solve']:.2f}; constants differ by {rel(b['properties'], l['properties']):.1e}")
+            f"{b['solve'] / l['solve']:.2f}; constants differ by "
+            f"{rel(b['properties'], l['properties']):.1e}")
     m = runs.get("measure")
     if not m:
         return

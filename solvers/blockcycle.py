@@ -82,8 +82,9 @@ def level_smoothers(PETSc, pc):
     targets = []
     for level, body in zip(sections[::2], sections[1::2]):
         m = re.search(rf"eigenvalue targets used: min {_NUM}, max {_NUM}", body)
-        if (not re.search(r"type: chebyshev", body) or not re.search(r"type: jacobi\s+type DIAGONAL", body)
-                or "Up solver (post-smoother) same as down solver" not in body or m is None):
+        same = "Up solver (post-smoother) same as down solver" in body
+        if (m is None or not same or "type: chebyshev" not in body
+                or not re.search(r"type: jacobi\s+type DIAGONAL", body)):
             raise BlockUnsupported(f"level {level} does not smooth with Chebyshev + Jacobi "
                                    "(the same up and down)")
         targets.append((float(m.group(1)), float(m.group(2))))
@@ -190,8 +191,8 @@ class BlockVCycle:
                 set_chebyshev_targets(pc.getMGSmoother(l), *t)
             self.levels.append(_Level(PETSc, pc, l, k, t, backend))
         # (B, X) blocks of each coarser level's correction; the finest level uses the caller's
-        self._blocks = [(np.zeros((m0, k)), np.zeros((m0, k)))] + [(np.zeros_like(lev.R), np.zeros_like(lev.R))
-                                                for lev in self.levels[:-1]]
+        self._blocks = [(np.zeros((m0, k)), np.zeros((m0, k)))]
+        self._blocks += [(np.zeros_like(lev.R), np.zeros_like(lev.R)) for lev in self.levels[:-1]]
         self.fine = self.levels[-1].A
 
     @property
