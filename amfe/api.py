@@ -14,7 +14,7 @@ from amfe.io.result import Result
 
 def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_options=None,
                a_star_cap=None, material=None, max_it=None, diagnose=False, progress=False,
-               vtu_dir=None):
+               vtu_dir=None, solver="auto"):
     """Effective elastic constants of a powder bed, as a :class:`~amfe.io.result.Result`.
 
     Parameters
@@ -26,7 +26,8 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
     bc : {"kubc", "mixed"}
         Boundary conditions (docs/model.md, section 5).
     rtol : float, optional
-        Relative residual tolerance of the solves (default 1e-8).
+        GAMG's relative residual tolerance (default: 1e-8 with ``solver="gamg"``,
+        1e-7 for the beds ``"auto"`` gives to GAMG).
     comm : mpi4py or PETSc communicator, optional
         The ranks that share the solve (default: all of them).
     fields : bool
@@ -44,6 +45,11 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
         Add per-case solver diagnostics; print progress lines to stderr.
     vtu_dir : str, optional
         Write one VTU per load case and cases.pvd there.
+    solver : {"auto", "gamg", "cholesky"}
+        How to solve: ``"auto"`` picks per bed the cheapest method whose
+        constants stay within 1e-5 of a tight reference (Cholesky on one rank
+        where the predicted fill is low, else CG + GAMG); ``result.solver``
+        says which and why.
 
     Returns
     -------
@@ -63,7 +69,6 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
     """
     from amfe.model.bed import Bed
     from amfe.solvers.driver import homogenize_bed
-    from amfe.solvers.ksp import DEFAULT_RTOL
     from amfe.solvers.petsc import init_petsc
 
     PETSc = init_petsc()
@@ -83,7 +88,7 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
                         f"(centers, radii); got {type(bed).__name__}")
     kw = {} if material is None else {"material": material}
     d = homogenize_bed(centers, radii, **kw, a_star_cap=a_star_cap,
-                       rtol=DEFAULT_RTOL if rtol is None else rtol, max_it=max_it,
+                       rtol=rtol, max_it=max_it, solver=solver,
                        vtu_dir=vtu_dir, comm=pcomm, ksp_options=petsc_options, bc=bc,
                        diagnose=diagnose, progress=progress, fields=fields)
     return Result.from_dict(d, fields=d.pop("fields", None))

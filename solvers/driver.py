@@ -16,6 +16,7 @@ from amfe.model.averages import (asymmetry, bagi_strain, compliance_and_constant
 from amfe.model.material import STEEL
 from amfe.io.mpi import on_root
 from amfe.io.result import Fields, write_fields_vtu
+from amfe.solvers.choice import USER_METHOD_OPTIONS, choose_solver, cholesky_package, solve_features
 from amfe.solvers.ksp import DEFAULT_RTOL
 from amfe.model.kubc import CASE_NAMES, kubc_groups
 from amfe.solvers.loadcases import solve_load_cases
@@ -25,9 +26,10 @@ from amfe.solvers.petsc import init_petsc
 BOUNDARY_CONDITIONS = {"kubc": kubc_groups, "mixed": mixed_groups}
 
 
-def homogenize_bed(centers, radii, material=STEEL, *, a_star_cap=None, rtol=DEFAULT_RTOL,
+def homogenize_bed(centers, radii, material=STEEL, *, a_star_cap=None, rtol=None,
                    max_it=None, vtu_dir=None, comm=None, petsc_args=None, ksp_options=None,
-                   nondimensional=True, bc="kubc", diagnose=False, progress=False, fields=False):
+                   nondimensional=True, bc="kubc", diagnose=False, progress=False, fields=False,
+                   solver="gamg"):
     """Effective elastic constants of a bed of bonded spheres.
 
     bc: "kubc" (default; six unit macro-strains on the boundary, one operator)
@@ -50,6 +52,10 @@ def homogenize_bed(centers, radii, material=STEEL, *, a_star_cap=None, rtol=DEFA
     assembles in SI units (for the benchmark that shows why scaling matters).
     ``progress=True`` prints one line per phase and load case to stderr on rank 0.
     ``fields=True`` adds "fields": a :class:`~amfe.io.result.Fields` (every rank).
+    ``solver``: "gamg" (CG + GAMG, rtol default 1e-8), "cholesky" (one rank) or
+    "auto", the cheapest method that keeps the constants within 1e-5 of a tight
+    reference (:mod:`amfe.solvers.choice`); the choice and its reason go into
+    the result's ``solver`` record (method, reason).
     Raises AmfeError on every rank for bad input or a failed solve.
     """
     if bc not in BOUNDARY_CONDITIONS:
@@ -69,11 +75,21 @@ def homogenize_bed(centers, radii, material=STEEL, *, a_star_cap=None, rtol=DEFA
     if log:
         log(f"frame: {frame.n_particles} load-carrying particles ({frame.n_removed} removed), "
             f"{len(frame.bonds)} bonds in {t_frame:.2f} s; {bc}, {mpi.size} rank(s)")
-    sol = solve_load_cases(PETSc, frame, comm, groups, rtol=rtol, max_it=max_it, log=log,
-                           ksp_options=ksp_options, diagnose=diagnose)
+    method, reason, rtol, options = choose_solver(
+        lambda: solve_features(frame), mpi.size, solver, rtol, cholesky_package(PETSc),
+        [k for k in USER_METHOD_OPTIONS
+         if PETSc.Options().hasName(k) or k in (ksp_options or {})],
+        singular=any(g.null_modes is not None for g in groups))
+    if log:
+        log(f"solver: {method} ({reason})")
+    sol = solve_load_cases(PETSc, frame, comm, groups, rtol=DEFAULT_RTOL if rtol is None else rtol,
+                           max_it=max_it, log=log, ksp_options={**options, **(ksp_options or {})},
+                           diagnose=diagnose)
 
-    return on_root(mpi, _average, frame, sol, bc, a_star_cap, mpi.size, t_frame, vtu_dir,
-                   diagnose, fields)
+    result = on_root(mpi, _average, frame, sol, bc, a_star_cap, mpi.size, t_frame, vtu_dir,
+                     diagnose, fields)
+    result["solver"].update(method=method, reason=reason, requested=solver)
+    return result
 
 
 def _stderr_log(rank):

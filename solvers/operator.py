@@ -110,10 +110,10 @@ class ConstrainedOperator:
             b.getArray()[self._local_dofs] = self._dvals * x0.getArray()[self._local_dofs]
         x = frame.centers
         A.setNearNullSpace(near_nullspace(PETSc, A, x[r0:r1], x.mean(axis=0)))
-        if PETSc.Options().getString("amfe_operator_type", "sbaij") == "aij":
-            A_op = A
-        else:
-            A_op = sbaij_operator(PETSc, comm, n, r0, r1, *block_rows, fixed=group.fixed)
+        with petsc_options(PETSc, ksp_options):  # a direct solve sets amfe_operator_type aij
+            aij_only = PETSc.Options().getString("amfe_operator_type", "sbaij") == "aij"
+        A_op = A if aij_only else sbaij_operator(PETSc, comm, n, r0, r1, *block_rows,
+                                                 fixed=group.fixed)
         self.nullspace = None
         if group.null_modes is not None:
             self.nullspace = orthonormal_nullspace(PETSc, A, group.null_modes[:, r0:r1])

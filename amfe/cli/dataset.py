@@ -35,8 +35,12 @@ def register(sub):
                    help="bed distribution (default small; see amfe.model.scales)")
     p.add_argument("--ranks-per-bed", type=int, default=1, metavar="K",
                    help="MPI ranks that solve one bed together (default 1)")
+    p.add_argument("--solver", choices=["auto", "gamg", "cholesky"], default="auto",
+                   help="auto (default): per bed, Cholesky where its predicted fill is low, "
+                        "else CG + GAMG; labels within 1e-5 of a tight reference either way")
     p.add_argument("--rtol", type=float, default=None,
-                   help="KSP relative tolerance of the solves (default 1e-8)")
+                   help="GAMG's relative tolerance (default 1e-8 with --solver gamg, 1e-7 "
+                        "for the beds auto gives to GAMG)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--check", metavar="DATA.h5",
                    help="validate a data-set file and print its summary (exit 1 if bad)")
@@ -58,14 +62,12 @@ def run(args):
     if not args.output or args.count is None:
         raise AmfeError("give -o DATA.h5 and --count M (or --check DATA.h5)")
     from amfe.dataset.driver import run_dataset
-    from amfe.solvers.ksp import DEFAULT_RTOL
     from amfe.solvers.petsc import init_petsc
 
     init_petsc(args.petsc_args)
     run_dataset(args.output, args.count, seed=args.seed, scale=args.scale,
                 ranks_per_bed=args.ranks_per_bed,
-                rtol=DEFAULT_RTOL if args.rtol is None else args.rtol,
-                progress=not args.no_progress)
+                rtol=args.rtol, solver=args.solver, progress=not args.no_progress)
     return 0
 
 

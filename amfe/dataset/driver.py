@@ -65,6 +65,7 @@ from amfe.errors import AmfeError
 from amfe.io.mpi import on_root
 from amfe.vocab import LABEL_NAMES
 from amfe.model.scales import PARAM_NAMES, get_scale, param_record, record_seed, sample_bed_params
+from amfe.solvers.choice import GAMG_RTOL_AUTO, METHODS
 from amfe.solvers.ksp import DEFAULT_RTOL
 
 NEXT, FINISHED = 0, 1   # the two counters of the hand-out window
@@ -92,7 +93,7 @@ def _agree(group, err):
     return None
 
 
-def make_record(k, dataset_seed, scale, group, rtol=DEFAULT_RTOL, pixelate=None):
+def make_record(k, dataset_seed, scale, group, rtol=DEFAULT_RTOL, pixelate=None, solver="gamg"):
     """Record k (a dict, see amfe.io.datasetfile), computed collectively on ``group``.
 
     Every rank of ``group`` calls it with the same arguments; the record is
@@ -130,7 +131,8 @@ def make_record(k, dataset_seed, scale, group, rtol=DEFAULT_RTOL, pixelate=None)
     if err is None:
         t2 = time.perf_counter()
         try:
-            res = homogenize_bed(bed.centers, bed.radii, bed.material(), comm=group, rtol=rtol)
+            res = homogenize_bed(bed.centers, bed.radii, bed.material(), comm=group, rtol=rtol,
+                                 solver=solver)
         except Exception as exc:  # noqa: BLE001
             err = _reason(exc)
         rec["seconds"][2] = time.perf_counter() - t2
@@ -243,7 +245,8 @@ def _prepare(output, params):
         same = (str(have["scale"]) == want["scale"] and have["seed"] is not None
                 and int(have["seed"]) == want["seed"] and have["count"] is not None
                 and int(have["count"]) == want["count"] and have["rtol"] is not None
-                and float(have["rtol"]) == want["rtol"])
+                and float(have["rtol"]) == want["rtol"]
+                and str(attrs.get("solver", "gamg")) == params.get("solver", "gamg"))
         if not same:
             raise AmfeError(f"{output} exists and was made with other parameters "
                             f"({describe_params(attrs)}; asked: {describe_params(params)}); "
@@ -272,8 +275,8 @@ def _prepare(output, params):
     return {"complete": False, "todo": todo, "n_done": len(done), "parts": parts}
 
 
-def run_dataset(output, count, *, seed=0, scale="small", ranks_per_bed=1, rtol=DEFAULT_RTOL,
-                comm=None, progress=True, pixelate=None, out=None):
+def run_dataset(output, count, *, seed=0, scale="small", ranks_per_bed=1, rtol=None,
+                comm=None, progress=True, pixelate=None, out=None, solver="auto"):
     """Make (or finish) the data set ``output``; collective over ``comm`` (default COMM_WORLD).
 
     Returns, on world rank 0, a dict: complete_before (the file was already
@@ -283,7 +286,10 @@ def run_dataset(output, count, *, seed=0, scale="small", ranks_per_bed=1, rtol=D
     generate_rank_seconds, image_rank_seconds (the same for generation and
     images), busy_rank_seconds (rank-seconds from taking a record to having
     written it), work_seconds (wall time of the hand-out loop), and lines (the
-    text printed); None on the other ranks. Prints the summary on world rank 0 to
+    text printed); None on the other ranks. ``solver``: "auto" (default), "gamg" or
+    "cholesky" (:mod:`amfe.solvers.choice`); ``rtol`` (default: 1e-8 for gamg, 1e-7
+    for auto's GAMG beds) is the GAMG tolerance. Each record's ``solver`` JSON says
+    which method labelled it and why. Prints the summary on world rank 0 to
     ``out`` (default stdout). Raises AmfeError alike on every rank for bad
     arguments, a parameter mismatch with an existing file or parts directory,
     or a failed merge.
@@ -301,9 +307,13 @@ def run_dataset(output, count, *, seed=0, scale="small", ranks_per_bed=1, rtol=D
     if not isinstance(ranks_per_bed, (int, np.integer)) or not 1 <= ranks_per_bed <= world.size:
         raise AmfeError(f"--ranks-per-bed must lie in [1, {world.size}] (the number of MPI "
                         f"ranks), got {ranks_per_bed}")
+    if solver not in METHODS:
+        raise AmfeError(f"unknown --solver {solver!r}; choose one of {', '.join(METHODS)}")
+    if rtol is None:
+        rtol = DEFAULT_RTOL if solver == "gamg" else GAMG_RTOL_AUTO
     if not 0.0 < float(rtol) < 1.0:
         raise AmfeError(f"--rtol must lie in (0, 1), got {rtol}")
-    params = run_params(sc.name, seed, count, rtol)
+    params = run_params(sc.name, seed, count, rtol, solver)
     output = os.fspath(output)
 
     def prepare():
@@ -357,7 +367,7 @@ def run_dataset(output, count, *, seed=0, scale="small", ranks_per_bed=1, rtol=D
                 break
             k = todo[pos]
             tb = time.perf_counter()
-            rec = make_record(k, seed, sc, group, rtol=rtol, pixelate=pixelate)
+            rec = make_record(k, seed, sc, group, rtol=rtol, pixelate=pixelate, solver=solver)
             if group.rank == 0:
                 write_part(parts, rec)
                 window.fetch_add(FINISHED)

@@ -33,11 +33,18 @@ def part_path(parts, k):
 
 
 
-def run_params(scale, seed, count, rtol):
-    """The parameters that define a data set's records (what params.json and the attrs hold)."""
-    return {"format": FORMAT, "format_version": FORMAT_VERSION, "scale": str(scale),
-            "seed": int(seed), "count": int(count), "rtol": float(rtol),
-            "amfe_version": __version__}
+def run_params(scale, seed, count, rtol, solver="gamg"):
+    """The parameters that define a data set's records (what params.json and the attrs hold).
+
+    ``solver`` (the --solver asked for) is recorded unless it is "gamg", so the
+    parameters of runs made before the choice existed (all GAMG) stay equal.
+    """
+    params = {"format": FORMAT, "format_version": FORMAT_VERSION, "scale": str(scale),
+              "seed": int(seed), "count": int(count), "rtol": float(rtol),
+              "amfe_version": __version__}
+    if solver != "gamg":
+        params["solver"] = str(solver)
+    return params
 
 
 
