@@ -77,10 +77,10 @@ def interleaved(count, seed):
     """Label beds 0..count-1 of the small scale with both paths in turn; CPU seconds each."""
     from mpi4py import MPI
 
-    from amfe.dataset.driver import _load_pixelate, make_record
+    from amfe.dataset.record import load_pixelate, make_record
     from amfe.solvers.petsc import init_petsc
     PETSc = init_petsc([])
-    pix = _load_pixelate()
+    pix = load_pixelate()
     total = {"old": 0.0, "new": 0.0}
     methods = []
     for k in range(count):

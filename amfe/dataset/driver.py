@@ -45,118 +45,26 @@ all groups, read from the window's second counter by a background thread
 every half second (the window is in rank 0's memory; no MPI call), so the
 bar, its rate and its ETA are the job's, not rank 0's.
 """
-import json
 import os
 import sys
 import threading
 import time
-import traceback
 
 import numpy as np
 
+from amfe.dataset.record import load_pixelate, make_record
 from amfe.dataset.summary import final_summary
-from amfe.dataset.upgrade import record_bond_image
-from amfe.io.datasetfile import check_dataset, merge_parts
-from amfe.io.datasetparts import (STATUS_FAILED, STATUS_OK, describe_params, done_indices,
-                                  empty_record, parts_dir, read_params_json, remove_stale_tmp,
-                                  run_params, write_params_json, write_part)
-from amfe.model.bed import generate_bed
 from amfe.errors import AmfeError
+from amfe.io.datasetfile import check_dataset, merge_parts
+from amfe.io.datasetparts import (STATUS_OK, describe_params, done_indices, parts_dir,
+                                  read_params_json, remove_stale_tmp, run_params,
+                                  write_params_json, write_part)
 from amfe.io.mpi import on_root
-from amfe.vocab import LABEL_NAMES
-from amfe.model.scales import PARAM_NAMES, get_scale, param_record, record_seed, sample_bed_params
-from amfe.solvers.choice import GAMG_RTOL_AUTO, METHODS
+from amfe.model.scales import get_scale
+from amfe.solvers.choice import GAMG_RTOL_AUTO, choose_solver
 from amfe.solvers.ksp import DEFAULT_RTOL
 
 NEXT, FINISHED = 0, 1   # the two counters of the hand-out window
-
-
-def _reason(exc):
-    """A failed record's reason: the AmfeError's message, else "Type: message (at file:line)"."""
-    if isinstance(exc, AmfeError):
-        msg = str(exc) or "AmfeError"
-    else:
-        msg = f"{type(exc).__name__}: {exc}"
-        tb = traceback.extract_tb(exc.__traceback__)
-        if tb:
-            msg += f" (at {os.path.basename(tb[-1].filename)}:{tb[-1].lineno} in {tb[-1].name})"
-    return msg[:1000]
-
-
-def _agree(group, err):
-    """The first error any rank of the group saw (None if none), the same on every rank."""
-    if group.size == 1:
-        return err
-    for e in group.allgather(err):
-        if e is not None:
-            return e
-    return None
-
-
-def make_record(k, dataset_seed, scale, group, rtol=DEFAULT_RTOL, pixelate=None, solver="gamg"):
-    """Record k (a dict, see amfe.io.datasetfile), computed collectively on ``group``.
-
-    Every rank of ``group`` calls it with the same arguments; the record is
-    complete on the group's rank 0 (the others hold no image). Never raises
-    for a bad bed or a failed solve: the record says status failed and why.
-    """
-    from amfe.solvers.driver import homogenize_bed
-
-    sc = get_scale(scale)
-    bed_seed = record_seed(dataset_seed, k)
-    rec = empty_record(k, bed_seed, sc.image_shape)
-    err = None
-    t0 = time.perf_counter()
-    try:
-        params = sample_bed_params(sc, bed_seed)
-        rec["params"] = np.array([param_record(params)[n] for n in PARAM_NAMES])
-        bed = generate_bed(**params)
-        rec["n_particles"] = bed.n
-        t1 = time.perf_counter()
-        rec["seconds"][0] = t1 - t0
-        if group.rank == 0:
-            image = np.asarray(pixelate(bed, cell=sc.cell, layer_thickness=sc.layer_thickness,
-                                        box=((0.0, 0.0, 0.0), sc.size),
-                                        spacing=sc.image_spacing), np.float32)
-            if image.shape != sc.image_shape:
-                raise AmfeError(f"pixelate gave an image of shape {image.shape}, expected "
-                                f"{sc.image_shape}")
-            rec["image"] = image
-            rec["bond_image"] = record_bond_image(bed, sc)
-            rec["density"] = float(image.mean(dtype=np.float64))
-            rec["seconds"][1] = time.perf_counter() - t1
-    except Exception as exc:  # noqa: BLE001 - recorded, not fatal
-        err = _reason(exc)
-    err = _agree(group, err)
-    if err is None:
-        t2 = time.perf_counter()
-        try:
-            res = homogenize_bed(bed.centers, bed.radii, bed.material(), comm=group, rtol=rtol,
-                                 solver=solver)
-        except Exception as exc:  # noqa: BLE001
-            err = _reason(exc)
-        rec["seconds"][2] = time.perf_counter() - t2
-        err = _agree(group, err)
-    if err is not None:
-        rec["status"], rec["reason"] = STATUS_FAILED, err
-        return rec
-    props = res["properties"]
-    rec.update(status=STATUS_OK, reason="",
-               labels=np.array([props[n] for n in LABEL_NAMES]),
-               C=np.array(res["C"]), iterations=np.array(res["solver"]["iterations"], np.int32),
-               n_removed=int(res["n_removed"]), n_bonds=int(res["n_bonds"]),
-               volume=float(res["volume"]),
-               solver=json.dumps(res["solver"], default=float))
-    return rec
-
-
-def _load_pixelate():
-    try:
-        from amfe.dataset.images import pixelate
-    except ImportError as exc:
-        raise AmfeError(f"amfe.dataset.images.pixelate is not available ({exc}); the images of a "
-                        "data set need it") from None
-    return pixelate
 
 
 class _Window:
@@ -240,13 +148,12 @@ def _prepare(output, params):
         except AmfeError as exc:
             raise AmfeError(f"{output} exists and is not a data set ({exc}); remove it or "
                             "choose another -o") from None
-        have = {k: attrs.get(k) for k in ("scale", "seed", "count", "rtol")}
-        want = {k: params[k] for k in ("scale", "seed", "count", "rtol")}
-        same = (str(have["scale"]) == want["scale"] and have["seed"] is not None
-                and int(have["seed"]) == want["seed"] and have["count"] is not None
-                and int(have["count"]) == want["count"] and have["rtol"] is not None
-                and float(have["rtol"]) == want["rtol"]
-                and str(attrs.get("solver", "gamg")) == params.get("solver", "gamg"))
+        try:
+            same = (all(t(attrs[k]) == params[k] for k, t in
+                        (("scale", str), ("seed", int), ("count", int), ("rtol", float)))
+                    and str(attrs.get("solver", "gamg")) == params.get("solver", "gamg"))
+        except (KeyError, TypeError, ValueError):
+            same = False
         if not same:
             raise AmfeError(f"{output} exists and was made with other parameters "
                             f"({describe_params(attrs)}; asked: {describe_params(params)}); "
@@ -286,11 +193,9 @@ def run_dataset(output, count, *, seed=0, scale="small", ranks_per_bed=1, rtol=N
     generate_rank_seconds, image_rank_seconds (the same for generation and
     images), busy_rank_seconds (rank-seconds from taking a record to having
     written it), work_seconds (wall time of the hand-out loop), and lines (the
-    text printed); None on the other ranks. ``solver``: "auto" (default), "gamg" or
-    "cholesky" (:mod:`amfe.solvers.choice`); ``rtol`` (default: 1e-8 for gamg, 1e-7
-    for auto's GAMG beds) is the GAMG tolerance. Each record's ``solver`` JSON says
-    which method labelled it and why. Prints the summary on world rank 0 to
-    ``out`` (default stdout). Raises AmfeError alike on every rank for bad
+    text printed); None on the other ranks. ``solver``, ``rtol``: as for
+    :func:`amfe.solvers.driver.homogenize_bed` (default auto). Prints the summary
+    on world rank 0 to ``out`` (default stdout). Raises AmfeError alike on every rank for bad
     arguments, a parameter mismatch with an existing file or parts directory,
     or a failed merge.
     """
@@ -307,8 +212,7 @@ def run_dataset(output, count, *, seed=0, scale="small", ranks_per_bed=1, rtol=N
     if not isinstance(ranks_per_bed, (int, np.integer)) or not 1 <= ranks_per_bed <= world.size:
         raise AmfeError(f"--ranks-per-bed must lie in [1, {world.size}] (the number of MPI "
                         f"ranks), got {ranks_per_bed}")
-    if solver not in METHODS:
-        raise AmfeError(f"unknown --solver {solver!r}; choose one of {', '.join(METHODS)}")
+    choose_solver({}, 2, solver)  # an unknown method is refused before any work
     if rtol is None:
         rtol = DEFAULT_RTOL if solver == "gamg" else GAMG_RTOL_AUTO
     if not 0.0 < float(rtol) < 1.0:
@@ -335,7 +239,7 @@ def run_dataset(output, count, *, seed=0, scale="small", ranks_per_bed=1, rtol=N
 
     if pixelate is None:
         try:
-            pixelate = _load_pixelate()
+            pixelate = load_pixelate()
         except AmfeError as exc:
             pixelate = exc
         bad = world.allreduce(isinstance(pixelate, AmfeError), op=MPI.LOR)
