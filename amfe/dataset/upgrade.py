@@ -4,6 +4,7 @@ import shutil
 
 import numpy as np
 
+from amfe.dataset.lock import DatasetLock
 from amfe.errors import AmfeError
 from amfe.io.atomic import atomic_write
 from amfe.io.datasetfile import _image_dataset, check_dataset
@@ -31,11 +32,18 @@ def add_bond_images(path, progress=True):
     images, is not a valid data set, or a bed no longer matches its image
     (generator changed since the file was made).
     """
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise AmfeError(f"data set {path} does not exist")
+    with DatasetLock(path):   # no `amfe dataset` may write the file meanwhile
+        return _add_bond_images(path, progress)
+
+
+def _add_bond_images(path, progress):
     import h5py
 
     from amfe.model.scales import bed_for
 
-    path = os.fspath(path)
     problems, data, attrs = check_dataset(path)
     if problems:
         raise AmfeError(f"{path} is not a valid data set ({problems[0]}); see amfe dataset "

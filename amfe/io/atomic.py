@@ -3,10 +3,135 @@
 Every file amfe writes goes through a temporary file in the target's
 directory, is flushed and fsynced, and is renamed onto its final name with
 os.replace; the directory is fsynced so the rename survives a power cut.
+
+The temporary file is ``.NAME.HOST-PID.XXXXXXXX.tmp`` (HOST: this machine's
+name, letters, digits and dashes only; PID: the writing process). A kill
+between the write and the rename leaves it behind; the next write of the same
+``NAME`` removes it when it is certainly orphaned (:func:`stale_tmp_files`).
+A full disk (ENOSPC) or an exhausted quota (EDQUOT) becomes one AmfeError
+line, "no space left on DIR: ...", with the old file kept.
 """
+import errno
 import json
 import os
+import re
+import socket
+import sys
 import tempfile
+import time
+
+from amfe.errors import AmfeError
+
+#: An orphaned temporary file of another host, or of a name without a pid
+#: (written before the pid was part of the name), is removed once its last
+#: change is older than this [s]: a live writer changes its file continually,
+#: and writes a part file or a JSON result in well under a second.
+STALE_AGE_UNKNOWN_WRITER = 60.0
+#: A temporary file whose pid is running on this host is kept unless it is
+#: older than this [s] (the pid has been reused, e.g. after a reboot).
+STALE_AGE_LIVE_PID = 24 * 3600.0
+_NO_SPACE = {errno.ENOSPC, getattr(errno, "EDQUOT", errno.ENOSPC)}
+_RANDOM = r"[a-z0-9_]{8}"   # tempfile's random part
+
+
+def host_name():
+    """This machine's name with only letters, digits and dashes (the tmp-name field)."""
+    return re.sub(r"[^A-Za-z0-9-]", "-", socket.gethostname()) or "host"
+
+
+def pid_running(pid):
+    """True if a process ``pid`` runs on this host (a zombie counts as ended)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    except (OverflowError, ValueError):
+        return False
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            return fh.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except (OSError, IndexError):
+        return True
+
+
+def is_no_space(exc):
+    """True for an error that means the disk or the quota is full (h5py's included)."""
+    if isinstance(exc, OSError) and exc.errno in _NO_SPACE:
+        return True
+    text = str(exc)
+    return any(f"errno = {e}," in text or os.strerror(e) in text for e in _NO_SPACE)
+
+
+def no_space_error(path, existed):
+    """The one-line AmfeError for a full disk while writing ``path``."""
+    directory = os.path.dirname(os.path.abspath(path))
+    kept = "the old file is kept" if existed else "nothing was written"
+    return AmfeError(f"no space left on {directory}: {os.path.basename(path)} could not be "
+                     f"written ({kept}); free some space and run the command again")
+
+
+def stale_tmp_files(path, now=None):
+    """[(tmp path, why)] of the orphaned temporary files of target ``path``.
+
+    Only ``.NAME.*.tmp`` files of this very NAME are considered. One is stale
+    when its name carries this host and a pid that no longer runs (removed at
+    once), when that pid runs but the file is older than STALE_AGE_LIVE_PID,
+    or, for another host's file or a name without a pid, when it is older
+    than STALE_AGE_UNKNOWN_WRITER.
+    """
+    path = os.fspath(path)
+    directory = os.path.dirname(os.path.abspath(path))
+    pattern = re.compile(r"^\." + re.escape(os.path.basename(path))
+                         + r"\.(?:(?P<host>[A-Za-z0-9-]*)-(?P<pid>\d+)\.)?" + _RANDOM + r"\.tmp$")
+    try:
+        names = os.listdir(directory)
+    except OSError:
+        return []
+    now = time.time() if now is None else now
+    here = host_name()
+    out = []
+    for name in names:
+        m = pattern.match(name)
+        if not m:
+            continue
+        tmp = os.path.join(directory, name)
+        try:
+            age = now - os.stat(tmp).st_mtime
+        except OSError:
+            continue
+        pid = int(m.group("pid")) if m.group("pid") else None
+        if pid is not None and m.group("host") == here:
+            if pid == os.getpid():
+                continue
+            if not pid_running(pid):
+                out.append((tmp, f"its writer, pid {pid} on this host, has ended"))
+            elif age > STALE_AGE_LIVE_PID:
+                out.append((tmp, f"unchanged for {age:.0f} s (pid {pid} is another process now)"))
+        elif age > STALE_AGE_UNKNOWN_WRITER:
+            writer = f"pid {pid} on host {m.group('host')}" if pid is not None else "unknown"
+            out.append((tmp, f"unchanged for {age:.0f} s, writer {writer}"))
+    return out
+
+
+def remove_stale_tmp(path, report=None):
+    """Remove the orphaned temporary files of target ``path``; one line each on ``report``.
+
+    report: a text stream (default sys.stderr) or False for silence. Returns
+    the list of (tmp path, why) removed.
+    """
+    removed = []
+    for tmp, why in stale_tmp_files(path):
+        try:
+            os.remove(tmp)
+        except OSError:
+            continue
+        removed.append((tmp, why))
+        if report is not False:
+            print(f"amfe: removed the stale temporary file {tmp} ({why})",
+                  file=sys.stderr if report is None else report)
+    return removed
 
 
 def fsync_dir(directory):
@@ -23,19 +148,25 @@ def fsync_dir(directory):
         os.close(fd)
 
 
-def atomic_write(path, write, by_name=False):
+def atomic_write(path, write, by_name=False, check=None):
     """Write ``path`` through a temporary file in its directory, then os.replace it.
 
     write(fh) gets the open binary file, or with ``by_name`` write(tmp_path)
-    gets the temporary file's name (for h5py). The file gets the usual umask
-    permissions (not mkstemp's 0600). On any error the temporary file is
-    removed and the error re-raised; an existing ``path`` is left as it was.
+    gets the temporary file's name (for h5py). check(tmp_path), if given, runs
+    on the finished temporary file before the rename and raises to refuse it.
+    The file gets the usual umask permissions (not mkstemp's 0600). Orphaned
+    temporary files of the same target are removed first (:func:`remove_stale_tmp`).
+    On any error the temporary file is removed and the error re-raised, a full
+    disk as AmfeError "no space left on DIR"; an existing ``path`` is left as it was.
     """
     path = os.fspath(path)
     directory = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(dir=directory, prefix="." + os.path.basename(path) + ".",
-                               suffix=".tmp")
+    existed = os.path.exists(path)
+    remove_stale_tmp(path)
+    prefix = f".{os.path.basename(path)}.{host_name()}-{os.getpid()}."
+    tmp = None
     try:
+        fd, tmp = tempfile.mkstemp(dir=directory, prefix=prefix, suffix=".tmp")
         with os.fdopen(fd, "wb") as fh:
             if by_name:
                 write(tmp)
@@ -46,15 +177,20 @@ def atomic_write(path, write, by_name=False):
         if by_name:
             with open(tmp, "rb+") as fh:
                 os.fsync(fh.fileno())
+        if check is not None:
+            check(tmp)
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(tmp, 0o666 & ~umask)
         os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.remove(tmp)
-        except FileNotFoundError:
-            pass
+    except BaseException as exc:
+        if tmp is not None:
+            try:
+                os.remove(tmp)
+            except FileNotFoundError:
+                pass
+        if not isinstance(exc, AmfeError) and isinstance(exc, Exception) and is_no_space(exc):
+            raise no_space_error(path, existed) from None
         raise
     fsync_dir(directory)
 
