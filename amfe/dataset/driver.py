@@ -73,6 +73,7 @@ from amfe.dataset.plan import (DEFAULT_MAX_FAILED_SHARE, check_arguments, failed
 from amfe.dataset.summary import final_summary
 from amfe.dataset.upgrade import record_bond_image
 from amfe.io.datasetfile import merge_parts
+from amfe.io.atomic import NoSpaceError
 from amfe.io.datasetparts import (STATUS_FAILED, STATUS_OK, describe_params, empty_record,
                                   run_params, write_part)
 from amfe.io.paths import check_output
@@ -263,7 +264,8 @@ def _locked_run(MPI, world, output, params, sc, ranks_per_bed, progress, pixelat
     all_stats = world.gather(stats, root=0)
     errors = [e for e in world.allgather(error) if e]
     if errors:
-        raise AmfeError(f"{errors[0]}; the records finished so far are kept in {parts}")
+        raise AmfeError(f"{errors[0]}; the records finished so far are kept there: free some "
+                        "space (or fix the directory) and run the same command again")
 
     def finish():
         data, attrs = merge_parts(output, parts, params)
@@ -295,8 +297,10 @@ def _work(group, window, todo, parts, params, sc, pixelate):
         try:
             write_part(parts, rec, params)
         except (AmfeError, OSError) as exc:   # a full disk: stop handing out, keep what is done
-            error = str(exc) if isinstance(exc, AmfeError) else \
-                f"cannot write a record file in {parts}: {exc.strerror or exc}"
+            error = (f"no space left on {parts}: record {todo[pos]} could not be written"
+                     if isinstance(exc, NoSpaceError) else str(exc) if
+                     isinstance(exc, AmfeError) else
+                     f"cannot write record {todo[pos]} in {parts}: {exc.strerror or exc}")
             window.stop()
             continue
         window.fetch_add(FINISHED)

@@ -9,7 +9,9 @@ name, letters, digits and dashes only; PID: the writing process). A kill
 between the write and the rename leaves it behind; the next write of the same
 ``NAME`` removes it when it is certainly orphaned (:func:`stale_tmp_files`).
 A full disk (ENOSPC) or an exhausted quota (EDQUOT) becomes one AmfeError
-line, "no space left on DIR: ...", with the old file kept.
+line, "no space left on DIR: ...", with the old file kept. HDF5 files are
+best written with :func:`atomic_write_h5` (built in memory): the HDF5 library
+handles a full disk badly (a segmentation fault at exit).
 """
 import errno
 import json
@@ -64,12 +66,23 @@ def is_no_space(exc):
     return any(f"errno = {e}," in text or os.strerror(e) in text for e in _NO_SPACE)
 
 
+class NoSpaceError(AmfeError):
+    """A file could not be written: the disk or the quota is full. ``path``: that file."""
+
+    def __init__(self, message, path):
+        super().__init__(message)
+        self.path = path
+
+    def __reduce__(self):   # picklable with its path (MPI broadcasts errors)
+        return (type(self), (str(self), self.path))
+
+
 def no_space_error(path, existed):
-    """The one-line AmfeError for a full disk while writing ``path``."""
+    """The one-line NoSpaceError for a full disk while writing ``path``."""
     directory = os.path.dirname(os.path.abspath(path))
     kept = "the old file is kept" if existed else "nothing was written"
-    return AmfeError(f"no space left on {directory}: {os.path.basename(path)} could not be "
-                     f"written ({kept}); free some space and run the command again")
+    return NoSpaceError(f"no space left on {directory}: {os.path.basename(path)} could not be "
+                        f"written ({kept}); free some space and run the command again", path)
 
 
 def stale_tmp_files(path, now=None):
@@ -193,6 +206,26 @@ def atomic_write(path, write, by_name=False, check=None):
             raise no_space_error(path, existed) from None
         raise
     fsync_dir(directory)
+
+
+def atomic_write_h5(path, fill, base=None, check=None):
+    """Write the HDF5 file ``path`` atomically; it is built in memory, then written as bytes.
+
+    fill(f) gets an open h5py.File held in memory (h5py's core driver without
+    a backing store); base: an HDF5 file to start from (read into memory,
+    itself never changed). HDF5 itself never writes to the disk here, so a full
+    disk is a plain write error (NoSpaceError) instead of an HDF5 library
+    state that crashes the process at exit. Memory: about twice the file.
+    check: as for :func:`atomic_write`.
+    """
+    import h5py
+
+    name, mode = (os.fspath(base), "r+") if base is not None else (f"{path}.in-memory", "w")
+    with h5py.File(name, mode, driver="core", backing_store=False) as f:
+        fill(f)
+        f.flush()
+        image = f.id.get_file_image()
+    atomic_write(path, lambda fh: fh.write(image), check=check)
 
 
 def write_json(path, data):

@@ -48,7 +48,7 @@ import os
 
 import numpy as np
 
-from amfe.io.atomic import atomic_write
+from amfe.io.atomic import atomic_write_h5
 from amfe.errors import AmfeError, _list_items
 from amfe.model.scales import PARAM_NAMES, PARAM_UNITS, get_scale, record_seed
 
@@ -99,69 +99,67 @@ def merge_parts(output, parts, params):
                         f"({_list_items(missing)}); run the same command again")
     shape = sc.image_shape
 
-    def write(tmp):
-        with h5py.File(tmp, "w") as f:
-            d = {
-                "images": _image_dataset(f, "images", count, shape),
-                "labels": f.create_dataset("labels", (count, 6), np.float64),
-                "C": f.create_dataset("C", (count, 6, 6), np.float64),
-                "density": f.create_dataset("density", (count,), np.float64),
-                "index": f.create_dataset("index", (count,), np.int64),
-                "seed": f.create_dataset("seed", (count,), np.int64),
-                "status": f.create_dataset("status", (count,), np.uint8),
-                "reason": f.create_dataset("reason", (count,), h5py.string_dtype()),
-                "iterations": f.create_dataset("iterations", (count, 6), np.int32),
-                "n_particles": f.create_dataset("n_particles", (count,), np.int64),
-                "n_removed": f.create_dataset("n_removed", (count,), np.int64),
-                "n_bonds": f.create_dataset("n_bonds", (count,), np.int64),
-                "volume": f.create_dataset("volume", (count,), np.float64),
-                "seconds": f.create_dataset("seconds", (count, 3), np.float64),
-                "solver": f.create_dataset("solver", (count,), h5py.string_dtype()),
-            }
-            bonds = _image_dataset(f, "bond_images", count, shape)
-            all_bonds = True   # parts written before bond images existed have none
-            pg = f.create_group("params")
-            pdata = np.empty((count, len(PARAM_NAMES)))
-            for k in range(count):
-                path = part_path(parts, k)
-                try:
-                    rec = read_part(path)
-                except AmfeError:
-                    rec = None
-                why = part_problem(path, k, params, rec) if rec is not None else \
-                    "it cannot be read"
-                if why is not None:
-                    dest = reject_part(path, output)
-                    raise AmfeError(f"record file {path} was refused ({why}) and moved to "
-                                    f"{dest}; run the same command again to recompute it")
-                for name, ds in d.items():
-                    ds[k] = rec["image" if name == "images" else name]
-                if "bond_image" in rec and rec["bond_image"].shape == shape:
-                    bonds[k] = rec["bond_image"]
-                else:
-                    all_bonds = False
-                pdata[k] = rec["params"]
-            if not all_bonds:
-                del f["bond_images"]
-            for j, name in enumerate(PARAM_NAMES):
-                ds = pg.create_dataset(name, data=pdata[:, j])
-                ds.attrs["units"] = PARAM_UNITS[name]
-            d["labels"].attrs["columns"] = list(LABEL_NAMES)
-            d["labels"].attrs["units"] = "Pa for Ex, Ey, Ez; - for the Poisson ratios"
-            d["C"].attrs["units"] = "Pa"
-            d["seconds"].attrs["columns"] = list(SECONDS_NAMES)
-            f.attrs.update({k: v for k, v in params.items()})
-            f.attrs.update({
-                "label_names": list(LABEL_NAMES),
-                "created": datetime.datetime.now(datetime.timezone.utc).isoformat(
-                    timespec="seconds"),
-                "bed_size": list(sc.size), "layer_thickness": sc.layer_thickness,
-                "image_cell": [sc.cell[0], sc.cell[1], sc.layer_thickness],
-                "image_shape": list(shape),
-                "image_spacing": sc.image_spacing,
-                "density_definition": DENSITY_DEFINITION,
-                "status_codes": "0 ok, 1 failed (see reason)",
-            })
+    def write(f):
+        d = {
+            "images": _image_dataset(f, "images", count, shape),
+            "labels": f.create_dataset("labels", (count, 6), np.float64),
+            "C": f.create_dataset("C", (count, 6, 6), np.float64),
+            "density": f.create_dataset("density", (count,), np.float64),
+            "index": f.create_dataset("index", (count,), np.int64),
+            "seed": f.create_dataset("seed", (count,), np.int64),
+            "status": f.create_dataset("status", (count,), np.uint8),
+            "reason": f.create_dataset("reason", (count,), h5py.string_dtype()),
+            "iterations": f.create_dataset("iterations", (count, 6), np.int32),
+            "n_particles": f.create_dataset("n_particles", (count,), np.int64),
+            "n_removed": f.create_dataset("n_removed", (count,), np.int64),
+            "n_bonds": f.create_dataset("n_bonds", (count,), np.int64),
+            "volume": f.create_dataset("volume", (count,), np.float64),
+            "seconds": f.create_dataset("seconds", (count, 3), np.float64),
+            "solver": f.create_dataset("solver", (count,), h5py.string_dtype()),
+        }
+        bonds = _image_dataset(f, "bond_images", count, shape)
+        all_bonds = True   # parts written before bond images existed have none
+        pg = f.create_group("params")
+        pdata = np.empty((count, len(PARAM_NAMES)))
+        for k in range(count):
+            path = part_path(parts, k)
+            try:
+                rec = read_part(path)
+                why = part_problem(path, k, params, rec)
+            except AmfeError as exc:
+                why = str(exc)
+            if why is not None:
+                dest = reject_part(path, output)
+                raise AmfeError(f"record file {path} was refused ({why}) and moved to "
+                                f"{dest}; run the same command again to recompute it")
+            for name, ds in d.items():
+                ds[k] = rec["image" if name == "images" else name]
+            if "bond_image" in rec and rec["bond_image"].shape == shape:
+                bonds[k] = rec["bond_image"]
+            else:
+                all_bonds = False
+            pdata[k] = rec["params"]
+        if not all_bonds:
+            del f["bond_images"]
+        for j, name in enumerate(PARAM_NAMES):
+            ds = pg.create_dataset(name, data=pdata[:, j])
+            ds.attrs["units"] = PARAM_UNITS[name]
+        d["labels"].attrs["columns"] = list(LABEL_NAMES)
+        d["labels"].attrs["units"] = "Pa for Ex, Ey, Ez; - for the Poisson ratios"
+        d["C"].attrs["units"] = "Pa"
+        d["seconds"].attrs["columns"] = list(SECONDS_NAMES)
+        f.attrs.update({k: v for k, v in params.items()})
+        f.attrs.update({
+            "label_names": list(LABEL_NAMES),
+            "created": datetime.datetime.now(datetime.timezone.utc).isoformat(
+                timespec="seconds"),
+            "bed_size": list(sc.size), "layer_thickness": sc.layer_thickness,
+            "image_cell": [sc.cell[0], sc.cell[1], sc.layer_thickness],
+            "image_shape": list(shape),
+            "image_spacing": sc.image_spacing,
+            "density_definition": DENSITY_DEFINITION,
+            "status_codes": "0 ok, 1 failed (see reason)",
+        })
 
     checked = {}
 
@@ -172,7 +170,7 @@ def merge_parts(output, parts, params):
                             f"is left as it was and the records are kept in {parts}")
         checked.update(data=data, attrs=attrs)
 
-    atomic_write(output, write, by_name=True, check=check)
+    atomic_write_h5(output, write, check=check)
     remove_parts(parts)
     return checked["data"], checked["attrs"]
 

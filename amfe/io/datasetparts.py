@@ -4,6 +4,7 @@
 killed run loses only the beds in flight; :mod:`amfe.io.datasetfile` merges
 the parts into the HDF5 file (docs/datasets.md).
 """
+import io
 import json
 import os
 import re
@@ -86,7 +87,9 @@ def write_part(parts, rec, run=None):
     if run is not None:
         arrays["run"] = np.str_(json.dumps(run, sort_keys=True))
     path = part_path(parts, rec["index"])
-    atomic_write(path, lambda fh: np.savez(fh, **arrays))
+    buf = io.BytesIO()   # zipped in memory: a full disk cannot leave a half-closed zip behind
+    np.savez(buf, **arrays)
+    atomic_write(path, lambda fh: fh.write(buf.getbuffer()))
     return path
 
 
