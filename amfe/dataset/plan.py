@@ -13,7 +13,7 @@ import os
 import numpy as np
 
 from amfe.errors import AmfeError, _list_items
-from amfe.io.atomic import is_no_space, no_space_error
+from amfe.io.atomic import is_no_space, no_space_error, remove_stale_tmp
 from amfe.io.datasetfile import check_dataset
 from amfe.io.datasetparts import (STATUS_OK, describe_params, done_indices, part_path,
                                   part_problem, parts_dir, read_params_json, reject_part,
@@ -108,6 +108,7 @@ def _unfinished(output, params):
         raise AmfeError(f"{parts} belongs to a run with other parameters ({describe_params(old)}; "
                         f"asked: {describe_params(params)}): rerun with those, or remove "
                         f"{parts} to start afresh")
+    remove_stale_tmp(parts, every_target=True)   # of killed writers; the lock keeps live ones out
     rejected = []
     for k in done:
         path = part_path(parts, k)

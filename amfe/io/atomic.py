@@ -85,65 +85,80 @@ def no_space_error(path, existed):
                         f"written ({kept}); free some space and run the command again", path)
 
 
-def stale_tmp_files(path, now=None):
+def stale_tmp_files(path, every_target=False, now=None):
     """[(tmp path, why)] of the orphaned temporary files of target ``path``.
 
-    Only ``.NAME.*.tmp`` files of this very NAME are considered. One is stale
-    when its name carries this host and a pid that no longer runs (removed at
-    once), when that pid runs but the file is older than STALE_AGE_LIVE_PID,
-    or, for another host's file or a name without a pid, when it is older
-    than STALE_AGE_UNKNOWN_WRITER.
+    Only ``.NAME.*.tmp`` files of this very NAME are considered (with
+    ``every_target``, ``path`` is a directory and every NAME in it). One is
+    stale when its name carries this host and a pid that no longer runs
+    (whatever its age), when that pid runs but the file is older than
+    STALE_AGE_LIVE_PID, or, for another host's file or a name without a pid,
+    when it is older than STALE_AGE_UNKNOWN_WRITER.
     """
     path = os.fspath(path)
-    directory = os.path.dirname(os.path.abspath(path))
-    pattern = re.compile(r"^\." + re.escape(os.path.basename(path))
-                         + r"\.(?:(?P<host>[A-Za-z0-9-]*)-(?P<pid>\d+)\.)?" + _RANDOM + r"\.tmp$")
+    if every_target:
+        directory, name = path, ".+?"
+    else:
+        directory, name = os.path.dirname(os.path.abspath(path)), re.escape(os.path.basename(path))
+    pattern = re.compile(r"^\." + name + r"\.(?:(?P<host>[A-Za-z0-9-]*)-(?P<pid>\d+)\.)?"
+                         + _RANDOM + r"\.tmp$")
     try:
-        names = os.listdir(directory)
+        names = [n for n in os.listdir(directory) if n.startswith(".") and n.endswith(".tmp")]
     except OSError:
         return []
     now = time.time() if now is None else now
-    here = host_name()
     out = []
     for name in names:
         m = pattern.match(name)
-        if not m:
-            continue
-        tmp = os.path.join(directory, name)
-        try:
-            age = now - os.stat(tmp).st_mtime
-        except OSError:
-            continue
-        pid = int(m.group("pid")) if m.group("pid") else None
-        if pid is not None and m.group("host") == here:
-            if pid == os.getpid():
-                continue
-            if not pid_running(pid):
-                out.append((tmp, f"its writer, pid {pid} on this host, has ended"))
-            elif age > STALE_AGE_LIVE_PID:
-                out.append((tmp, f"unchanged for {age:.0f} s (pid {pid} is another process now)"))
-        elif age > STALE_AGE_UNKNOWN_WRITER:
-            writer = f"pid {pid} on host {m.group('host')}" if pid is not None else "unknown"
-            out.append((tmp, f"unchanged for {age:.0f} s, writer {writer}"))
+        if m:
+            tmp = os.path.join(directory, name)
+            why = _stale_why(tmp, m.group("host"), m.group("pid"), now)
+            if why:
+                out.append((tmp, why))
     return out
 
 
-def remove_stale_tmp(path, report=None):
+def _stale_why(tmp, host, pid, now):
+    """Why the temporary file ``tmp`` of writer (host, pid) is orphaned, or None."""
+    try:
+        age = now - os.stat(tmp).st_mtime
+    except OSError:
+        return None
+    pid = int(pid) if pid else None
+    if pid is not None and host == host_name():
+        if pid == os.getpid():
+            return None
+        if not pid_running(pid):
+            return f"its writer, pid {pid} on this host, has ended"
+        if age > STALE_AGE_LIVE_PID:
+            return f"unchanged for {age:.0f} s (pid {pid} is another process now)"
+        return None
+    if age > STALE_AGE_UNKNOWN_WRITER:
+        writer = f"pid {pid} on host {host}" if pid is not None else "unknown"
+        return f"unchanged for {age:.0f} s, writer {writer}"
+    return None
+
+
+def remove_stale_tmp(path, report=None, every_target=False):
     """Remove the orphaned temporary files of target ``path``; one line each on ``report``.
 
-    report: a text stream (default sys.stderr) or False for silence. Returns
-    the list of (tmp path, why) removed.
+    report: a text stream (default sys.stderr) or False for silence;
+    every_target: see :func:`stale_tmp_files`. Returns the list of (tmp path,
+    why) removed.
     """
     removed = []
-    for tmp, why in stale_tmp_files(path):
+    for tmp, why in stale_tmp_files(path, every_target):
         try:
             os.remove(tmp)
         except OSError:
             continue
         removed.append((tmp, why))
         if report is not False:
-            print(f"amfe: removed the stale temporary file {tmp} ({why})",
-                  file=sys.stderr if report is None else report)
+            try:   # best effort: a closed stderr must not stop the write
+                print(f"amfe: removed the stale temporary file {tmp} ({why})",
+                      file=sys.stderr if report is None else report)
+            except (OSError, ValueError):
+                pass
     return removed
 
 
@@ -161,21 +176,23 @@ def fsync_dir(directory):
         os.close(fd)
 
 
-def atomic_write(path, write, by_name=False, check=None):
+def atomic_write(path, write, by_name=False, check=None, clean=True):
     """Write ``path`` through a temporary file in its directory, then os.replace it.
 
     write(fh) gets the open binary file, or with ``by_name`` write(tmp_path)
     gets the temporary file's name (for h5py). check(tmp_path), if given, runs
     on the finished temporary file before the rename and raises to refuse it.
     The file gets the usual umask permissions (not mkstemp's 0600). Orphaned
-    temporary files of the same target are removed first (:func:`remove_stale_tmp`).
+    temporary files of the same target are removed first (:func:`remove_stale_tmp`)
+    unless ``clean`` is False (a caller that sweeps the directory once instead).
     On any error the temporary file is removed and the error re-raised, a full
     disk as AmfeError "no space left on DIR"; an existing ``path`` is left as it was.
     """
     path = os.fspath(path)
     directory = os.path.dirname(os.path.abspath(path))
     existed = os.path.exists(path)
-    remove_stale_tmp(path)
+    if clean:
+        remove_stale_tmp(path)
     prefix = f".{os.path.basename(path)}.{host_name()}-{os.getpid()}."
     tmp = None
     try:

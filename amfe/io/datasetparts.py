@@ -89,7 +89,7 @@ def write_part(parts, rec, run=None):
     path = part_path(parts, rec["index"])
     buf = io.BytesIO()   # zipped in memory: a full disk cannot leave a half-closed zip behind
     np.savez(buf, **arrays)
-    atomic_write(path, lambda fh: fh.write(buf.getbuffer()))
+    atomic_write(path, lambda fh: fh.write(buf.getbuffer()), clean=False)  # swept at start-up
     return path
 
 
@@ -164,12 +164,13 @@ def part_problem(path, k, params, rec=None):
     want_seed = record_seed(int(params["seed"]), k)
     try:
         if rec is None:
-            with np.load(path, allow_pickle=False) as z:
-                rec = {n: z[n] for n in ("index", "seed", "run", "image") if n in z.files}
+            with np.load(path, allow_pickle=False) as z:   # the image only for old parts
+                names = ("index", "seed", "run") if "run" in z.files else ("index", "seed", "image")
+                rec = {n: z[n] for n in names}
         index, seed = int(rec["index"]), int(rec["seed"])
         run = rec.get("run")
         run = json.loads(str(run)) if isinstance(run, (str, np.ndarray)) else run
-        shape = tuple(np.shape(rec["image"]))
+        shape = tuple(np.shape(rec["image"])) if "image" in rec else None
     except Exception as exc:  # noqa: BLE001 - any damage is the same problem
         return f"it cannot be read ({type(exc).__name__}: {str(exc)[:200]})"
     if index != k:
@@ -180,7 +181,7 @@ def part_problem(path, k, params, rec=None):
     if run is not None and run != params:
         return f"it was made by another run ({describe_params(run)})"
     want_shape = get_scale(params["scale"]).image_shape
-    if shape != tuple(want_shape):
+    if shape is not None and shape != tuple(want_shape):
         return f"its image has shape {shape}, scale {params['scale']} makes {tuple(want_shape)}"
     return None
 
