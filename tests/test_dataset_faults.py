@@ -176,34 +176,56 @@ def test_second_writer_is_refused_while_the_first_runs(tmp_path, reference):
 
 # ---------------------------------------------------------------- item 7: random SIGKILLs
 
+def _kill_mpirun_when(out, ready):
+    """Start `mpirun -n 2 amfe dataset`, SIGKILL mpirun alone once ready() holds.
+
+    Returns (parts at the kill, what a rerun at once meets: "free", "running"
+    or "stale"), after the ranks the kill left have ended by themselves.
+    """
+    proc = subprocess.Popen(dataset_cmd(out, count=N, ranks=2, extra=["--no-progress"]),
+                            cwd=ROOT, env=MPI_ENV, start_new_session=True,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    t0 = time.time()
+    while not ready() and proc.poll() is None:
+        assert time.time() - t0 < 60
+        time.sleep(0.005)
+    if proc.poll() is None:                             # (else it ended before ready())
+        os.kill(proc.pid, signal.SIGKILL)               # mpirun only: its ranks live on a bit
+    proc.wait()
+    parts = part_count(out)
+    try:                                                # what a rerun at once meets
+        DatasetLock(out).acquire().release()
+        seen = "free"
+    except AmfeError as exc:
+        seen = "running" if "is being written" in str(exc) else "stale"
+    t0 = time.time()
+    while _session_pids(proc.pid):                      # leftover ranks end by themselves
+        assert time.time() - t0 < 30, "ranks of a killed mpirun still run after 30 s"
+        time.sleep(0.05)
+    if os.path.exists(lock_path(out)):   # (unreadable: killed between create and write)
+        with pytest.raises(AmfeError, match="stale lock|cannot be read") as err:
+            DatasetLock(out).acquire()
+        assert f"rm {lock_path(out)}" in str(err.value)
+        os.remove(lock_path(out))                       # what the message says to do
+    return parts, seen
+
+
 def test_random_kills_of_mpirun_resume_bit_identical(tmp_path, reference):
-    """SIGKILL `mpirun -n 2 amfe dataset` at random moments; resume; the file is the same."""
+    """SIGKILL `mpirun -n 2 amfe dataset` at random moments; resume; the file is the same.
+
+    The first kill comes at a random moment of the start-up or later, the
+    next ones once a random number of records is written.
+    """
     out = tmp_path / "k.h5"
     rng = random.Random(18)
-    seen = []
-    for _ in range(3):
-        proc = subprocess.Popen(dataset_cmd(out, count=N, ranks=2, extra=["--no-progress"]),
-                                cwd=ROOT, env=MPI_ENV, start_new_session=True,
-                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        time.sleep(rng.uniform(0.3, 1.1 * reference[1]))
-        os.kill(proc.pid, signal.SIGKILL)               # mpirun only: its ranks may live on
-        proc.wait()
-        parts = part_count(out)
-        try:                                            # what a rerun at once meets
-            DatasetLock(out).acquire().release()
-            seen.append(("free", parts))
-        except AmfeError as exc:
-            seen.append(("refused: running" if "is being written" in str(exc) else "stale",
-                         parts))
-        t0 = time.time()
-        while _session_pids(proc.pid):                  # leftover ranks end by themselves
-            assert time.time() - t0 < 30, "ranks of a killed mpirun still run after 30 s"
-            time.sleep(0.1)
-        if os.path.exists(lock_path(out)):   # (unreadable: killed between create and write)
-            with pytest.raises(AmfeError, match="stale lock|cannot be read") as err:
-                DatasetLock(out).acquire()
-            assert f"rm {lock_path(out)}" in str(err.value)
-            os.remove(lock_path(out))
+    t_kill = time.time() + rng.uniform(0.2, reference[1])
+    seen = [_kill_mpirun_when(out, lambda: time.time() > t_kill)]
+    for _ in range(2):
+        if out.exists():
+            break
+        j = rng.randint(part_count(out) + 1, N - 1) if part_count(out) < N - 1 else N
+        seen.append(_kill_mpirun_when(out, lambda: part_count(out) >= j))
+    assert any(0 < n < N for n, _ in seen), seen      # some kill came in the middle
     final = subprocess.run(dataset_cmd(out, count=N, ranks=2, extra=["--no-progress"]),
                            capture_output=True, text=True, cwd=ROOT, env=MPI_ENV, timeout=60)
     assert final.returncode == 0, (seen, final.stderr[-2000:])

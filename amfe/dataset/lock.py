@@ -152,9 +152,11 @@ class DatasetLock:
             return (f"{self.output} is being written by another amfe dataset ({who}, "
                     f"{sum(bool(a) for a in alive)} of its {len(alive)} rank(s) running); wait "
                     f"for it to end, or write another -o (lock {self.path})")
+        pids = ",".join(str(p[1]) for p in holder.get("ranks") or [[None, holder.get("pid")]])
         return (f"stale lock {self.path}: the amfe dataset that took it ({who}) has ended "
-                f"without removing it (killed?); its finished records are kept. Check that none "
-                f"of its ranks is left (ps), then remove the lock and run the command again: {rm}")
+                f"without removing it (killed?); the records it finished are kept. Check that "
+                f"none of its ranks is left (ps -p {pids}), then remove the lock and run the "
+                f"command again: {rm}")
 
 
 def read_lock(path, wait=0.0):
