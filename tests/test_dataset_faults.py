@@ -305,6 +305,9 @@ def test_merge_checks_before_it_destroys(tmp_path, monkeypatch, reference):
 
 def test_seed_range_is_checked_before_any_work(tmp_path, capsys):
     out = tmp_path / "seed.h5"
+    for bad in (0, 10**12):                             # a to-do list of 10^12 would not fit
+        assert main(["dataset", "-o", str(out), "--count", str(bad), "--scale", "tiny"]) == 2
+        assert "--count must be an integer in [1, 10000000]" in capsys.readouterr().err
     for bad in (2**64, 2**70, -1):
         t0 = time.time()
         assert main(["dataset", "-o", str(out), "--count", "2", "--seed", str(bad),
