@@ -143,8 +143,13 @@ class DatasetLock:
                     f"dataset is writing {self.output}, remove the lock: {rm}")
         who = (f"pid {holder.get('pid')} on host {holder.get('host')}, started "
                f"{holder.get('started')}")
-        alive = [_alive(p, holder.get("boot_id")) for p in holder.get("ranks") or
-                 [[holder.get("host"), holder.get("pid"), None]]]
+        try:
+            alive = [_alive(p, holder.get("boot_id")) for p in holder.get("ranks") or
+                     [[holder.get("host"), holder.get("pid"), None]]]
+        except (TypeError, ValueError):   # a lock file that is not ours: say so
+            return (f"{self.output} is locked ({self.path} holds no amfe lock: "
+                    f"{json.dumps(holder)[:200]}); if no amfe dataset is writing {self.output}, "
+                    f"remove the lock: {rm}")
         if any(a is None for a in alive) and not any(alive):
             return (f"{self.output} is locked by an amfe dataset on another host ({who}; lock "
                     f"{self.path}); wait for it to end; if it is dead, remove the lock: {rm}")

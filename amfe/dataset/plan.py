@@ -41,11 +41,19 @@ def check_arguments(count, seed, ranks_per_bed, rtol, max_failed_share, world_si
     if not _is_int(ranks_per_bed) or not 1 <= ranks_per_bed <= world_size:
         raise AmfeError(f"--ranks-per-bed must lie in [1, {world_size}] (the number of MPI "
                         f"ranks), got {ranks_per_bed}")
-    if not 0.0 < float(rtol) < 1.0:
+    if not 0.0 < _float(rtol) < 1.0:
         raise AmfeError(f"--rtol must lie in (0, 1), got {rtol}")
-    share = float(max_failed_share)
+    share = _float(max_failed_share)
     if not (math.isfinite(share) and 0.0 <= share <= 1.0):
         raise AmfeError(f"--max-failed-share must lie in [0, 1], got {max_failed_share}")
+
+
+def _float(x):
+    """float(x), or NaN for what is not a real number (refused by the range checks)."""
+    try:
+        return float(x)
+    except (TypeError, ValueError):
+        return math.nan
 
 
 def _same_run(attrs, params):
