@@ -93,7 +93,7 @@ def test_the_data_set_records_which_method_labelled_each_bed(tmp_path):
     import h5py
     out = tmp_path / "d.h5"
     proc = run_cli(["dataset", "-o", str(out), "--count", "6", "--scale", "tiny",
-                    "--seed", "5", "--no-progress"])
+                    "--seed", "5", "--no-progress", "--max-failed-share", "1"])
     assert proc.returncode == 0, proc.stderr
     with h5py.File(out) as f:
         records = [json.loads(s) for s in f["solver"].asstr()[()] if s]
