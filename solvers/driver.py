@@ -175,7 +175,7 @@ def frame_fields(frame, u):
                   radii=frame.radii * L, bonds=np.stack([b.i, b.j], axis=1),
                   displacement=u[:, :, :3] * L, rotation=u[:, :, 3:].copy(),
                   axial_force=axial * F, shear_force=shear * F, moment=moment * F * L,
-                  case_names=tuple(CASE_NAMES))
+                  case_names=tuple(CASE_NAMES), shift=frame.shift)
 
 
 def write_frame_vtu(directory, frame, u):

@@ -37,6 +37,9 @@ def register(sub):
                    help="MPI ranks that solve one bed together (default 1)")
     p.add_argument("--rtol", type=float, default=None,
                    help="KSP relative tolerance of the solves (default 1e-8)")
+    p.add_argument("--bc", choices=["kubc", "subc", "mixed"], default="kubc",
+                   help="boundary conditions of the labels (default kubc; see amfe homogenize "
+                        "--bc; data-set beds are not periodic)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--check", metavar="DATA.h5",
                    help="validate a data-set file and print its summary (exit 1 if bad)")
@@ -65,7 +68,7 @@ def run(args):
     run_dataset(args.output, args.count, seed=args.seed, scale=args.scale,
                 ranks_per_bed=args.ranks_per_bed,
                 rtol=DEFAULT_RTOL if args.rtol is None else args.rtol,
-                progress=not args.no_progress)
+                progress=not args.no_progress, bc=args.bc)
     return 0
 
 

@@ -92,7 +92,7 @@ def _agree(group, err):
     return None
 
 
-def make_record(k, dataset_seed, scale, group, rtol=DEFAULT_RTOL, pixelate=None):
+def make_record(k, dataset_seed, scale, group, rtol=DEFAULT_RTOL, pixelate=None, bc="kubc"):
     """Record k (a dict, see amfe.io.datasetfile), computed collectively on ``group``.
 
     Every rank of ``group`` calls it with the same arguments; the record is
@@ -130,7 +130,8 @@ def make_record(k, dataset_seed, scale, group, rtol=DEFAULT_RTOL, pixelate=None)
     if err is None:
         t2 = time.perf_counter()
         try:
-            res = homogenize_bed(bed.centers, bed.radii, bed.material(), comm=group, rtol=rtol)
+            res = homogenize_bed(bed.centers, bed.radii, bed.material(), comm=group, rtol=rtol,
+                                 bc=bc)
         except Exception as exc:  # noqa: BLE001
             err = _reason(exc)
         rec["seconds"][2] = time.perf_counter() - t2
@@ -273,7 +274,7 @@ def _prepare(output, params):
 
 
 def run_dataset(output, count, *, seed=0, scale="small", ranks_per_bed=1, rtol=DEFAULT_RTOL,
-                comm=None, progress=True, pixelate=None, out=None):
+                comm=None, progress=True, pixelate=None, out=None, bc="kubc"):
     """Make (or finish) the data set ``output``; collective over ``comm`` (default COMM_WORLD).
 
     Returns, on world rank 0, a dict: complete_before (the file was already
@@ -303,7 +304,7 @@ def run_dataset(output, count, *, seed=0, scale="small", ranks_per_bed=1, rtol=D
                         f"ranks), got {ranks_per_bed}")
     if not 0.0 < float(rtol) < 1.0:
         raise AmfeError(f"--rtol must lie in (0, 1), got {rtol}")
-    params = run_params(sc.name, seed, count, rtol)
+    params = {**run_params(sc.name, seed, count, rtol), **({"bc": bc} if bc != "kubc" else {})}
     output = os.fspath(output)
 
     def prepare():
@@ -357,7 +358,7 @@ def run_dataset(output, count, *, seed=0, scale="small", ranks_per_bed=1, rtol=D
                 break
             k = todo[pos]
             tb = time.perf_counter()
-            rec = make_record(k, seed, sc, group, rtol=rtol, pixelate=pixelate)
+            rec = make_record(k, seed, sc, group, rtol=rtol, pixelate=pixelate, bc=bc)
             if group.rank == 0:
                 write_part(parts, rec)
                 window.fetch_add(FINISHED)
