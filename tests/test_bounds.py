@@ -226,3 +226,22 @@ def test_a_bed_object_with_periodic_attr_is_read_back(tmp_path):
     write_bed(tmp_path / "bad.h5", Bed(bed.centers, bed.radii, {"periodic": [1e-6, 1e-4, 1e-4]}))
     with pytest.raises(AmfeError, match="too small"):
         read_bed(tmp_path / "bad.h5")
+
+
+def test_dataset_labels_can_be_subc(tmp_path):
+    import h5py
+
+    out = tmp_path / "subc.h5"
+    proc = run_cli(["dataset", "-o", str(out), "--count", "3", "--seed", "5", "--scale", "tiny",
+                    "--bc", "subc", "--no-progress"])
+    assert proc.returncode == 0, proc.stderr
+    with h5py.File(out, "r") as f:
+        assert f.attrs["bc"] == "subc"
+        labels, seeds, status = f["labels"][()], f["seed"][()], f["status"][()]
+    assert (status == 0).sum() >= 2
+    for k in np.flatnonzero(status == 0):
+        bed = generate_bed(**sample_bed_params("tiny", int(seeds[k])))
+        res = homogenize_bed(bed.centers, bed.radii, bed.material(), bc="subc")
+        assert res["properties"]["Ex"] == pytest.approx(labels[k, 0], rel=1e-9)
+        kubc = homogenize_bed(bed.centers, bed.radii, bed.material())
+        assert labels[k, 0] < kubc["properties"]["Ex"]

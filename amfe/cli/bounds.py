@@ -22,7 +22,7 @@ GAP_MEANING = (
 
 ABOVE_E = ("note: {names} exceed the particles' own E = {E:.4g} GPa. This is not a unit error: "
            "the paper's springs (eqs. 1-4) at large contact radii make small bonded beds stiffer "
-           "than the solid (docs/model.md, section 5a, explains it with numbers).")
+           "than the solid (docs/model.md, sections 5a and 9, explain it with numbers).")
 
 
 def above_e_note(properties, E):
