@@ -202,3 +202,15 @@ def test_one_two_and_three_ranks_agree(periodic_file, tmp_path):
         for ranks in (2, 3):
             assert out[ranks][bc]["ranks"] == ranks
             assert np.abs(np.array(out[ranks][bc]["C"]) - C1).max() <= 1e-9 * np.abs(C1).max()
+
+
+def test_api_bc_all_on_a_periodic_bed(tmp_path):
+    import amfe
+
+    bed = generate_bed((100e-6, 100e-6, 100e-6), seed=6, periodic=True)
+    res = amfe.homogenize(bed, bc="all", vtu_dir=str(tmp_path))
+    assert list(res) == ["kubc", "subc", "periodic"]
+    assert [r.bc for r in res.values()] == list(res)
+    assert res["periodic"].volume == pytest.approx(np.prod(bed.attrs["periodic"]))
+    assert res["subc"].Ex < res["kubc"].Ex
+    assert all((tmp_path / bc / "cases.pvd").exists() for bc in res)
