@@ -63,18 +63,19 @@ def homogenize_bed(centers, radii, material=STEEL, *, a_star_cap=None, rtol=DEFA
     "mixed" (the paper's figure-2 experiments, six operators; see
     :mod:`amfe.model.mixed`), "subc" (six unit macro-stresses as boundary
     loads, :mod:`amfe.model.subc`) or "periodic" (needs ``box`` (3,) [m], the
-    periods of a periodic bed; :mod:`amfe.model.periodic`). diagnose: add a ``diagnostics`` list (per case:
-    iterations, true residual, eigenvalue estimates of the preconditioned
-    operator and their ratio, GAMG levels and complexities).
+    periods of a periodic bed; :mod:`amfe.model.periodic`). diagnose: add a
+    ``diagnostics`` list (per case: iterations, true residual, eigenvalue
+    estimates of the preconditioned operator and their ratio, GAMG levels and
+    complexities).
 
     centers (N,3) [m], radii (N,) [m]; every rank of ``comm`` (a PETSc or
     mpi4py communicator, default COMM_WORLD) passes the same arrays.
     Returns the result dict of docs/model.md, section 6 (the same on every rank):
     properties (SI: Pa and -), C and S (6x6, Voigt xx, yy, zz, yz, xz, xy,
     engineering shear; Pa and 1/Pa), volume [m^3], n_particles (input),
-    n_removed, n_bonds, bc ("kubc" or "mixed"), ranks, solver (ksp_type, pc_type, rtol,
+    n_removed, n_bonds, bc, ranks, solver (ksp_type, pc_type, rtol,
     iterations [6], setup_seconds, solve_seconds, plus residuals and the
-    stress and C asymmetries); with ``a_star_cap``, also n_capped. With
+    condition's checks, docs/model.md section 9); with ``a_star_cap``, also n_capped. With
     ``vtu_dir``, rank 0 writes one VTU per load case and cases.pvd there.
     ``ksp_options`` (dict) sets PETSc options for this solve only, e.g.
     {"ksp_type": "preonly", "pc_type": "cholesky"}; ``nondimensional=False``

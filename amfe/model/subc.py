@@ -117,7 +117,8 @@ def check_boundary_spans_volume(points, tol=DEGENERATE_TOL):
     """
     p = np.asarray(points, dtype=float)
     if p.shape[0] < 4:
-        raise AmfeError(f"SUBC needs at least 4 boundary particles not in one plane, got {p.shape[0]}")
+        raise AmfeError(f"SUBC needs at least 4 boundary particles not in one plane, "
+                        f"got {p.shape[0]}")
     s = np.linalg.svd(p - p.mean(axis=0), compute_uv=False)
     rel = s / s[0] if s[0] > 0 else np.zeros(3)
     if rel[1] > tol and rel[2] > tol:
