@@ -23,8 +23,12 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
         The bed: an :class:`amfe.Bed`, the path of a bed file (read on rank 0
         and broadcast), or arrays centers (N, 3) [m] and radii (N,) [m] that
         must be the same on every rank.
-    bc : {"kubc", "mixed"}
-        Boundary conditions (docs/model.md, section 5).
+    bc : {"kubc", "mixed", "subc", "periodic", "all"}
+        Boundary conditions (docs/model.md, sections 5 and 9). "periodic"
+        needs a periodic bed (``generate_bed(..., periodic=True)``, whose
+        attrs carry ``periodic``). "all" solves KUBC and SUBC (and periodic
+        on a periodic bed) and returns a dict {bc: Result}, VTU files in
+        ``vtu_dir``/<bc>.
     rtol : float, optional
         GAMG's relative residual tolerance (default: 1e-8 with ``solver="gamg"``,
         1e-7 for the beds ``"auto"`` gives to GAMG).
@@ -53,7 +57,7 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
 
     Returns
     -------
-    Result
+    Result (a dict {bc: Result} for bc="all")
         C, S, the nine constants (also as attributes: ``result.Ex``), volume,
         counts and the solver record.
 
@@ -78,8 +82,9 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
     if isinstance(bed, (str, os.PathLike)):
         from amfe.io.bedfile import read_bed
         bed = on_root(mpi, read_bed, bed)
+    box = None
     if isinstance(bed, Bed):
-        centers, radii = bed.centers, bed.radii
+        centers, radii, box = bed.centers, bed.radii, bed.attrs.get("periodic")
         material = bed.material() if material is None else material
     elif isinstance(bed, (tuple, list)) and len(bed) == 2:
         centers, radii = bed
@@ -87,8 +92,14 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
         raise AmfeError("homogenize: bed must be an amfe.Bed, a bed file's path, or "
                         f"(centers, radii); got {type(bed).__name__}")
     kw = {} if material is None else {"material": material}
-    d = homogenize_bed(centers, radii, **kw, a_star_cap=a_star_cap,
-                       rtol=rtol, max_it=max_it, solver=solver,
-                       vtu_dir=vtu_dir, comm=pcomm, ksp_options=petsc_options, bc=bc,
-                       diagnose=diagnose, progress=progress, fields=fields)
-    return Result.from_dict(d, fields=d.pop("fields", None))
+
+    def one(bc, vtu_dir):
+        d = homogenize_bed(centers, radii, **kw, a_star_cap=a_star_cap, rtol=rtol,
+                           max_it=max_it, solver=solver, vtu_dir=vtu_dir, comm=pcomm,
+                           ksp_options=petsc_options, bc=bc, diagnose=diagnose,
+                           progress=progress, fields=fields, box=box)
+        return Result.from_dict(d, fields=d.pop("fields", None))
+    if bc != "all":
+        return one(bc, vtu_dir)
+    names = ["kubc", "subc"] + (["periodic"] if box is not None else [])
+    return {name: one(name, vtu_dir and os.path.join(vtu_dir, name)) for name in names}

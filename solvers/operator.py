@@ -84,14 +84,17 @@ class ConstrainedOperator:
         self._iscol = PETSc.IS().createStride(6 * nloc, first=6 * r0, step=1, comm=comm)
         self.A_r = A.createSubMatrix(self._isrow, self._iscol)  # unconstrained rows: reactions
         # Lift every case's prescribed values into its right-hand side while A
-        # is still unconstrained (b = -A x0 on the free rows).
+        # is still unconstrained (b = -A x0 on the free rows), plus any applied
+        # forces (SUBC, periodic; their entries on fixed rows are overwritten below).
         self._x0, self._b = [], []
-        for values in group.values:
+        for k, values in enumerate(group.values):
             x0 = A.createVecRight()
             x0.setArray(np.where(fixed_loc, values[r0:r1], 0.0).ravel())
             b = A.createVecLeft()
             A.mult(x0, b)
             b.scale(-1.0)
+            if group.forces is not None:
+                b.getArray()[:] += group.forces[k][r0:r1].ravel()
             self._x0.append(x0)
             self._b.append(b)
         # A prescribed DOF keeps its own diagonal entry on its identity row: one

@@ -47,6 +47,9 @@ def register(sub):
     p.add_argument("--max-failed-share", type=float, default=None, metavar="F",
                    help="exit with an error (status 2, the file is still written) when more than "
                         "this share of the records failed (default 0.05)")
+    p.add_argument("--bc", choices=["kubc", "subc", "mixed"], default="kubc",
+                   help="boundary conditions of the labels (default kubc; see amfe homogenize "
+                        "--bc; data-set beds are not periodic)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--check", metavar="DATA.h5",
                    help="validate a data-set file and print its summary (exit 1 if bad)")
@@ -76,7 +79,7 @@ def run(args):
                 ranks_per_bed=args.ranks_per_bed,
                 rtol=args.rtol, solver=args.solver, progress=not args.no_progress,
                 max_failed_share=DEFAULT_MAX_FAILED_SHARE if args.max_failed_share is None
-                else args.max_failed_share)
+                else args.max_failed_share, bc=args.bc)
     return 0
 
 

@@ -81,7 +81,7 @@ from amfe.solvers.ksp import DEFAULT_RTOL
 
 def run_dataset(output, count, *, seed=0, scale="small", ranks_per_bed=1, rtol=None,
                 comm=None, progress=True, pixelate=None, out=None,
-                max_failed_share=DEFAULT_MAX_FAILED_SHARE, solver="auto"):
+                max_failed_share=DEFAULT_MAX_FAILED_SHARE, solver="auto", bc="kubc"):
     """Make (or finish) the data set ``output``; collective over ``comm`` (default COMM_WORLD).
 
     Returns, on world rank 0, a dict: complete_before (the file was already
@@ -111,7 +111,7 @@ def run_dataset(output, count, *, seed=0, scale="small", ranks_per_bed=1, rtol=N
     if rtol is None:
         rtol = DEFAULT_RTOL if solver == "gamg" else GAMG_RTOL_AUTO
     check_arguments(count, seed, ranks_per_bed, rtol, max_failed_share, world.size)
-    params = run_params(sc.name, seed, count, rtol, solver)
+    params = run_params(sc.name, seed, count, rtol, solver, bc)
     output = os.fspath(output)
     lock = DatasetLock(output, world.gather(this_process(), root=0))
 
@@ -202,7 +202,8 @@ def _work(group, window, todo, parts, params, sc, pixelate):
             return stats, error
         tb = time.perf_counter()
         rec = make_record(todo[pos], params["seed"], sc, group, rtol=params["rtol"],
-                          pixelate=pixelate, solver=params.get("solver", "gamg"))
+                          pixelate=pixelate, solver=params.get("solver", "gamg"),
+                          bc=params.get("bc", "kubc"))
         if group.rank != 0:
             continue
         try:

@@ -62,7 +62,8 @@ def _same_run(attrs, params):
                 and int(attrs.get("seed")) == params["seed"]
                 and int(attrs.get("count")) == params["count"]
                 and float(attrs.get("rtol")) == params["rtol"]
-                and str(attrs.get("solver", "gamg")) == params.get("solver", "gamg"))
+                and str(attrs.get("solver", "gamg")) == params.get("solver", "gamg")
+                and str(attrs.get("bc", "kubc")) == params.get("bc", "kubc"))
     except (TypeError, ValueError):
         return False
 

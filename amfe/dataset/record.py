@@ -42,7 +42,8 @@ def _agree(group, err):
     return None
 
 
-def make_record(k, dataset_seed, scale, group, rtol=DEFAULT_RTOL, pixelate=None, solver="gamg"):
+def make_record(k, dataset_seed, scale, group, rtol=DEFAULT_RTOL, pixelate=None, solver="gamg",
+                bc="kubc"):
     """Record k (a dict, see amfe.io.datasetfile), computed collectively on ``group``.
 
     Every rank of ``group`` calls it with the same arguments; the record is
@@ -81,7 +82,7 @@ def make_record(k, dataset_seed, scale, group, rtol=DEFAULT_RTOL, pixelate=None,
         t2 = time.perf_counter()
         try:
             res = homogenize_bed(bed.centers, bed.radii, bed.material(), comm=group, rtol=rtol,
-                                 solver=solver)
+                                 solver=solver, bc=bc)
         except Exception as exc:  # noqa: BLE001
             err = _reason(exc)
         rec["seconds"][2] = time.perf_counter() - t2

@@ -41,17 +41,20 @@ def part_path(parts, k):
 
 
 
-def run_params(scale, seed, count, rtol, solver="gamg"):
+def run_params(scale, seed, count, rtol, solver="gamg", bc="kubc"):
     """The parameters that define a data set's records (what params.json and the attrs hold).
 
-    ``solver`` (the --solver asked for) is recorded unless it is "gamg", so the
-    parameters of runs made before the choice existed (all GAMG) stay equal.
+    ``solver`` (the --solver asked for) and ``bc`` are recorded unless they are
+    "gamg" and "kubc", so the parameters of runs made before these choices
+    existed stay equal.
     """
     params = {"format": FORMAT, "format_version": FORMAT_VERSION, "scale": str(scale),
               "seed": int(seed), "count": int(count), "rtol": float(rtol),
               "amfe_version": __version__}
     if solver != "gamg":
         params["solver"] = str(solver)
+    if bc != "kubc":
+        params["bc"] = str(bc)
     return params
 
 
