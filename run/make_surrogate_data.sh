@@ -24,6 +24,7 @@ make() {  # make OUTPUT COUNT SEED
         mpirun -n "$ranks" "$root/.venv/bin/amfe" dataset -o "$out" --count "$count" \
             --seed "$seed" --scale small --solver auto 2> >(tee "$log" >&2)
         status=$?
+        sleep 1    # let tee write the last lines
         if [ $status -eq 0 ]; then rm -f "$log"; return 0; fi
         if [ $attempt -eq 1 ] && grep -q "stale lock" "$log"; then
             sleep 10   # the ranks of a killed mpirun can outlive it by seconds
