@@ -37,6 +37,7 @@ from amfe.io.atomic import atomic_write
 from amfe.errors import AmfeError
 
 from amfe.training.nets import ARCHITECTURES, build_net
+from amfe.training.validate import check_fields, check_members
 
 FORMAT = "amfe.surrogate"
 FORMAT_VERSION = 1
@@ -101,6 +102,8 @@ def load_checkpoint(path):
     and a dict that is not an amfe surrogate checkpoint.
     """
     path = os.fspath(path)
+    if os.path.isdir(path):
+        raise AmfeError(f"model file {path} is a directory; give the .pt file (amfe train -o)")
     if not os.path.isfile(path):
         raise AmfeError(f"model file {path} does not exist")
     try:
@@ -115,16 +118,20 @@ def load_checkpoint(path):
                         "checkpoint") from None
     if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
         raise AmfeError(f"{path} is not a plain amfe checkpoint (no format {FORMAT!r})")
-    if int(ckpt.get("format_version", -1)) > FORMAT_VERSION:
+    version = ckpt.get("format_version", -1)
+    if type(version) is not int:
+        raise AmfeError(f"{path}: format_version must be an integer, got {version!r}")
+    if version > FORMAT_VERSION:
         raise AmfeError(f"{path} has checkpoint format version {ckpt['format_version']}; this "
                         f"amfe reads up to {FORMAT_VERSION}: update amfe")
     missing = [k for k in REQUIRED if k not in ckpt]
     if missing:
         raise AmfeError(f"{path} is not a complete amfe checkpoint: missing {', '.join(missing)}")
-    if ckpt["arch"] not in ARCHITECTURES:
+    if not isinstance(ckpt["arch"], str) or ckpt["arch"] not in ARCHITECTURES:
         raise AmfeError(f"{path}: unknown architecture {ckpt['arch']!r}")
     if not isinstance(ckpt["members"], list) or not ckpt["members"]:
         raise AmfeError(f"{path}: the checkpoint holds no network weights")
+    check_fields(ckpt, path)
     return ckpt
 
 
@@ -138,7 +145,8 @@ def _unpickler_reason(exc):
 
 
 def build_members(ckpt, path="checkpoint"):
-    """The ensemble's networks, weights loaded, in eval mode."""
+    """The ensemble's networks, weights loaded, in eval mode (AmfeError for junk weights)."""
+    check_members(ckpt, path)
     nets = []
     for k, state in enumerate(ckpt["members"]):
         net = build_net(ckpt["arch"], ckpt["image_shape"], ckpt["arch_args"])
