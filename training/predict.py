@@ -293,7 +293,11 @@ def check_material(bed, ckpt, path="the model"):
     want = ckpt.get("material")
     if not want:
         return
-    have = bed.material().asdict()
+    try:
+        have = bed.material().asdict()
+    except (TypeError, ValueError) as exc:   # material attributes of the wrong type
+        raise AmfeError(f"the bed's material attributes are not numbers ({exc}); fix or remove "
+                        "material_E, material_nu, material_psi, material_density") from None
     off = [k for k in ("E", "nu", "psi") if abs(float(have[k]) - float(want[k]))
            > 1e-9 * max(1.0, abs(float(want[k])))]
     if off:

@@ -100,7 +100,9 @@ def main(argv=None):
         return end_broken_pipe()
     with signals_raise():
         try:
-            return int(args.func(args) or 0)
+            code = int(args.func(args) or 0)
+            sys.stdout.flush()   # here, not at exit, so a closed pipe is caught below
+            return code
         except AmfeError as exc:
             # Raised alike on every rank: one message, then a clean non-zero exit everywhere.
             if _world_rank() == 0:

@@ -9,6 +9,8 @@ finiteness: a NaN threshold would otherwise never compare true.
 import argparse
 import math
 
+MAX_THREADS = 1024   # more threads than this is a typo (torch would try to start them)
+
 
 def _number(text, kind):
     try:
@@ -23,6 +25,14 @@ def positive_int(text):
     value = _number(text, int)
     if value < 1:
         raise argparse.ArgumentTypeError(f"must be a whole number >= 1, got {text}")
+    return value
+
+
+def thread_count(text):
+    """A thread count: an integer in [1, MAX_THREADS]."""
+    value = positive_int(text)
+    if value > MAX_THREADS:
+        raise argparse.ArgumentTypeError(f"must be at most {MAX_THREADS}, got {text}")
     return value
 
 

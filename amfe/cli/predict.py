@@ -21,7 +21,7 @@ import os
 import sys
 import time
 
-from amfe.cli.options import nonnegative_float, positive_int
+from amfe.cli.options import nonnegative_float, thread_count
 from amfe.errors import AmfeError
 from amfe.io.atomic import write_json
 from amfe.io.paths import STDOUT, check_output
@@ -48,7 +48,7 @@ def register(sub):
     p.add_argument("--threshold", type=nonnegative_float,
                    help="flag threshold on the spread score, a finite number >= 0 (default: the "
                         "model's, calibrated on its validation beds)")
-    p.add_argument("--threads", type=positive_int, help="torch CPU threads (default: torch's)")
+    p.add_argument("--threads", type=thread_count, help="torch CPU threads (default: torch's)")
     p.set_defaults(func=run)
 
 
@@ -184,7 +184,10 @@ def write_result(out, output):
         print(json.dumps(out, indent=2), flush=True)
         return
     if output:
-        write_json(output, out)
+        try:
+            write_json(output, out)
+        except OSError as exc:   # a full disk: the old file, if any, is left as it was
+            raise AmfeError(f"cannot write -o {output}: {exc.strerror or exc}") from None
     print(summary(out, output), flush=True)
 
 

@@ -17,7 +17,8 @@ import sys
 
 from types import SimpleNamespace
 
-from amfe.cli.options import (nonnegative_float, nonnegative_int, positive_float, positive_int)
+from amfe.cli.options import (nonnegative_float, nonnegative_int, positive_float, positive_int,
+                              thread_count)
 from amfe.errors import AmfeError
 from amfe.io.paths import check_output
 
@@ -76,7 +77,7 @@ def register(sub):
                    help="also evaluate on this held-out data set (stored in the checkpoint)")
     p.add_argument("--curve", metavar="PNG",
                    help="learning-curve file, .png, .pdf or .svg (default MODEL.png)")
-    p.add_argument("--threads", type=positive_int, help="torch CPU threads (default: torch's)")
+    p.add_argument("--threads", type=thread_count, help="torch CPU threads (default: torch's)")
     p.add_argument("--workers", type=nonnegative_int, default=0,
                    help="DataLoader workers when the data set is read lazily (default 0)")
     p.add_argument("--quiet", action="store_true", help="no progress bar or per-epoch lines")
@@ -166,9 +167,17 @@ def run(args):
         lines.append(f"  held-out {args.test} ({m['n']} beds) mean relative error %: "
                      + metrics_line(m))
         lines.append("  held-out R^2: " + metrics_line(m, "r2", 1, "{:.4f}"))
-    save_checkpoint(args.output, ckpt)
-    plot_learning_curves({args.arch: ckpt["history"]}, curve,
-                         f"{args.arch} on {os.path.basename(args.data)}")
+    _write(args.output, save_checkpoint, args.output, ckpt)
+    _write(curve, plot_learning_curves, {args.arch: ckpt["history"]}, curve,
+           f"{args.arch} on {os.path.basename(args.data)}")
     lines.append(f"wrote {args.output} ({os.path.getsize(args.output) / 1e6:.2f} MB) and {curve}")
     print("\n".join(lines))
     return 0
+
+
+def _write(path, write, *args):
+    """write(*args), an OSError (a full disk) as one line naming ``path``; earlier files stay."""
+    try:
+        write(*args)
+    except OSError as exc:
+        raise AmfeError(f"cannot write {path}: {exc.strerror or exc}") from None
