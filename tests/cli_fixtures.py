@@ -51,11 +51,14 @@ def run_main(argv):
     with the traceback a user would have seen.
     """
     out, err = io.StringIO(), io.StringIO()
+    threads = torch.get_num_threads()   # --threads must not slow the rest of the session
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
         try:
             code = main([str(a) for a in argv])
         except SystemExit as exc:
             code = exc.code
+        finally:
+            torch.set_num_threads(threads)
     return code, out.getvalue(), err.getvalue()
 
 

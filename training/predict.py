@@ -232,6 +232,10 @@ def pixelate_like_training(bed, ckpt, path="the model"):
 
     px = ckpt["pixelation"]
     size = _image_size(bed, ckpt)
+    r_max = float(np.max(bed.radii))
+    if r_max > max(size):   # pixelate would size its sample blocks by it (docs/model.md, sec. 6)
+        raise AmfeError(f"the bed has a particle of radius {r_max:g} m, larger than the imaged "
+                        f"box ({_mm(size)} mm): not a bed {path} can predict")
     n_kinds = len(check_inputs(ckpt.get("inputs", DEFAULT_INPUTS)))
     _check_grid(size, px, n_kinds, ckpt, path)
     image = pixelate(bed, cell=tuple(px["image_cell"][:2]),

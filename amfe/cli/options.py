@@ -13,56 +13,40 @@ MAX_THREADS = 1024   # more threads than this is a typo (torch would try to star
 
 
 def _number(text, kind):
+    """``kind(text)`` (int or float, a float finite), else ArgumentTypeError."""
     try:
-        return kind(text)
+        value = kind(text)
     except (TypeError, ValueError):
         raise argparse.ArgumentTypeError(
             f"expected {'an integer' if kind is int else 'a number'}, got {text!r}") from None
-
-
-def positive_int(text):
-    """An integer >= 1 (thread counts, sizes)."""
-    value = _number(text, int)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be a whole number >= 1, got {text}")
-    return value
-
-
-def thread_count(text):
-    """A thread count: an integer in [1, MAX_THREADS]."""
-    value = positive_int(text)
-    if value > MAX_THREADS:
-        raise argparse.ArgumentTypeError(f"must be at most {MAX_THREADS}, got {text}")
-    return value
-
-
-def nonnegative_int(text):
-    """An integer >= 0 (worker counts, limits where 0 means none)."""
-    value = _number(text, int)
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be a whole number >= 0, got {text}")
-    return value
-
-
-def finite_float(text):
-    """A finite float (not nan, inf)."""
-    value = _number(text, float)
-    if not math.isfinite(value):
+    if kind is float and not math.isfinite(value):
         raise argparse.ArgumentTypeError(f"must be a finite number, got {text}")
     return value
 
 
-def nonnegative_float(text):
-    """A finite float >= 0."""
-    value = finite_float(text)
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text}")
-    return value
+def _checked(kind, low, above=False, high=None):
+    """An argparse type: a number of ``kind`` >= low (> low with ``above``), <= high if given."""
+    noun = "a whole number" if kind is int else "a finite number"
+    words = f"{noun} {'>' if above else '>='} {low:g}"
+
+    def parse(text):
+        value = _number(text, kind)
+        if value < low or (above and value == low):
+            raise argparse.ArgumentTypeError(f"must be {words}, got {text}")
+        if high is not None and value > high:
+            raise argparse.ArgumentTypeError(f"must be at most {high:g}, got {text}")
+        return value
+    parse.__name__ = f"{kind.__name__} {words}"
+    return parse
 
 
-def positive_float(text):
-    """A finite float > 0."""
-    value = finite_float(text)
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text}")
-    return value
+positive_int = _checked(int, 1)                   # sizes, counts
+nonnegative_int = _checked(int, 0)                # worker counts, limits where 0 means none
+thread_count = _checked(int, 1, high=MAX_THREADS)
+nonnegative_float = _checked(float, 0.0)          # thresholds, weight decay
+positive_float = _checked(float, 0.0, above=True)  # learning rates, widths
+
+
+def finite_float(text):
+    """A finite float (not nan, inf)."""
+    return _number(text, float)
