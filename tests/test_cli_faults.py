@@ -186,6 +186,18 @@ def test_model_directory_is_called_a_directory(model, tmp_path):
     assert "is a directory" in assert_one_error(code, err, "predict")
 
 
+def test_bed_of_another_size_names_the_fix(model, tmp_path):
+    """A bed of the wrong size says how to make one the model takes (issue 16, item 5)."""
+    from amfe.io.bedfile import write_bed
+    from amfe.model.bed import generate_bed
+    m, _, _ = model
+    wide = tmp_path / "wide.h5"
+    write_bed(wide, generate_bed(size=(0.3e-3, 0.15e-3, 0.1e-3), seed=0))
+    code, _, err = run_main(["predict", wide, "--model", m])
+    line = assert_one_error(code, err, "predict")
+    assert "1x5x10" in line and "1x5x5" in line and "`amfe pack --scale tiny`" in line
+
+
 def test_json_to_stdout(model, tmp_path):
     """`-o -` writes the JSON to stdout (issue 16), the table to stderr."""
     m, bed, _ = model

@@ -161,12 +161,18 @@ def build_members(ckpt, path="checkpoint"):
     return nets
 
 
-def check_image_shape(ckpt, shape, what="the image", path="the model"):
-    """AmfeError naming both shapes unless ``shape`` (layers, H, W) is the checkpoint's."""
+def check_image_shape(ckpt, shape, what="the image", path="the model", bed=False):
+    """AmfeError naming both shapes unless ``shape`` (layers, H, W) is the checkpoint's.
+
+    ``bed``: the image is a bed's, so the message also says how to make a bed
+    of the model's scale.
+    """
     want = tuple(int(s) for s in ckpt["image_shape"])
     got = tuple(int(s) for s in shape)
     if got != want:
+        scale = ckpt.get("pixelation", {}).get("scale")
+        fix = "use a model trained on this image shape"
+        if bed and isinstance(scale, str):
+            fix += f", or a bed of the model's scale (`amfe pack --scale {scale}`)"
         raise AmfeError(f"{what} has shape {'x'.join(map(str, got))} but {path} was trained on "
-                        f"images of shape {'x'.join(map(str, want))} (scale "
-                        f"{ckpt.get('pixelation', {}).get('scale')}); use a model trained on "
-                        "this image shape")
+                        f"images of shape {'x'.join(map(str, want))} (scale {scale}); {fix}")

@@ -242,7 +242,7 @@ def pixelate_like_training(bed, ckpt, path="the model"):
                      layer_thickness=float(px["layer_thickness"]),
                      box=((0.0, 0.0, 0.0), size), spacing=float(px["image_spacing"]))
     shape = (image.shape[0] * n_kinds, *image.shape[1:])
-    check_image_shape(ckpt, shape, f"the bed's image ({_mm(size)} mm)", path)
+    check_image_shape(ckpt, shape, f"the bed's image ({_mm(size)} mm)", path, bed=True)
     return np.asarray(image, np.float32)
 
 
@@ -270,7 +270,7 @@ def _check_grid(size, px, n_kinds, ckpt, path):
     want = tuple(int(s) for s in ckpt["image_shape"])
     if abs(layers * n_kinds - want[0]) > 1 or abs(h - want[1]) > 1 or abs(w - want[2]) > 1:
         check_image_shape(ckpt, (layers * n_kinds, h, w), f"the bed's image ({_mm(size)} mm)",
-                          path)
+                          path, bed=True)
 
 
 def _image_size(bed, ckpt):
