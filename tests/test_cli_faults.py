@@ -198,6 +198,22 @@ def test_bed_of_another_size_names_the_fix(model, tmp_path):
     assert "1x5x10" in line and "1x5x5" in line and "`amfe pack --scale tiny`" in line
 
 
+def test_bed_recording_a_size_of_1_m_is_refused_before_pixelating(model, tmp_path):
+    """A `size` attribute of 1 m made predict pixelate a grid of ~10^11 samples (item 11)."""
+    import time
+
+    from amfe.io.bedfile import read_bed, write_bed
+    m, bed, _ = model
+    b = read_bed(bed)
+    b.attrs["size"] = [1.0, 1.0, 1.0]
+    big = tmp_path / "big.h5"
+    write_bed(big, b)
+    t0 = time.perf_counter()
+    code, _, err = run_main(["predict", big, "--model", m])
+    assert "10000x33334x33334" in assert_one_error(code, err, "predict")
+    assert time.perf_counter() - t0 < 10
+
+
 def test_json_to_stdout(model, tmp_path):
     """`-o -` writes the JSON to stdout (issue 16), the table to stderr."""
     m, bed, _ = model
