@@ -323,7 +323,8 @@ def test_full_disk_keeps_the_old_file(model, tmp_path, monkeypatch):
             monkeypatch.setattr(amfe.io.atomic.os, "fsync", full)
         code, _, err = run_main(["predict", bed, "--model", m, "-o", out])
         line = assert_one_error(code, err, "predict")
-        assert "No space left on device" in line and str(out) in line
+        # (amfe.io.atomic may say it itself: "no space left on DIR: p.json could not be written")
+        assert "no space left" in line.lower() and "p.json" in line
         assert out.read_text() == "old result\n"
         assert sorted(os.listdir(disk)) == (["filler", "p.json"] if mounted else ["p.json"])
     finally:
