@@ -32,6 +32,7 @@ from amfe.vocab import LABEL_NAMES
 from amfe.errors import AmfeError
 
 from amfe.training.checkpoint import build_members, check_image_shape, load_checkpoint
+from amfe.training.device import device_of
 from amfe.training.data import DEFAULT_INPUTS, Normalizer, check_inputs, flip_images, transpose_labels
 
 DEFAULT_MODEL_NAME = "custom_small.pt"
@@ -193,6 +194,7 @@ def predict_raw(net, images, norm, tta="none", batch_size=1024):
     prediction is mapped back before averaging (in raw units).
     """
     net.eval()
+    dev = device_of(net)
     syms = symmetries(tta_mode(tta), images.shape[-1] == images.shape[-2])
     out = []
     with torch.inference_mode():
@@ -200,7 +202,7 @@ def predict_raw(net, images, norm, tta="none", batch_size=1024):
             xb = images[s:s + batch_size]
             acc = 0.0
             for fx, fy, tr in syms:
-                y = norm.decode(net(flip_images(xb, fx, fy, tr)))
+                y = norm.decode(net(flip_images(xb, fx, fy, tr).to(dev)).cpu())
                 acc = acc + (transpose_labels(y) if tr else y)
             out.append(acc / len(syms))
     return torch.cat(out) if out else torch.zeros(0, 6, dtype=torch.float64)

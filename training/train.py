@@ -26,6 +26,7 @@ from amfe.model.material import STEEL
 
 from amfe.training import AUGMENTATIONS, SCHEDULES
 from amfe.training.checkpoint import check_image_shape
+from amfe.training.device import device_of, resolve_device
 from amfe.training.data import (DEFAULT_INPUTS, BedDataset, Normalizer, augment_batch, check_inputs,
                    dataset_hash, dataset_info, read_rows, split_indices)
 from amfe.training.metrics import metrics_line, property_metrics
@@ -55,6 +56,7 @@ class TrainConfig:
     workers: int = 0
     max_train: int = 0          # use at most this many training beds (0: all); for tests
     inputs: tuple = DEFAULT_INPUTS   # image kinds stacked as channels (amfe.training.data)
+    device: str = "auto"        # where to train (amfe.training.device); checkpoints stay on CPU
 
     def check(self):
         if self.epochs < 1 or self.batch_size < 1 or self.members < 1:
@@ -79,6 +81,7 @@ class TrainConfig:
                             f"{', '.join(AUGMENTATIONS)}")
         self.tta = tta_mode(self.tta)
         self.inputs = check_inputs(self.inputs)
+        resolve_device(self.device)
         if not (0 < self.flag_percentile < 100):
             raise AmfeError("the flag percentile must lie in (0, 100)")
 
@@ -99,10 +102,12 @@ def _batches(ds, batch_size, generator, workers):
 
 
 def predict_normalised(net, images, batch_size=1024):
-    """Normalised outputs of ``net`` (eval mode) on an image tensor."""
+    """Normalised outputs of ``net`` (eval mode) on an image tensor; a CPU tensor."""
     net.eval()
+    dev = device_of(net)
     with torch.inference_mode():
-        out = [net(images[s:s + batch_size]) for s in range(0, images.shape[0], batch_size)]
+        out = [net(images[s:s + batch_size].to(dev)).cpu()
+               for s in range(0, images.shape[0], batch_size)]
     return torch.cat(out) if out else torch.zeros(0, 6)
 
 
@@ -110,7 +115,8 @@ def train_member(train_ds, val_images, val_labels, norm, cfg, image_shape, seed,
                  log=print, label=""):
     """Train one network; returns (net in eval mode, history dict)."""
     torch.manual_seed(seed)
-    net = build_net(cfg.arch, image_shape, cfg.arch_args)
+    dev = resolve_device(cfg.device)
+    net = build_net(cfg.arch, image_shape, cfg.arch_args).to(dev)
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     n_batches = math.ceil(len(train_ds) / cfg.batch_size)
     sched = None
@@ -134,7 +140,7 @@ def train_member(train_ds, val_images, val_labels, norm, cfg, image_shape, seed,
             total, count = 0.0, 0
             for xb, yb in _batches(train_ds, cfg.batch_size, gen, cfg.workers):
                 xb, yb = augment_batch(xb.float(), yb.double(), cfg.augment, gen)
-                loss = torch.nn.functional.mse_loss(net(xb), norm.encode(yb))
+                loss = torch.nn.functional.mse_loss(net(xb.to(dev)), norm.encode(yb).to(dev))
                 opt.zero_grad(set_to_none=True)
                 loss.backward()
                 opt.step()
@@ -168,7 +174,8 @@ def train_member(train_ds, val_images, val_labels, norm, cfg, image_shape, seed,
         if bar is not None:
             bar.close()
     hist["seconds"] = time.perf_counter() - t_start
-    net.eval()
+    hist["device"] = str(dev)
+    net.cpu().eval()   # inference and the checkpoint on the CPU, whatever trained it
     return net, hist
 
 
@@ -186,6 +193,8 @@ def train_model(data_path, cfg, progress=True, log=print):
     if ok.size < 1:
         raise AmfeError(f"{data_path}: no usable record (status ok, finite labels); nothing to "
                         "train on")
+    if cfg.arch == "multiscale":   # its hole maps read the fill layers only
+        cfg.arch_args = {"n_fill": n_fill, **cfg.arch_args}
     train_rows, val_rows = split_indices(ok, cfg.val_fraction, cfg.split_seed)
     if cfg.max_train:
         train_rows = train_rows[:cfg.max_train]

@@ -67,9 +67,13 @@ def register(sub):
                    help="image kinds stacked as input channels: fill (volume fraction, the "
                         "paper's) or fill,bonds (plus the bond-stiffness image; the data set "
                         "needs /bond_images) (default fill)")
-    p.add_argument("--width", type=positive_float, help="alexnet/vgg: channel-count multiplier (default 1)")
+    p.add_argument("--width", type=positive_float,
+                   help="custom/alexnet/vgg/multiscale: channel-count multiplier (default 1)")
+    p.add_argument("--convs", type=positive_int,
+                   help="custom: 3x3 convolutions per block (default 1; more: a deeper net)")
     p.add_argument("--hidden", type=positive_int, nargs="+",
-                   help="alexnet/vgg: widths of the hidden FC layers (default 4096 4096)")
+                   help="alexnet/vgg/multiscale: widths of the hidden FC layers (default 4096 "
+                        "4096; multiscale 512 256 128)")
     p.add_argument("--batch-norm", action="store_true", help="vgg: batch normalisation")
     p.add_argument("--max-train", type=nonnegative_int, default=0, metavar="N",
                    help="train on at most N of the training beds (error versus data size)")
@@ -78,6 +82,9 @@ def register(sub):
     p.add_argument("--curve", metavar="PNG",
                    help="learning-curve file, .png, .pdf or .svg (default MODEL.png)")
     p.add_argument("--threads", type=thread_count, help="torch CPU threads (default: torch's)")
+    p.add_argument("--device", choices=["auto", "cpu", "cuda"], default="auto",
+                   help="where to train: auto (default) is CUDA when torch sees a GPU, else the "
+                        "CPU; the checkpoint is saved for the CPU either way")
     p.add_argument("--workers", type=nonnegative_int, default=0,
                    help="DataLoader workers when the data set is read lazily (default 0)")
     p.add_argument("--quiet", action="store_true", help="no progress bar or per-epoch lines")
@@ -92,6 +99,8 @@ def arch_args_of(args):
         out["hidden"] = list(args.hidden)
     if args.batch_norm:
         out["batch_norm"] = True
+    if args.convs is not None:
+        out["convs"] = args.convs
     return out
 
 
@@ -145,7 +154,7 @@ def run(args):
                       split_seed=args.split_seed, val_fraction=args.val_fraction,
                       log_moduli=not args.linear_moduli, augment=args.augment, tta=args.tta,
                       flag_percentile=args.flag_percentile, workers=args.workers,
-                      max_train=args.max_train, inputs=args.inputs)
+                      max_train=args.max_train, inputs=args.inputs, device=args.device)
     cfg.check()
     if args.test:
         check_test_set(args, cfg.inputs)
