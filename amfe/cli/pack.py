@@ -109,6 +109,9 @@ def register(subparsers):
                              "--hatch-spacing, otherwise the bed is fully scanned")
     for flag, kw in SCAN_ARGS:
         g.add_argument(flag, type=float, **kw)
+    g.add_argument("--skip-seed", type=int, metavar="S",
+                   help="draw the skipped pieces from their own seed S (>= 0), so beds of other "
+                        "--seed keep the same holes (default: from --seed, as always)")
     p.set_defaults(func=run)
     return p
 
@@ -161,7 +164,7 @@ def run(args):
                        enlargement=(lo, hi), jitter=_value(args, "jitter"),
                        layer_thickness=si(_value(args, "layer_thickness"), MM), scan=scan,
                        seed=seed, a_star_max=a_star_max, material=STEEL,
-                       periodic=args.periodic)
+                       periodic=args.periodic, skip_seed=args.skip_seed)
     report(bed, args.output, f"amfe pack: {size[0]:g} x {size[1]:g} x {size[2]:g} mm, seed "
                              f"{seed}, scan {bed.attrs['scan']}")
     return 0

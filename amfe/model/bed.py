@@ -189,7 +189,7 @@ def _check_number(name, value, lo=None, hi=None, lo_open=False, hi_open=False, u
 def generate_bed(size=(250e-6, 250e-6, 100e-6), *, mean_radius=12.5e-6,
                  enlargement=(1.05, 1.14), jitter=0.025, layer_thickness=100e-6,
                  scan=None, seed=0, a_star_max=0.98, material=STEEL, periodic=False,
-                 offset=None):
+                 offset=None, skip_seed=None):
     """A powder bed on a jittered, enlarged HCP lattice, cut by a scan path.
 
     size: (Lx, Ly, Lz) of the box [m] (default: the paper's figure-2 bed,
@@ -208,6 +208,11 @@ def generate_bed(size=(250e-6, 250e-6, 100e-6), *, mean_radius=12.5e-6,
     the box after the jitter, bonds in step 5 are found by minimum image;
     offset (3,) [m], periodic only: shift the whole lattice (default 0).
     The random numbers are drawn in the same order as for a non-periodic bed.
+    skip_seed: opt-in; an int >= 0 draws the skipped scan pieces from their own
+    ``default_rng(skip_seed)`` instead of the bed's generator, so beds of other
+    seeds keep the same holes while their enlargements and jitter change (the
+    label-noise study of docs/surrogate.md). None (default): today's beds, bit
+    for bit.
 
     Steps, all random numbers from one ``np.random.default_rng(seed)`` drawn
     in this order, so the same arguments give the same bed bit for bit:
@@ -259,6 +264,9 @@ def generate_bed(size=(250e-6, 250e-6, 100e-6), *, mean_radius=12.5e-6,
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise AmfeError(f"seed must be a non-negative integer, got {seed!r}")
     seed = int(seed)
+    if skip_seed is not None and (isinstance(skip_seed, bool) or not isinstance(
+            skip_seed, (int, np.integer)) or skip_seed < 0):
+        raise AmfeError(f"skip_seed must be None or a non-negative integer, got {skip_seed!r}")
     if not isinstance(material, Material):
         raise AmfeError(f"material must be an amfe.model.material.Material, got {type(material).__name__}")
     crit = critical_a_star(material.nu, material.psi)
@@ -289,7 +297,8 @@ def generate_bed(size=(250e-6, 250e-6, 100e-6), *, mean_radius=12.5e-6,
     if periodic:
         centers = wrap(centers, box)
 
-    keep = scanned_mask(centers, size, layer_thickness, scan, rng)
+    skip_rng = rng if skip_seed is None else np.random.default_rng(int(skip_seed))
+    keep = scanned_mask(centers, size, layer_thickness, scan, skip_rng)
     if not keep.any():
         raise AmfeError("the scan path deletes every particle of the bed: widen the tracks, "
                         "narrow the hatch spacing or lower the skip fraction")
@@ -313,6 +322,8 @@ def generate_bed(size=(250e-6, 250e-6, 100e-6), *, mean_radius=12.5e-6,
     }
     if scan is not None and not scan.is_full:
         attrs.update(scan.as_attrs())
+    if skip_seed is not None:
+        attrs["skip_seed"] = int(skip_seed)
     attrs.update({
         "material_E": float(material.E),
         "material_nu": float(material.nu),
