@@ -9,25 +9,27 @@ import time
 import numpy as np
 
 from amfe.model.element import bond_forces
-from amfe.errors import AmfeError
 from amfe.model.frame import build_frame
 from amfe.model.averages import (asymmetry, bagi_strain, compliance_and_constants, hull_of,
                              stiffness, symmetric, voigt, voigt_strain)
-from amfe.model.material import STEEL
+from amfe.model.material import SOURCE_DEFAULT
 from amfe.io.mpi import on_root
 from amfe.io.result import Fields, write_fields_vtu
-from amfe.solvers.ksp import DEFAULT_RTOL
+from amfe.solvers.inputs import checked_inputs
+from amfe.solvers.ksp import DEFAULT_RTOL, RESIDUAL_FACTOR
 from amfe.model.kubc import CASE_NAMES, kubc_groups
 from amfe.solvers.loadcases import solve_load_cases
 from amfe.model.mixed import mixed_groups
-from amfe.solvers.petsc import init_petsc
+from amfe.solvers.petsc import init_petsc, unused_options_warning
 
 BOUNDARY_CONDITIONS = {"kubc": kubc_groups, "mixed": mixed_groups}
 
 
-def homogenize_bed(centers, radii, material=STEEL, *, a_star_cap=None, rtol=DEFAULT_RTOL,
+def homogenize_bed(centers, radii, material=None, *, a_star_cap=None, rtol=DEFAULT_RTOL,
                    max_it=None, vtu_dir=None, comm=None, petsc_args=None, ksp_options=None,
-                   nondimensional=True, bc="kubc", diagnose=False, progress=False, fields=False):
+                   nondimensional=True, bc="kubc", diagnose=False, progress=False, fields=False,
+                   accept_unconverged=False, max_memory=None, material_source=None,
+                   input_error=None):
     """Effective elastic constants of a bed of bonded spheres.
 
     bc: "kubc" (default; six unit macro-strains on the boundary, one operator)
@@ -37,30 +39,47 @@ def homogenize_bed(centers, radii, material=STEEL, *, a_star_cap=None, rtol=DEFA
     operator and their ratio, GAMG levels and complexities).
 
     centers (N,3) [m], radii (N,) [m]; every rank of ``comm`` (a PETSc or
-    mpi4py communicator, default COMM_WORLD) passes the same arrays.
+    mpi4py communicator, default COMM_WORLD) passes bit-identical arrays,
+    material and options: checked in one collective before anything else,
+    a difference is an AmfeError on every rank (:mod:`amfe.solvers.inputs`).
+    material: a :class:`~amfe.model.material.Material` (default: steel);
+    material_source: where it came from, for the result (default "default
+    (steel)" without a material, else "argument").
     Returns the result dict of docs/model.md, section 6 (the same on every rank):
     properties (SI: Pa and -), C and S (6x6, Voigt xx, yy, zz, yz, xz, xy,
     engineering shear; Pa and 1/Pa), volume [m^3], n_particles (input),
     n_removed, n_bonds, bc ("kubc" or "mixed"), ranks, solver (ksp_type, pc_type, rtol,
-    iterations [6], setup_seconds, solve_seconds, plus residuals and the
-    stress and C asymmetries); with ``a_star_cap``, also n_capped. With
+    norm_type, residual_limit, iterations [6], setup_seconds, solve_seconds, plus
+    residuals and the stress and C asymmetries), material (E, nu, psi, source) and
+    warnings (list of str: accepted unconverged solves, PETSc options never
+    used); with ``a_star_cap``, also n_capped. With
     ``vtu_dir``, rank 0 writes one VTU per load case and cases.pvd there.
     ``ksp_options`` (dict) sets PETSc options for this solve only, e.g.
     {"ksp_type": "preonly", "pc_type": "cholesky"}; ``nondimensional=False``
     assembles in SI units (for the benchmark that shows why scaling matters).
     ``progress=True`` prints one line per phase and load case to stderr on rank 0.
     ``fields=True`` adds "fields": a :class:`~amfe.io.result.Fields` (every rank).
+    Every solve must reach a true relative residual of at most
+    :data:`~amfe.solvers.ksp.RESIDUAL_FACTOR` x rtol; ``accept_unconverged=True``
+    keeps the numbers of one that does not, with a warning. ``max_memory``:
+    bytes the solve may take over all ranks (default: half the memory of the
+    machines the ranks run on); a larger estimate is refused before any work.
+    ``input_error``: an AmfeError the caller met preparing this rank's input,
+    raised on every rank after the ranks are compared (so that no rank waits).
     Raises AmfeError on every rank for bad input or a failed solve.
     """
-    if bc not in BOUNDARY_CONDITIONS:
-        raise AmfeError(f"unknown boundary condition {bc!r}; choose one of "
-                        + ", ".join(BOUNDARY_CONDITIONS))
     PETSc = init_petsc(petsc_args)
     if comm is None:
         comm = PETSc.COMM_WORLD
     elif not isinstance(comm, PETSc.Comm):
         comm = PETSc.Comm(comm)  # an mpi4py communicator, e.g. a batch group
     mpi = comm.tompi4py()
+    source = material_source or (SOURCE_DEFAULT if material is None else "argument")
+    centers, radii, material = checked_inputs(
+        PETSc, mpi, centers, radii, material, bcs=BOUNDARY_CONDITIONS, bc=bc, rtol=rtol,
+        max_it=max_it, a_star_cap=a_star_cap, ksp_options=ksp_options, max_memory=max_memory,
+        input_error=input_error, nondimensional=nondimensional, diagnose=diagnose,
+        accept_unconverged=accept_unconverged)
     t0 = time.perf_counter()
     log = _stderr_log(mpi.rank) if progress else None
     frame = build_frame(centers, radii, material, a_star_cap, nondimensional=nondimensional)
@@ -70,10 +89,19 @@ def homogenize_bed(centers, radii, material=STEEL, *, a_star_cap=None, rtol=DEFA
         log(f"frame: {frame.n_particles} load-carrying particles ({frame.n_removed} removed), "
             f"{len(frame.bonds)} bonds in {t_frame:.2f} s; {bc}, {mpi.size} rank(s)")
     sol = solve_load_cases(PETSc, frame, comm, groups, rtol=rtol, max_it=max_it, log=log,
-                           ksp_options=ksp_options, diagnose=diagnose)
-
+                           ksp_options=ksp_options, diagnose=diagnose,
+                           accept_unconverged=accept_unconverged)
+    warnings = sol.warnings
+    if warnings and mpi.rank == 0:
+        missed = [c for c in sol.cases if c.warning]
+        print(f"amfe: warning: {len(missed)} load case(s) missed the convergence contract "
+              f"(true relative residual <= {RESIDUAL_FACTOR:g} x rtol) and were kept as asked "
+              "(accept_unconverged): " + ", ".join(f"{c.name} {c.residual:.1e}" for c in missed),
+              file=sys.stderr, flush=True)
+    unused = unused_options_warning(PETSc, mpi.rank, sol.unused_options)
+    record = {"E": material.E, "nu": material.nu, "psi": material.psi, "source": source}
     return on_root(mpi, _average, frame, sol, bc, a_star_cap, mpi.size, t_frame, vtu_dir,
-                   diagnose, fields)
+                   diagnose, fields, record, warnings + ([unused] if unused else []))
 
 
 def _stderr_log(rank):
@@ -85,7 +113,8 @@ def _stderr_log(rank):
     return log
 
 
-def _average(frame, sol, bc, a_star_cap, ranks, t_frame, vtu_dir, diagnose, fields):
+def _average(frame, sol, bc, a_star_cap, ranks, t_frame, vtu_dir, diagnose, fields, material,
+             warnings):
     """Rank 0: Bagi averages, C, S, constants, the result dict (and the VTU files)."""
     t0 = time.perf_counter()
     hull = hull_of(frame.centers)
@@ -111,7 +140,8 @@ def _average(frame, sol, bc, a_star_cap, ranks, t_frame, vtu_dir, diagnose, fiel
         "ranks": int(ranks),
         "solver": {
             "ksp_type": sol.setups[0].ksp_type, "pc_type": sol.setups[0].pc_type,
-            "rtol": sol.setups[0].rtol,
+            "rtol": sol.setups[0].rtol, "norm_type": sol.setups[0].norm_type,
+            "residual_limit": RESIDUAL_FACTOR * sol.setups[0].rtol,
             "iterations": sol.iterations,
             "setup_seconds": sol.setup_seconds, "solve_seconds": sol.solve_seconds,
             "case_seconds": [c.seconds for c in sol.cases],
@@ -121,6 +151,8 @@ def _average(frame, sol, bc, a_star_cap, ranks, t_frame, vtu_dir, diagnose, fiel
             "stress_asymmetry": float(max(stress_asym)),
             "C_asymmetry": float(c_asym),
         },
+        "material": material,
+        "warnings": list(warnings),
     }
     if sol.notes:
         result["solver"]["notes"] = sol.notes

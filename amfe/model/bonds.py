@@ -178,6 +178,28 @@ def find_bonds(centers, radii):
     return contact_geometry(centers, radii, i, j)
 
 
+A_STAR_CAP_MIN = 1e-3
+"""The smallest a* cap: necks of a* = 1e-3 are the thinnest measured to solve
+accurately (docs/hard_cases.md, near-mechanisms); a cap of 1e-300 underflows
+the bending springs (~a*^4) to zero and leaves a singular frame."""
+
+
+def check_a_star_cap(a_star_cap, material):
+    """``a_star_cap`` as a float in [A_STAR_CAP_MIN, critical a* - A_STAR_MARGIN), else AmfeError."""
+    crit = critical_a_star(material.nu, material.psi)
+    limit = crit - A_STAR_MARGIN
+    try:
+        cap = float(a_star_cap)
+    except (TypeError, ValueError):
+        cap = float("nan")
+    if isinstance(a_star_cap, (bool, str)) or not (A_STAR_CAP_MIN <= cap < limit):
+        raise AmfeError(f"the a* cap must lie in [{A_STAR_CAP_MIN:g}, {limit:.10f}) "
+                        f"({A_STAR_MARGIN:g} below the critical a* {crit:.10f} for "
+                        f"nu={material.nu}, psi={material.psi}; below {A_STAR_CAP_MIN:g} the "
+                        f"bending springs vanish), got {a_star_cap!r}")
+    return cap
+
+
 def bond_springs(bonds: Bonds, material: Material, a_star_cap=None, labels=None):
     """Springs of every bond: (k_n, k_t, kappa_n, kappa_t, n_capped).
 
@@ -212,11 +234,7 @@ def bond_springs(bonds: Bonds, material: Material, a_star_cap=None, labels=None)
         capped = np.zeros(a_star.shape, bool)
         s = a_star
     else:
-        a_star_cap = float(a_star_cap)
-        if not (0.0 < a_star_cap < limit):
-            raise AmfeError(f"the a* cap must lie in (0, {limit:.10f}) ({A_STAR_MARGIN:g} below "
-                            f"the critical a* {crit:.10f} for nu={material.nu}, psi={material.psi}), "
-                            f"got {a_star_cap}")
+        a_star_cap = check_a_star_cap(a_star_cap, material)
         deep = np.flatnonzero(a_star >= 1.0)
         if deep.size:
             raise AmfeError(

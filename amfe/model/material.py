@@ -65,7 +65,7 @@ def _attr(attrs, key):
     return real_number(f"bed attribute {key}", attrs[key])
 
 
-def resolve_material(attrs=None, given=None, default=STEEL):
+def resolve_material(attrs=None, given=None, default=STEEL, given_source=SOURCE_GIVEN):
     """The material of a solve and a record of where it came from.
 
     attrs: a bed's attributes (material_E, material_nu, material_psi and,
@@ -73,8 +73,9 @@ def resolve_material(attrs=None, given=None, default=STEEL):
     "psi": -} (None entries ignored), which override the file's. The file's
     elastic material must be complete or absent, unless ``given`` supplies
     what it lacks. Returns (Material, record) with record = {"E", "nu",
-    "psi", "source"}: source is "bed file", "default (steel)", "command
-    line", or, when mixed, e.g. "command line (E); bed file (nu, psi)".
+    "psi", "source"}: source is "bed file", "default (steel)",
+    ``given_source`` ("command line"), or, when mixed, e.g. "command line (E);
+    bed file (nu, psi)".
     Raises AmfeError naming missing or malformed attributes.
     """
     attrs = attrs or {}
@@ -95,7 +96,7 @@ def resolve_material(attrs=None, given=None, default=STEEL):
     values, sources = {}, {}
     for k in ELASTIC:
         if k in given:
-            values[k], sources[k] = given[k], SOURCE_GIVEN
+            values[k], sources[k] = given[k], given_source
         elif k in in_file:
             values[k], sources[k] = _attr(attrs, f"material_{k}"), SOURCE_FILE
         else:
@@ -114,7 +115,7 @@ def resolve_material(attrs=None, given=None, default=STEEL):
 
 def _describe(sources):
     """'bed file', or 'command line (E); bed file (nu, psi)' when the sources are mixed."""
-    order = [s for s in (SOURCE_GIVEN, SOURCE_FILE, SOURCE_DEFAULT) if s in sources.values()]
+    order = list(dict.fromkeys(sources[k] for k in ELASTIC))
     if len(order) == 1:
         return order[0]
     return "; ".join(f"{s} ({', '.join(k for k in ELASTIC if sources[k] == s)})" for s in order)

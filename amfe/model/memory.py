@@ -98,16 +98,18 @@ def solve_bytes(n_particles, ranks=1):
     return n_particles * (FRAME_BYTES * ranks + SOLVE_BYTES)
 
 
-def check_memory(estimate, limit, what):
-    """Raise AmfeError when ``estimate`` [bytes] exceeds ``limit`` [bytes] (None: the default).
+def check_memory(estimate, limit, what, default=None):
+    """Raise AmfeError when ``estimate`` [bytes] exceeds ``limit`` [bytes].
 
-    ``what`` says what would be allocated (e.g. "generating a bed of 1.3e+11 lattice sites").
+    limit None: ``default`` (default: :func:`default_limit`, half this
+    machine's memory). ``what`` says what would be allocated (e.g.
+    "generating a bed of 1.3e+11 lattice sites").
     """
     given = limit is not None
-    limit = default_limit() if limit is None else float(limit)
+    limit = float(limit) if given else (default_limit() if default is None else default)
     if estimate <= limit:
         return
-    whose = "the limit given" if given else "half of this machine's memory, the default limit"
+    whose = "the limit given" if given else "half of the machine's memory, the default limit"
     raise AmfeError(f"{what} needs about {_gib(estimate)} of memory, more than {_gib(limit)} "
                     f"({whose}); make it smaller, or raise the limit with --max-memory "
                     "(max_memory= in Python) if the machine has the memory")
