@@ -84,7 +84,8 @@ def _mismatch(names, differ, records):
             groups = {}
             for i, r in enumerate(records):
                 groups.setdefault(r["digests"][k], []).append(i)
-            parts.append(f"{names[k]} (same shape {shapes[0]}, different values: ranks "
+            same = f"same shape {shapes[0]}, " if shapes[0] else ""
+            parts.append(f"{names[k]} ({same}different values; ranks with equal ones: "
                          + " | ".join(",".join(map(str, g)) for g in groups.values()) + ")")
     return (f"the {len(records)} MPI ranks were given different inputs: "
             + "; ".join(parts) + ". Every rank must pass bit-identical arrays, material and "
