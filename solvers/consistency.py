@@ -87,6 +87,9 @@ def _mismatch(names, differ, records):
             same = f"same shape {shapes[0]}, " if shapes[0] else ""
             parts.append(f"{names[k]} ({same}different values; ranks with equal ones: "
                          + " | ".join(",".join(map(str, g)) for g in groups.values()) + ")")
+    refused = [(k, r["error"][1]) for k, r in enumerate(records) if r["error"] is not None]
+    if refused:
+        parts.append(f"rank {refused[0][0]} refused its input: {refused[0][1]}")
     return (f"the {len(records)} MPI ranks were given different inputs: "
             + "; ".join(parts) + ". Every rank must pass bit-identical arrays, material and "
             "options (generate the bed with the same seed on every rank, or read it on rank 0 "
