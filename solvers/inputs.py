@@ -10,6 +10,8 @@ the memory the solve would take against the limit summed over the machines
 """
 import math
 
+import numpy as np
+
 from amfe.errors import AmfeError
 from amfe.model.bonds import check_a_star_cap, validate_particles
 from amfe.model.material import STEEL, Material
@@ -35,8 +37,8 @@ def _check_options(PETSc, ksp_options, rtol, max_it):
         given = PETSc.Options().getString("ksp_rtol")
     if given is not None:
         check_rtol(given, "-ksp_rtol")
-    if max_it is not None and (isinstance(max_it, bool) or not isinstance(max_it, int)
-                               or max_it < 1):
+    if max_it is not None and (isinstance(max_it, bool)
+                               or not isinstance(max_it, (int, np.integer)) or max_it < 1):
         raise AmfeError(f"max_it must be a positive integer, got {max_it!r}")
 
 

@@ -80,7 +80,7 @@ def test_accept_unconverged_keeps_the_numbers_with_a_warning(bed_file, converged
 
 
 def test_accept_unconverged_in_python(bed_file, converged):
-    r = amfe.homogenize(bed_file, max_it=1, accept_unconverged=True)
+    r = amfe.homogenize(bed_file, max_it=np.int64(1), accept_unconverged=True)
     assert len(r.extra["warnings"]) == 6 and "DIVERGED_MAX_IT" in r.extra["warnings"][0]
     assert abs(r.Ex / converged.Ex - 1) > 1e-3
     with pytest.raises(AmfeError, match="accept_unconverged=True"):
@@ -268,6 +268,20 @@ def test_bad_output_paths_are_refused_before_any_work(bed_file, tmp_path, capsys
     assert main(["homogenize", bed_file, *args]) == 2    # progress on: no "frame:" line
     err = capsys.readouterr().err
     assert "cannot write" in one_error_line(err) and "frame:" not in err
+
+
+def test_full_disk_on_the_result_keeps_the_old_file(bed_file, tmp_path, capsys, monkeypatch):
+    import errno
+    out = tmp_path / "r.json"
+    out.write_text("old\n")
+
+    def no_space(fd):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr("amfe.io.atomic.os.fsync", no_space)
+    assert main(["homogenize", bed_file, "--quiet", "-o", str(out)]) == 2
+    assert "No space left on device" in one_error_line(capsys.readouterr().err)
+    assert out.read_text() == "old\n" and sorted(os.listdir(tmp_path)) == ["r.json"]
 
 
 def test_pack_output_is_checked_before_generating(tmp_path, capsys):
