@@ -29,20 +29,22 @@ CG's iterates and stopping points, and every constant, are those of before):
 - generated beds of 600-11 000 particles, KUBC and mixed, GAMG, Jacobi and
   BoomerAMG: ||r|| / ||b|| = 0.1-1.4 x rtol (floor 1e-14 to 1e-13);
 - near-critical bonds (docs/hard_cases.md): 12 x rtol at delta = 1e-5 (the
-  rows of a few very stiff bonds dominate ||b||; 0.5 x rtol in the
-  preconditioned norm), and at rtol 1e-12, delta 1e-9 and 2e-10, 3e-10 and
-  8e-10 against floors of 1.6e-8 and 7.8e-8, with C within 1e-9 of a direct
-  solve;
+  rows of a few very stiff bonds dominate ||b||; 0.9 x rtol in the
+  preconditioned norm), and at rtol 1e-12, delta 1e-9 and 2e-10, up to 700
+  and 3900 x rtol against rounding floors of 1.5e-8 and 7.7e-8, with C
+  within 1e-9 of a direct solve (the passes are listed in solver.notes);
 - caught: -ksp_atol 1e3 (7e-2 after 0 iterations), -ksp_atol 1e-3 (3.7e-6),
   -ksp_type preonly -pc_type jacobi (0.12); a -ksp_max_it that stops CG is
   PETSc's own DIVERGED_ITS.
 
 Switching CG to the unpreconditioned norm was measured as well: no cost on
 generated beds (the same or one iteration fewer per case; 9 per case on an
-11 000-particle bed either way), but on near-critical bonds it stops with
-DIVERGED_DTOL at iteration 0, or accepts the initial guess after 0
-iterations with C off by 1.3e-6, and it changes the constants of ordinary
-beds by up to 4e-8 where the stopping iteration moves."""
+11 000-particle bed either way), but near-critical interior bonds then stop
+with DIVERGED_DTOL at iteration 0 (the initial guess's unpreconditioned
+residual), near-critical boundary bonds lose accuracy (C off by 1.3e-6), a
+bed with a weak track stops two cases on the initial guess after 0
+iterations, and the constants of ordinary beds move by up to 4e-8 where the
+stopping iteration moves."""
 
 
 def make_ksp(PETSc, A, P=None, rtol=DEFAULT_RTOL, ksp_type="cg", pc_type="gamg", max_it=None):
