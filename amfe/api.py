@@ -14,7 +14,8 @@ from amfe.io.result import Result
 
 def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_options=None,
                a_star_cap=None, material=None, max_it=None, diagnose=False, progress=False,
-               vtu_dir=None, accept_unconverged=False, max_memory=None, material_source=None):
+               vtu_dir=None, solver="auto", accept_unconverged=False, max_memory=None,
+               material_source=None):
     """Effective elastic constants of a powder bed, as a :class:`~amfe.io.result.Result`.
 
     Parameters
@@ -24,10 +25,15 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
         and broadcast), or arrays centers (N, 3) [m] and radii (N,) [m] of
         real numbers that must be bit-identical on every rank (checked; a
         difference is an error on every rank).
-    bc : {"kubc", "mixed"}
-        Boundary conditions (docs/model.md, section 5).
+    bc : {"kubc", "mixed", "subc", "periodic", "all"}
+        Boundary conditions (docs/model.md, sections 5 and 9). "periodic"
+        needs a periodic bed (``generate_bed(..., periodic=True)``, whose
+        attrs carry ``periodic``). "all" solves KUBC and SUBC (and periodic
+        on a periodic bed) and returns a dict {bc: Result}, VTU files in
+        ``vtu_dir``/<bc>.
     rtol : float, optional
-        Relative residual tolerance of the solves, in (0, 1) (default 1e-8).
+        GAMG's relative residual tolerance (default: 1e-8 with ``solver="gamg"``,
+        1e-7 for the beds ``"auto"`` gives to GAMG).
     comm : mpi4py or PETSc communicator, optional
         The ranks that share the solve (default: all of them).
     fields : bool
@@ -48,6 +54,11 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
         Add per-case solver diagnostics; print progress lines to stderr.
     vtu_dir : str, optional
         Write one VTU per load case and cases.pvd there.
+    solver : {"auto", "gamg", "cholesky"}
+        How to solve: ``"auto"`` picks per bed the cheapest method whose
+        constants stay within 1e-5 of a tight reference (Cholesky on one rank
+        where the predicted fill is low, else CG + GAMG); ``result.solver``
+        says which and why.
     accept_unconverged : bool
         Keep the numbers of a solve that misses its tolerance (true relative
         residual above 10 x rtol), with a warning in ``result.extra["warnings"]``,
@@ -61,7 +72,7 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
 
     Returns
     -------
-    Result
+    Result (a dict {bc: Result} for bc="all")
         C, S, the nine constants (also as attributes: ``result.Ex``), volume,
         counts, the solver record, ``extra["material"]`` and ``extra["warnings"]``.
 
@@ -76,7 +87,6 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
     (6, 6)
     """
     from amfe.solvers.driver import homogenize_bed
-    from amfe.solvers.ksp import DEFAULT_RTOL
     from amfe.solvers.petsc import init_petsc
 
     PETSc = init_petsc()
@@ -86,22 +96,29 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
     if isinstance(bed, (str, os.PathLike)):
         from amfe.io.bedfile import read_bed
         bed = on_root(mpi, read_bed, bed, max_memory=max_memory)
-    centers = radii = source = error = None
+    centers = radii = source = error = box = None
     try:  # a failure here on one rank only must still reach the collective check
-        centers, radii, material, source = _inputs(bed, material, material_source or "argument")
+        centers, radii, material, source, box = _inputs(bed, material,
+                                                        material_source or "argument")
     except AmfeError as exc:
         error = exc
-    d = homogenize_bed(centers, radii, material, a_star_cap=a_star_cap,
-                       rtol=DEFAULT_RTOL if rtol is None else rtol, max_it=max_it,
-                       vtu_dir=vtu_dir, comm=pcomm, ksp_options=petsc_options, bc=bc,
-                       diagnose=diagnose, progress=progress, fields=fields,
-                       accept_unconverged=accept_unconverged, max_memory=max_memory,
-                       material_source=source, input_error=error)
-    return Result.from_dict(d, fields=d.pop("fields", None))
+
+    def one(bc, vtu_dir):
+        d = homogenize_bed(centers, radii, material, a_star_cap=a_star_cap, rtol=rtol,
+                           max_it=max_it, solver=solver, vtu_dir=vtu_dir, comm=pcomm,
+                           ksp_options=petsc_options, bc=bc, diagnose=diagnose,
+                           progress=progress, fields=fields, box=box,
+                           accept_unconverged=accept_unconverged, max_memory=max_memory,
+                           material_source=source, input_error=error)
+        return Result.from_dict(d, fields=d.pop("fields", None))
+    if bc != "all":
+        return one(bc, vtu_dir)
+    names = ["kubc", "subc"] + (["periodic"] if box is not None else [])
+    return {name: one(name, vtu_dir and os.path.join(vtu_dir, name)) for name in names}
 
 
 def _inputs(bed, material, given_source):
-    """(centers, radii, Material, its source) of the ``bed`` and ``material`` arguments."""
+    """(centers, radii, Material, its source, periodic box or None) of the arguments."""
     from amfe.model.bed import Bed
     from amfe.model.material import Material, resolve_material
 
@@ -113,9 +130,9 @@ def _inputs(bed, material, given_source):
         raise AmfeError("homogenize: bed must be an amfe.Bed, a bed file's path, or "
                         f"(centers, radii); got {type(bed).__name__}")
     if isinstance(material, Material):
-        return centers, radii, material, given_source
+        return centers, radii, material, given_source, attrs.get("periodic")
     if material is not None and not isinstance(material, dict):
         raise AmfeError("homogenize: material must be an amfe.Material or a dict of E, nu, "
                         f"psi; got {type(material).__name__}")
     material, record = resolve_material(attrs, material, given_source=given_source)
-    return centers, radii, material, record["source"]
+    return centers, radii, material, record["source"], attrs.get("periodic")

@@ -7,7 +7,15 @@ as one line and exit with status 2; nothing else is caught.
 """
 import argparse
 import importlib
+import os
 import sys
+
+# One BLAS thread per MPI rank (amfe parallelises over ranks), and the same
+# summation order in every run: a Cholesky label must not change in its last
+# bit with the machine's core count, or a resumed data set would differ from an
+# uninterrupted one. Set before numpy, scipy or PETSc load OpenBLAS.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 from amfe.solvers.petsc import is_option
 

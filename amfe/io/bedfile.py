@@ -21,6 +21,7 @@ import numpy as np
 from amfe.model.bed import Bed
 from amfe.model.bonds import check_shapes, validate_particles
 from amfe.model.memory import READ_BYTES, check_memory
+from amfe.model.torus import check_box
 from amfe.io.atomic import atomic_write
 from amfe.errors import AmfeError
 
@@ -187,6 +188,8 @@ def read_bed(path, max_memory=None) -> Bed:
         raise AmfeError(f"cannot read bed file {path}: {exc}") from None
     try:
         centers, radii = validate_particles(centers, radii)
+        if "periodic" in attrs:  # a periodic bed (docs/model.md, section 9)
+            check_box(attrs["periodic"], radii)
     except AmfeError as exc:
         raise AmfeError(f"{path}: {exc}") from None
     return Bed(centers=centers, radii=radii, attrs=attrs)

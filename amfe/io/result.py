@@ -27,7 +27,9 @@ class Fields:
     displacement (6, n, 3) [m], rotation (6, n, 3) [rad]: per case
     (Voigt order xx, yy, zz, yz, xz, xy), per unit strain;
     axial_force (6, M) [N], shear_force (6, M) [N, magnitude],
-    moment (6, M) [N m, magnitude]: per bond, per case.
+    moment (6, M) [N m, magnitude]: per bond, per case; shift (M, 3) int, on a
+    periodic frame only: bond k joins the image of its second particle shifted
+    by shift[k] periods (docs/model.md, section 9).
     """
 
     particle_id: np.ndarray
@@ -40,14 +42,21 @@ class Fields:
     shear_force: np.ndarray
     moment: np.ndarray
     case_names: tuple = CASE_NAMES
+    shift: np.ndarray = None
 
 
 def write_fields_vtu(directory, f):
-    """One VTU per load case of :class:`Fields` ``f`` and cases.pvd in ``directory``."""
+    """One VTU per load case of :class:`Fields` ``f`` and cases.pvd in ``directory``.
+
+    On a periodic frame every particle is drawn once, at its place in the box,
+    and the bonds that cross a face are left out (drawn between the two
+    particles they would span the box).
+    """
+    drawn = np.ones(len(f.bonds), bool) if f.shift is None else ~np.any(f.shift != 0, axis=1)
     cases = [{"displacement": f.displacement[k], "rotation": f.rotation[k],
-              "axial_force": f.axial_force[k], "shear_force": f.shear_force[k],
-              "moment": f.moment[k]} for k in range(len(f.case_names))]
-    return write_load_cases(directory, f.centers, f.radii, f.bonds, cases,
+              "axial_force": f.axial_force[k][drawn], "shear_force": f.shear_force[k][drawn],
+              "moment": f.moment[k][drawn]} for k in range(len(f.case_names))]
+    return write_load_cases(directory, f.centers, f.radii, f.bonds[drawn], cases,
                             names=list(f.case_names))
 
 

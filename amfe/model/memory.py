@@ -3,8 +3,8 @@
 An absurd request (``amfe pack --size 100 100 100``, a bed file declaring 2e9
 particles) is refused with its estimate before anything is allocated, instead
 of running the machine out of memory. The constants below are measured peak
-resident set sizes (Linux ru_maxrss minus the interpreter's) on generated beds
-of 11 000 to 130 000 particles, rounded up by about 10 %:
+resident set sizes (Linux ru_maxrss or VmHWM minus the interpreter's) on
+generated beds of 900 to 130 000 particles, rounded up by about 10 %:
 
 - generation (:func:`amfe.model.bed.generate_bed`, a* limiting included):
   1.44-1.54 kB per lattice site, plus the index grid of
@@ -14,7 +14,11 @@ of 11 000 to 130 000 particles, rounded up by about 10 %:
   per particle on one rank, 13.9-14.9 kB per particle on each of two ranks:
   every rank builds the whole frame (about 11.3 kB per particle, replicated)
   and holds its share of the matrices and the preconditioner (6.2 kB per
-  particle in all).
+  particle in all);
+- a sparse Cholesky solve (one rank, CHOLMOD): the frame and assembly as
+  above plus the factor, 143-222 B per unit of predicted fill x (particles +
+  bonds) (:func:`amfe.solvers.choice.solve_features`) and about 10 MB fixed;
+  34-91 kB per particle on beds of 900-20 000 particles, fill 11-77.
 
 The default limit is half the machine's physical memory (in total over the
 ranks; with several machines, half of each machine's memory summed).
@@ -35,6 +39,10 @@ FRAME_BYTES = 12_500
 SOLVE_BYTES = 7_000
 """Bytes per particle of the distributed matrices, preconditioner and vectors, over all
 ranks (measured 6.2 kB)."""
+FACTOR_BYTES = 220
+"""Bytes of a Cholesky factor per unit of fill ratio x (particles + bonds) (measured 143-222)."""
+FACTOR_OVERHEAD = 16 * 2**20
+"""Fixed bytes of a factorisation (workspace; about 10 MB measured on a 900-particle bed)."""
 
 GIB = 2.0**30
 UNITS = {"": 1, "B": 1, "K": 2**10, "KB": 2**10, "KIB": 2**10, "M": 2**20, "MB": 2**20,
@@ -96,6 +104,12 @@ def generation_bytes(size, r0):
 def solve_bytes(n_particles, ranks=1):
     """Estimated peak bytes, summed over ``ranks``, of homogenizing ``n_particles``."""
     return n_particles * (FRAME_BYTES * ranks + SOLVE_BYTES)
+
+
+def direct_bytes(n_particles, n_bonds, fill_ratio):
+    """Estimated peak bytes of a one-rank Cholesky solve of a frame (fill: predicted fill ratio)."""
+    return (n_particles * (FRAME_BYTES + SOLVE_BYTES) + FACTOR_OVERHEAD
+            + FACTOR_BYTES * fill_ratio * (n_particles + n_bonds))
 
 
 def check_memory(estimate, limit, what, default=None):
