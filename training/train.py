@@ -59,8 +59,18 @@ class TrainConfig:
     def check(self):
         if self.epochs < 1 or self.batch_size < 1 or self.members < 1:
             raise AmfeError("epochs, batch size and members must be positive")
-        if not (self.lr > 0):
-            raise AmfeError(f"learning rate must be positive, got {self.lr}")
+        if not (math.isfinite(self.lr) and self.lr > 0):
+            raise AmfeError(f"learning rate must be a positive finite number, got {self.lr}")
+        if not (math.isfinite(self.weight_decay) and self.weight_decay >= 0):
+            raise AmfeError(f"weight decay must be a finite number >= 0, got {self.weight_decay}")
+        if not (0 <= self.val_fraction < 1):
+            raise AmfeError(f"the validation fraction must lie in [0, 1), got {self.val_fraction}")
+        if self.max_train < 0 or self.workers < 0:
+            raise AmfeError("max_train and workers must be >= 0")
+        # torch seeds are 64-bit: member k has seed + k; numpy's split seed must be >= 0.
+        if not (0 <= self.seed and self.seed + self.members - 1 < 2 ** 63 and self.split_seed >= 0):
+            raise AmfeError(f"seeds must lie in [0, 2^63 - members], got seed {self.seed}, "
+                            f"split seed {self.split_seed}")
         if self.schedule not in SCHEDULES:
             raise AmfeError(f"unknown schedule {self.schedule!r}; choose one of "
                             f"{', '.join(SCHEDULES)}")
@@ -173,11 +183,13 @@ def train_model(data_path, cfg, progress=True, log=print):
     image_shape = tuple(info["image_shape"])
     n_fill = image_shape[0] // len(cfg.inputs)
     ok = info["ok"]
-    if ok.size < 2:
-        raise AmfeError(f"{data_path}: {ok.size} usable record(s); training needs more")
+    if ok.size < 1:
+        raise AmfeError(f"{data_path}: no usable record (status ok, finite labels); nothing to "
+                        "train on")
     train_rows, val_rows = split_indices(ok, cfg.val_fraction, cfg.split_seed)
     if cfg.max_train:
         train_rows = train_rows[:cfg.max_train]
+    check_counts(data_path, ok.size, len(train_rows), len(val_rows), cfg)
     in_memory = len(train_rows) * int(np.prod(image_shape)) * 4 < MEMORY_LIMIT
     train_ds = BedDataset(data_path, train_rows, in_memory=in_memory, inputs=cfg.inputs)
     train_images, train_labels = read_rows(data_path, train_rows, cfg.inputs)
@@ -242,6 +254,20 @@ def train_model(data_path, cfg, progress=True, log=print):
             + metrics_line(ckpt["metrics"]["validation"]) + " | R^2 "
             + metrics_line(ckpt["metrics"]["validation"], "r2", 1.0, "{:.4f}"))
     return ckpt
+
+
+MIN_BEDS = 2   # per split: a standardisation, an R^2 and a spread percentile need two
+
+
+def check_counts(data_path, n_ok, n_train, n_val, cfg):
+    """AmfeError when a split is too small to train on or to validate (R^2 would be NaN)."""
+    if n_train >= MIN_BEDS and (n_val >= MIN_BEDS or cfg.val_fraction == 0):
+        return
+    raise AmfeError(f"{data_path}: {n_ok} usable record(s) give {n_train} training and {n_val} "
+                    f"validation bed(s) (--val-fraction {cfg.val_fraction:g}"
+                    f"{f', --max-train {cfg.max_train}' if cfg.max_train else ''}); training "
+                    f"needs at least {MIN_BEDS} of each, as R^2 and the validation error are "
+                    "undefined with fewer: make a larger data set (amfe dataset --count N)")
 
 
 def calibrate_spread(members, percentile=95.0):
