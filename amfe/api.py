@@ -10,11 +10,12 @@ import os
 from amfe.errors import AmfeError
 from amfe.io.mpi import on_root
 from amfe.io.result import Result
+from amfe.io.result_meta import describe_input, material_source
 
 
 def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_options=None,
                a_star_cap=None, material=None, max_it=None, diagnose=False, progress=False,
-               vtu_dir=None):
+               vtu_dir=None, input_path=None):
     """Effective elastic constants of a powder bed, as a :class:`~amfe.io.result.Result`.
 
     Parameters
@@ -43,7 +44,11 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
     diagnose, progress : bool
         Add per-case solver diagnostics; print progress lines to stderr.
     vtu_dir : str, optional
-        Write one VTU per load case and cases.pvd there.
+        Write the ParaView files there: one .vtp per load case and cases.pvd
+        (docs/viewing.md).
+    input_path : str, optional
+        The bed file to name in the result's ``input`` block (default: ``bed``
+        itself when it is a path).
 
     Returns
     -------
@@ -71,8 +76,10 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
         comm if isinstance(comm, PETSc.Comm) else PETSc.Comm(comm))
     mpi = pcomm.tompi4py()
     if isinstance(bed, (str, os.PathLike)):
+        input_path = bed if input_path is None else input_path
         from amfe.io.bedfile import read_bed
         bed = on_root(mpi, read_bed, bed)
+    source = material_source(bed, material)
     if isinstance(bed, Bed):
         centers, radii = bed.centers, bed.radii
         material = bed.material() if material is None else material
@@ -86,4 +93,5 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
                        rtol=DEFAULT_RTOL if rtol is None else rtol, max_it=max_it,
                        vtu_dir=vtu_dir, comm=pcomm, ksp_options=petsc_options, bc=bc,
                        diagnose=diagnose, progress=progress, fields=fields)
+    describe_input(d, input_path, source)
     return Result.from_dict(d, fields=d.pop("fields", None))

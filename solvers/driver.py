@@ -8,16 +8,17 @@ import time
 
 import numpy as np
 
-from amfe.model.element import bond_forces
 from amfe.errors import AmfeError
 from amfe.model.frame import build_frame
 from amfe.model.averages import (asymmetry, bagi_strain, compliance_and_constants, hull_of,
                              stiffness, symmetric, voigt, voigt_strain)
 from amfe.model.material import STEEL
 from amfe.io.mpi import on_root
-from amfe.io.result import Fields, write_fields_vtu
+from amfe.io.fields import frame_fields
+from amfe.io.result_meta import homogenize_header
+from amfe.io.vtp import write_fields_vtp
 from amfe.solvers.ksp import DEFAULT_RTOL
-from amfe.model.kubc import CASE_NAMES, kubc_groups
+from amfe.model.kubc import kubc_groups
 from amfe.solvers.loadcases import solve_load_cases
 from amfe.model.mixed import mixed_groups
 from amfe.solvers.petsc import init_petsc
@@ -44,7 +45,9 @@ def homogenize_bed(centers, radii, material=STEEL, *, a_star_cap=None, rtol=DEFA
     n_removed, n_bonds, bc ("kubc" or "mixed"), ranks, solver (ksp_type, pc_type, rtol,
     iterations [6], setup_seconds, solve_seconds, plus residuals and the
     stress and C asymmetries); with ``a_star_cap``, also n_capped. With
-    ``vtu_dir``, rank 0 writes one VTU per load case and cases.pvd there.
+    ``vtu_dir``, rank 0 writes the ParaView files there (one .vtp per load case and
+    cases.pvd; docs/viewing.md). The dict starts with the header of
+    :func:`amfe.io.result_meta.homogenize_header` (input hash, material, box, counts, ...).
     ``ksp_options`` (dict) sets PETSc options for this solve only, e.g.
     {"ksp_type": "preonly", "pc_type": "cholesky"}; ``nondimensional=False``
     assembles in SI units (for the benchmark that shows why scaling matters).
@@ -73,7 +76,7 @@ def homogenize_bed(centers, radii, material=STEEL, *, a_star_cap=None, rtol=DEFA
                            ksp_options=ksp_options, diagnose=diagnose)
 
     return on_root(mpi, _average, frame, sol, bc, a_star_cap, mpi.size, t_frame, vtu_dir,
-                   diagnose, fields)
+                   diagnose, fields, (centers, radii, groups))
 
 
 def _stderr_log(rank):
@@ -85,8 +88,11 @@ def _stderr_log(rank):
     return log
 
 
-def _average(frame, sol, bc, a_star_cap, ranks, t_frame, vtu_dir, diagnose, fields):
-    """Rank 0: Bagi averages, C, S, constants, the result dict (and the VTU files)."""
+def _average(frame, sol, bc, a_star_cap, ranks, t_frame, vtu_dir, diagnose, fields, bed):
+    """Rank 0: Bagi averages, C, S, constants, the result dict (and the ParaView files).
+
+    ``bed``: (centers, radii, groups), the input arrays and the solved load-case groups.
+    """
     t0 = time.perf_counter()
     hull = hull_of(frame.centers)
     strains, stresses, stress_asym = [], [], []
@@ -122,32 +128,19 @@ def _average(frame, sol, bc, a_star_cap, ranks, t_frame, vtu_dir, diagnose, fiel
             "C_asymmetry": float(c_asym),
         },
     }
+    result = {**homogenize_header(frame, bed[0], bed[1]), **result}
     if sol.notes:
         result["solver"]["notes"] = sol.notes
     if a_star_cap is not None:
         result["n_capped"] = int(frame.n_capped)
     if diagnose:
         result["diagnostics"] = sol.diagnostics()
+    if fields or vtu_dir is not None:
+        f = frame_fields(frame, sol.u, bed[2], bc, centers=bed[0], radii=bed[1])
     if fields:
-        result["fields"] = frame_fields(frame, sol.u)
+        result["fields"] = f
     if vtu_dir is not None:
-        write_frame_vtu(vtu_dir, frame, sol.u)
+        paths = write_fields_vtp(vtu_dir, f)
+        result["vtk"] = {"collection": paths[-1], "files": paths[:-1]}
     return result
 
-
-def frame_fields(frame, u):
-    """The :class:`~amfe.io.result.Fields` of the six solutions ``u`` (6, n, 6), in SI units."""
-    b, L, F = frame.bonds, frame.length_scale, frame.force_scale
-    forces = [bond_forces(b.normal, b.d_i, b.d_j, frame.k_n, frame.k_t, frame.kappa_n,
-                          frame.kappa_t, u[k][b.i], u[k][b.j]) for k in range(len(u))]
-    axial, shear, moment = (np.array(a) for a in zip(*forces))
-    return Fields(particle_id=np.asarray(frame.kept), centers=frame.centers * L,
-                  radii=frame.radii * L, bonds=np.stack([b.i, b.j], axis=1),
-                  displacement=u[:, :, :3] * L, rotation=u[:, :, 3:].copy(),
-                  axial_force=axial * F, shear_force=shear * F, moment=moment * F * L,
-                  case_names=tuple(CASE_NAMES))
-
-
-def write_frame_vtu(directory, frame, u):
-    """One VTU per load case (SI units, per unit macro-strain) and cases.pvd."""
-    return write_fields_vtu(directory, frame_fields(frame, u))

@@ -21,7 +21,8 @@ def register(sub):
                               "-log_view, -pc_type hypre.")
     p.add_argument("bed", help="bed HDF5 file (/particles/centers, /particles/radii)")
     p.add_argument("-o", "--output", help="write the result as JSON here")
-    p.add_argument("--vtu", metavar="DIR", help="write one VTU per load case and cases.pvd here")
+    p.add_argument("--vtu", metavar="DIR", help="write the ParaView files here: case_<name>.vtp "
+                   "per load case and cases.pvd (view them: amfe view DIR)")
     p.add_argument("--rtol", type=float, default=None, help="KSP relative tolerance (default 1e-8)")
     p.add_argument("--cap-a-star", type=float, default=None, metavar="A",
                    help="evaluate bonds with a* > A at a* = A (A below the critical a*) "
@@ -54,7 +55,7 @@ def run(args):
         raise AmfeError(f"--rtol must lie in (0, 1), got {args.rtol}")
     result = homogenize(bed, comm=comm, a_star_cap=args.cap_a_star, rtol=args.rtol,
                         vtu_dir=args.vtu, bc=args.bc, diagnose=args.diagnose,
-                        progress=not args.quiet)
+                        progress=not args.quiet, input_path=args.bed)
     if comm.rank == 0:
         if args.output:
             result.to_json(args.output)

@@ -1,0 +1,165 @@
+"""What a JSON result says about itself: the header every ``amfe homogenize`` and
+``amfe predict`` result carries, and the JSON Schema they follow (``result_schema.json``).
+
+The header: ``schema_version``, ``command``, ``amfe_version``, ``input`` (path
+and a content hash of the bed), ``material`` (E, nu, psi, density and where
+each came from), ``box``, ``units``, ``counts`` (particles and bonds, in the
+input and kept), the Poisson convention and the units of C and S.
+"""
+import hashlib
+import json
+from importlib import resources
+
+import numpy as np
+
+from amfe.errors import AmfeError
+from amfe.model.bonds import find_pairs
+from amfe.version import __version__
+from amfe.vocab import CASE_NAMES
+
+#: Version of the JSON layout; bumped when a key changes meaning or goes away, or a
+#: required key is added (3: the self-describing header of this module).
+SCHEMA_VERSION = 3
+SCHEMA_FILE = "result_schema.json"
+POISSON_CONVENTION = ("nu_ij = -S_ji / S_ii: lateral strain in j over axial strain in i under "
+                      "uniaxial stress in i (nu_yz = -S_zy / S_yy, nu_xz = -S_zx / S_xx, "
+                      "nu_xy = -S_yx / S_xx)")
+UNITS = {"length": "m", "displacement": "m", "stress": "Pa", "modulus": "Pa",
+         "compliance": "1/Pa", "volume": "m^3", "force": "N", "moment": "N m", "time": "s",
+         "poisson_ratio": "1", "density": "kg/m^3"}
+HASH_OF = "sha256 of the float64 little-endian bytes of /particles/centers then /particles/radii"
+HEADER_KEYS = ("schema_version", "command", "amfe_version", "input", "material", "box",
+               "units", "counts", "poisson_convention", "S_unit", "C_unit", "voigt_order")
+MATERIAL_KEYS = ("E", "nu", "psi", "density")
+
+
+def bed_sha256(centers, radii):
+    """Content hash (hex) of a bed: float64 LE centres (N, 3) then radii (N,).
+
+    Not the file's hash: an HDF5 file's bytes change with its attributes and
+    layout while the particles stay the same.
+    """
+    h = hashlib.sha256(np.ascontiguousarray(centers, dtype="<f8").tobytes())
+    h.update(np.ascontiguousarray(radii, dtype="<f8").tobytes())
+    return h.hexdigest()
+
+
+def header(command, centers, radii, material, *, input_path=None, material_source=None):
+    """The header of a result of ``command`` on the bed (centers, radii).
+
+    Parameters
+    ----------
+    command : {"homogenize", "predict"}
+    centers : ndarray (N, 3) [m]; radii : ndarray (N,) [m]
+        The input bed.
+    material : amfe.Material
+        The particle material used.
+    input_path : str, optional
+        The bed file (None: the bed came as arrays).
+    material_source : str or dict, optional
+        Where the material came from ("bed file", "command line", "argument"
+        or "default"), one for all values or one per value; omitted if None.
+
+    Returns
+    -------
+    dict
+        Keys :data:`HEADER_KEYS`; ``counts`` holds ``particles_input`` only.
+    """
+    centers = np.asarray(centers, dtype=float)
+    lo, hi = centers.min(axis=0), centers.max(axis=0)
+    out = {"schema_version": SCHEMA_VERSION, "command": command, "amfe_version": __version__,
+           "input": {"path": None if input_path is None else str(input_path),
+                     "sha256": bed_sha256(centers, radii), "hash_of": HASH_OF},
+           "material": {k: float(getattr(material, k)) for k in MATERIAL_KEYS},
+           "box": {"min": lo.tolist(), "max": hi.tolist(), "size": (hi - lo).tolist(),
+                   "of": "centres of the input particles"},
+           "units": dict(UNITS), "counts": {"particles_input": int(len(centers))},
+           "poisson_convention": POISSON_CONVENTION, "S_unit": "1/Pa", "C_unit": "Pa",
+           "voigt_order": list(CASE_NAMES)}
+    if material_source is not None:
+        set_material_source(out, material_source)
+    return out
+
+
+def set_material_source(result, source):
+    """Record where the material came from: one str for all values, or a dict per value."""
+    if isinstance(source, str):
+        source = {k: source for k in MATERIAL_KEYS}
+    result["material"]["source"] = dict(source)
+
+
+def material_source(bed, material=None):
+    """Where a solve's material comes from: "argument" (given), "bed file" or "default".
+
+    ``bed`` is an :class:`amfe.Bed` (its attrs hold material_E, ... when the
+    file recorded them: :meth:`amfe.Bed.material`) or arrays.
+    """
+    if material is not None:
+        return "argument"
+    attrs = getattr(bed, "attrs", {}) or {}
+    return "bed file" if all(f"material_{k}" in attrs for k in MATERIAL_KEYS) else "default"
+
+
+def describe_input(result, input_path, source):
+    """Fill in what only the caller knows: the bed file's path and the material's source."""
+    result["input"]["path"] = None if input_path is None else str(input_path)
+    set_material_source(result, source)
+
+
+def homogenize_header(frame, centers, radii):
+    """:func:`header` of a homogenization, with the kept counts of ``frame``.
+
+    ``bonds_input`` adds the bonds among the removed particles (a bond lies in
+    the kept component iff one of its ends does), found at the frame's scale
+    as :func:`amfe.model.frame.build_frame` found them.
+    """
+    out = header("homogenize", centers, radii, frame.material)
+    removed = np.ones(len(radii), bool)
+    removed[frame.kept] = False
+    n_lost = 0
+    if removed.sum() > 1:
+        scale = frame.length_scale
+        n_lost = find_pairs(np.asarray(centers)[removed] / scale,
+                            np.asarray(radii)[removed] / scale)[0].size
+    out["counts"].update(particles_kept=int(frame.n_particles),
+                         bonds_input=int(len(frame.bonds) + n_lost),
+                         bonds_kept=int(len(frame.bonds)))
+    return out
+
+
+def predict_block(out):
+    """``amfe predict``'s own block (model, spread, flags) from its output dict."""
+    fill_range = out.get("fill_range")
+    threshold = out.get("threshold")
+    return {"model": {"path": out["model"], "arch": out["arch"], "members": out["members"],
+                      "inputs": list(out.get("inputs", ["fill"]))},
+            "spread": {"relative": out["spread"], "score": out["spread_score"],
+                       "threshold": threshold},
+            "flags": {"flagged": bool(out["flagged"]),
+                      "spread": bool(threshold is not None and out["members"] > 1
+                                     and out["spread_score"] > threshold),
+                      "fill": bool(fill_range is not None
+                                   and not fill_range[0] <= out["fill"] <= fill_range[1]),
+                      "fill_value": out["fill"], "fill_range": fill_range},
+            "source": out["source"]}
+
+
+def load_schema():
+    """The JSON Schema (draft 2020-12) of amfe's results, shipped in this package."""
+    return json.loads(resources.files("amfe.io").joinpath(SCHEMA_FILE).read_text())
+
+
+def validate(result):
+    """Check a result dict against :func:`load_schema`; AmfeError names the first problem.
+
+    Needs ``jsonschema`` (``pip install amfe[test]``).
+    """
+    try:
+        import jsonschema
+    except ImportError:
+        raise AmfeError("validating a result needs jsonschema: pip install jsonschema") from None
+    validator = jsonschema.Draft202012Validator(load_schema())
+    error = jsonschema.exceptions.best_match(validator.iter_errors(result))
+    if error is not None:
+        where = "/".join(str(p) for p in error.absolute_path) or "(top level)"
+        raise AmfeError(f"the result does not follow the schema at {where}: {error.message}")
