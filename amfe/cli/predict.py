@@ -15,6 +15,7 @@ import time
 
 from amfe.errors import AmfeError
 from amfe.io.atomic import write_json
+from amfe.io.result_meta import header, material_source, predict_block
 
 from amfe.vocab import LABEL_NAMES as SIX
 NINE = SIX + ("G_yz", "G_xz", "G_xy")
@@ -117,6 +118,8 @@ def run(args):
                             "relative_difference": {k: (surrogate_props[k] - solver_props[k])
                                                     / abs(solver_props[k]) for k in SIX}}
         out["solver"] = solver["solver"]
+    out = {**header("predict", bed.centers, bed.radii, bed.material(), input_path=args.bed,
+                    material_source=material_source(bed)), **out, "predict": predict_block(out)}
     times["total"] = time.perf_counter() - t_start
     out["seconds"] = times["total"]
     out["timings"] = times
