@@ -14,7 +14,7 @@ from amfe.solvers.petsc import is_option
 from amfe.errors import AmfeError
 from amfe.version import __version__
 
-COMMANDS = ["pack", "homogenize", "dataset", "train", "predict"]
+COMMANDS = ["pack", "homogenize", "dataset", "train", "predict", "view"]
 
 
 def build_parser():
