@@ -178,8 +178,8 @@ def test_view_without_paraview_writes_a_png_of_the_expected_size(kubc, tmp_path)
 
 def test_a_failing_pvpython_falls_back_or_fails_cleanly(kubc, tmp_path):
     _, out = kubc
-    env = bare_env(tmp_path, [("pvpython", "echo broken >&2; exit 1"),
-                              ("xvfb-run", 'shift; exec "$@"')])
+    env = bare_env(tmp_path, [("pvpython", "echo 'Error: broken' >&2; exit 1"),
+                              ("xvfb-run", 'shift 3; exec "$@"')])   # -a -n N pvpython ...
     png = tmp_path / "auto" / "view_yz_torsion.png"
     proc = view([str(out), "-o", str(png.parent), "--case", "yz", "--color", "torsion",
                  "--size", "320x240"], env=env)

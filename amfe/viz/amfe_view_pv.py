@@ -22,22 +22,26 @@ Pipeline: reader -> Outline (undeformed box); reader -> Warp By Vector -> Tube
 coloured by a cell array over a fixed range, and -> Glyph spheres at 0.3 R on
 every point; Annotate Attribute Data shows the field ``case_label`` (ParaView's
 time label says only "Time: k"). Frames of more than LARGE_LINES bonds draw
-lines as tubes and points as spheres in the shader instead of as geometry,
-which keeps a 100 000-particle bed at seconds.
+the bonds as lines and the particles as points instead: a bond is then about
+a pixel, and tube and sphere geometry would cost a minute of software
+rendering (measured on a 100 000-particle bed, docs/viewing.md).
 """
 import os
 import sys
+import time
 
-from paraview.simple import (AnnotateAttributeData, ColorBy, GetActiveViewOrCreate,
+T_START = time.perf_counter()
+from paraview.simple import (AnnotateAttributeData, ColorBy, GetActiveViewOrCreate,  # noqa: E402
                              GetColorTransferFunction, GetScalarBar, Glyph, Interact,
-                             Outline, Render, ResetCamera, SaveScreenshot, SaveState, Show,
-                             Text, Tube, WarpByVector, XMLPolyDataReader)
-from paraview import servermanager
+                             Outline, PassArrays, ResetCamera, SaveScreenshot,
+                             SaveState, Show, Text, Tube, WarpByVector, XMLPolyDataReader)
+from paraview import servermanager  # noqa: E402
 
 SIGNED = ("axial_force_N", "torsion_Nm")
 SPHERE_SHARE = 0.3
 TUBE_SHARE = 0.12
 LARGE_LINES = 100_000
+TIMES = {}
 
 
 def parse(argv):
@@ -63,7 +67,7 @@ def parse(argv):
 
 
 def measure(reader, color):
-    """Warp factor, 2-98 percentile range, mean radius and line count, from the data."""
+    """Warp factor and 2-98 percentile range from the data, as amfe view computes them."""
     import numpy as np
     from vtkmodules.numpy_interface import dataset_adapter as dsa
 
@@ -75,8 +79,7 @@ def measure(reader, color):
     umax = float(np.linalg.norm(u, axis=1).max())
     warp = 0.05 * float(np.ptp(x, axis=0).max()) / umax if umax > 0 else 1.0
     lo, hi = (float(t) for t in np.percentile(v, (2, 98)))
-    return warp, (lo, hi if hi > lo else lo + 1.0), \
-        float(np.asarray(data.PointData["radius_m"]).mean()), len(v)
+    return warp, (lo, hi if hi > lo else lo + 1.0)
 
 
 def _colour(display, view, opts, rng):
@@ -108,13 +111,17 @@ def _label(view, source, where, size):
 
 def build(opts):
     """Set the pipeline and the view up; returns the view."""
+    t_start = time.perf_counter()
     reader = XMLPolyDataReader(registrationName=os.path.basename(opts["file"]),
                                FileName=[opts["file"]])
     reader.UpdatePipeline()
-    warp, rng, rmean, n_lines = measure(reader, opts["color"])
-    warp = opts["warp"] if opts["warp"] is not None else warp
-    rng = opts["range"] or rng
-    large = n_lines > LARGE_LINES
+    t_read = time.perf_counter()
+    warp, rng = opts["warp"], opts["range"]
+    if warp is None or rng is None:
+        measured = measure(reader, opts["color"])
+        warp, rng = measured[0] if warp is None else warp, rng or measured[1]
+    rmean = sum(reader.PointData["radius_m"].GetRange()) / 2
+    large = reader.GetDataInformation().GetNumberOfCells() > LARGE_LINES
     view = GetActiveViewOrCreate("RenderView")
     view.ViewSize = list(opts["size"])
     view.OrientationAxesVisibility = 1
@@ -127,12 +134,12 @@ def build(opts):
     warped = WarpByVector(registrationName=f"warped x {warp:.3g}", Input=reader)
     warped.Vectors = ["POINTS", "displacement_m"]
     warped.ScaleFactor = warp
-    if large:                                  # tubes and spheres drawn by the shader
-        bonds = Show(warped, view)
-        bonds.RenderLinesAsTubes = 1
-        bonds.LineWidth = 2.0
-        _colour(bonds, view, opts, rng)
-        spheres = Show(warped, view)
+    if large:                                  # lines and points: a bond is about a pixel
+        bonds = PassArrays(registrationName="bonds", Input=warped, PointDataArrays=[],
+                           CellDataArrays=[opts["color"]], FieldDataArrays=[])
+        _colour(Show(bonds, view), view, opts, rng)   # one array: less to copy to the GPU
+        spheres = Show(PassArrays(registrationName="particles", Input=warped,
+                                  PointDataArrays=[], CellDataArrays=[]), view)
     else:
         tubes = Tube(registrationName="bonds", Input=warped)
         tubes.Radius = TUBE_SHARE * rmean
@@ -149,26 +156,24 @@ def build(opts):
     spheres.AmbientColor = spheres.DiffuseColor = [0.55, 0.55, 0.55]
     if large:
         spheres.SetRepresentationType("Points")
-        spheres.RenderPointsAsSpheres = 1
-        spheres.PointSize = 3.0
+        spheres.PointSize = 2.0
 
     label = AnnotateAttributeData(registrationName="case name", Input=reader)
     label.SelectInputArray = ["FIELD", "case_label"]
     label.Prefix = "case "
     _label(view, label, "Upper Left Corner", 20)
+    shapes = "bonds as lines, particles as points" if large else \
+        f"particles as spheres at {SPHERE_SHARE:g} R"
     _label(view, Text(registrationName="note",
-                      Text=f"displacement x {warp:.3g} (largest = 5 % of box); spheres at "
-                           f"{SPHERE_SHARE:g} R; grey box: undeformed outline"),
-           "Lower Left Corner", 13)
-    Render(view)                           # the first render resets the camera: set it after
-    camera = view.GetActiveCamera()       # z up, seen from -y, +x and above
-    camera.SetFocalPoint(0.0, 0.0, 0.0)
-    camera.SetPosition(1.0, -1.6, 1.0)
-    camera.SetViewUp(0.0, 0.0, 1.0)
+                      Text=f"displacement x {warp:.3g} (largest = 5 % of box); {shapes}; "
+                           "grey box: undeformed outline"), "Lower Left Corner", 13)
+    view.CameraFocalPoint = [0.0, 0.0, 0.0]     # z up, seen from -y, +x and above;
+    view.CameraPosition = [1.0, -1.6, 1.0]      # ResetCamera keeps the direction and fits
+    view.CameraViewUp = [0.0, 0.0, 1.0]
     ResetCamera(view)
-    Render(view)
-    print(f"warp factor {warp:.4g}; range {rng[0]:.4g} .. {rng[1]:.4g}; "
-          f"{'shader' if large else 'geometry'} tubes and spheres")
+    print(f"warp factor {warp:.4g}; range {rng[0]:.4g} .. {rng[1]:.4g}; {shapes}")
+    TIMES.update(start_up=t_start - T_START, read=t_read - t_start,
+                 pipeline=time.perf_counter() - t_read)
     return view
 
 
@@ -183,8 +188,11 @@ def main(argv):
         SaveState(opts["state"])
         print(f"wrote {opts['state']}")
     if opts["png"]:
+        t0 = time.perf_counter()
         SaveScreenshot(opts["png"], view, ImageResolution=list(opts["size"]))
+        TIMES["render_and_save"] = time.perf_counter() - t0
         print(f"wrote {opts['png']}")
+    print("seconds: " + ", ".join(f"{k.replace('_', ' ')} {v:.2f}" for k, v in TIMES.items()))
     if opts["interactive"]:
         Interact(view)
     return 0

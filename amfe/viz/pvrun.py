@@ -10,6 +10,7 @@ matplotlib).
 ``import paraview`` would then find this module.)
 """
 import os
+import random
 import shutil
 import subprocess
 import sys
@@ -45,6 +46,22 @@ def paraview_command(environ=None):
     return [xvfb, "-a", pv] if xvfb else None
 
 
+def _with_server_number(cmd):
+    """xvfb-run -a starts its search at a random display number: two runs that start
+    together (``-a`` alone begins at 99 for both) would otherwise share one X server,
+    and pvpython aborts with "bad X server connection" when the other one exits."""
+    if len(cmd) > 2 and cmd[1] == "-a":
+        return [cmd[0], "-a", "-n", str(random.randrange(100, 30000))] + cmd[2:]
+    return cmd
+
+
+def _what_failed(output, lines=5):
+    """ParaView's error lines from its output (not the stack trace), else the last lines."""
+    text = [line.strip() for line in output.splitlines() if line.strip()]
+    errors = [line for line in text if "ERR|" in line or "Error" in line]
+    return "\n".join(errors[:lines] or text[-lines:])
+
+
 def render(cmd, scene, png, size, state=None):
     """Run the view script for one :class:`~amfe.viz.scene.Scene`.
 
@@ -64,14 +81,20 @@ def render(cmd, scene, png, size, state=None):
     if state:
         args += ["--state", state]
     try:
-        proc = subprocess.run(args, capture_output=True, text=True, timeout=TIMEOUT_S)
+        for _ in range(2):                            # once more after an X server race
+            proc = subprocess.run(_with_server_number(args), capture_output=True, text=True,
+                                  timeout=TIMEOUT_S)
+            if "bad X server connection" not in proc.stderr:
+                break
         ok = proc.returncode == 0 and os.path.isfile(tmp) and os.path.getsize(tmp) > 0
         if ok:
             os.replace(tmp, png)
+            for line in proc.stdout.splitlines():     # pvpython's own timing
+                if line.startswith("seconds:"):
+                    print("pvpython " + line, flush=True)
             return True
-        tail = "\n".join((proc.stdout + proc.stderr).strip().splitlines()[-5:])
-        print(f"amfe view: pvpython exited with status {proc.returncode}:\n{tail}",
-              file=sys.stderr)
+        print(f"amfe view: pvpython exited with status {proc.returncode}:\n"
+              + _what_failed(proc.stdout + proc.stderr), file=sys.stderr)
     except (OSError, subprocess.TimeoutExpired) as exc:
         print(f"amfe view: pvpython failed ({exc})", file=sys.stderr)
     finally:

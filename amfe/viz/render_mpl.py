@@ -20,6 +20,28 @@ MAX_DOTS = 50_000
 """Most particles drawn."""
 
 
+def _fast_lines():
+    """A Line3DCollection whose projection is one numpy call for all segments.
+
+    mplot3d's own projects segment by segment in Python: 10 s for 150 000 bonds.
+    """
+    from matplotlib.collections import LineCollection
+    from mpl_toolkits.mplot3d import proj3d
+    from mpl_toolkits.mplot3d.art3d import Line3DCollection
+
+    class FastLine3DCollection(Line3DCollection):
+        def set_segments(self, segments):
+            self._xyz = np.asarray(segments, dtype=float).reshape(-1, 3)
+            super().set_segments(segments)
+
+        def do_3d_projection(self):
+            xs, ys, zs = proj3d.proj_transform(*self._xyz.T, self.axes.M)
+            LineCollection.set_segments(self, np.stack([xs, ys], axis=1).reshape(-1, 2, 2))
+            return float(zs.min()) if zs.size else 1e9
+
+    return FastLine3DCollection
+
+
 def box_edges(points):
     """The 12 edges (12, 2, 3) of the axis-aligned bounding box of ``points`` (N, 3)."""
     lo, hi = points.min(axis=0), points.max(axis=0)
@@ -69,8 +91,8 @@ def render(scene, png, size=(1200, 900), dpi=100):
         cmap, norm = plt.get_cmap("viridis"), Normalize(scene.vmin, scene.vmax, clip=True)
     ax.add_collection3d(Line3DCollection(box_edges(x0), colors="0.45", linewidths=0.8,
                                          linestyles="--"))
-    lines = Line3DCollection(x[scene.lines[::lstep]], cmap=cmap, norm=norm,
-                             linewidths=1.2 if lstep == 1 else 0.6)
+    lines = _fast_lines()(x[scene.lines[::lstep]], cmap=cmap, norm=norm,
+                          linewidths=1.2 if lstep == 1 else 0.6)
     lines.set_array(scene.values[::lstep])
     ax.add_collection3d(lines)
     lo, hi = np.minimum(x.min(0), x0.min(0)), np.maximum(x.max(0), x0.max(0))
@@ -86,11 +108,12 @@ def render(scene, png, size=(1200, 900), dpi=100):
     ax.set_ylabel("y [mm]")
     ax.set_zlabel("z [mm]")
     ax.view_init(elev=25, azim=-60)
-    thinned = (f"\nevery {lstep}th bond and every {pstep}th particle drawn"
+    thinned = (f"\n1 in {lstep} bonds and 1 in {pstep} particles drawn"
                if max(lstep, pstep) > 1 else "")
     ax.set_title(f"case {scene.label}  |  displacement x {scene.warp:.3g} (largest = "
                  f"{100 * WARP_SHARE:g} % of box)  |  dashed: undeformed box{thinned}", fontsize=10)
     bar = fig.colorbar(lines, cax=fig.add_axes([0.87, 0.15, 0.025, 0.7]), extend="both")
+    bar.ax.set_yscale("linear")                # a diverging bar in proportion to the values
     bar.set_label(f"{scene.title}, {PERCENTILES[0]:g}-{PERCENTILES[1]:g} percentile range")
     tmp = os.path.join(os.path.dirname(os.path.abspath(png)), f".{os.path.basename(png)}.tmp.png")
     try:
