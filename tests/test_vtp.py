@@ -64,10 +64,13 @@ def test_rigid_motion_loads_nothing_and_resultants_sum():
 
 
 @pytest.mark.parametrize("dtype", ["float64", "int64", "uint8", "float32"])
-@pytest.mark.parametrize("n", [0, 1, 7, 1000003])   # empty, one, a few, a million values
-def test_binary_blocks_round_trip(dtype, n):
+@pytest.mark.parametrize("n", [0, 1, 7, 1000003])   # empty, one, a few, blocks of 1 MiB
+@pytest.mark.parametrize("level", [None, 0, 1])
+def test_binary_blocks_round_trip(dtype, n, level):
     a = (np.arange(n) * 3 - 5).astype(dtype)
-    np.testing.assert_array_equal(decode_binary(encode_binary(a), dtype, n), a)
+    np.testing.assert_array_equal(decode_binary(encode_binary(a, level), dtype, n), a)
+    with pytest.raises(AmfeError, match="values"):
+        decode_binary(encode_binary(a, level), dtype, n + 1)
 
 
 def tiny_fields(k=2, nan=False, names=None):

@@ -94,10 +94,13 @@ def _colour(display, view, opts, rng):
         lut.ApplyPreset("Viridis (matplotlib)", True)
         lut.RescaleTransferFunction(*rng)
     bar = GetScalarBar(lut, view)
-    bar.Title = (opts["title"] or opts["color"]) + "\n2-98 percentile range"
+    bar.Title = opts["title"] or opts["color"]
     bar.ComponentTitle = ""
     bar.TitleColor = bar.LabelColor = [0, 0, 0]
     bar.Visibility = 1
+    bar.WindowLocation = "Any Location"        # right, middle: clear of the note below
+    bar.Position = [0.86, 0.2]
+    bar.ScalarBarLength = 0.6
     bar.AddRangeLabels = 1
     bar.RangeLabelFormat = "%-.3g"
 
@@ -165,8 +168,9 @@ def build(opts):
     shapes = "bonds as lines, particles as points" if large else \
         f"particles as spheres at {SPHERE_SHARE:g} R"
     _label(view, Text(registrationName="note",
-                      Text=f"displacement x {warp:.3g} (largest = 5 % of box); {shapes}; "
-                           "grey box: undeformed outline"), "Lower Left Corner", 13)
+                      Text=f"displacement x {warp:.3g} (largest = 5 % of box); {shapes}; grey "
+                           "box: undeformed outline\ncolours: 2-98 percentile range of the "
+                           "bonds (beyond it: the end colours)"), "Lower Left Corner", 12)
     view.CameraFocalPoint = [0.0, 0.0, 0.0]     # z up, seen from -y, +x and above;
     view.CameraPosition = [1.0, -1.6, 1.0]      # ResetCamera keeps the direction and fits
     view.CameraViewUp = [0.0, 0.0, 1.0]

@@ -19,6 +19,10 @@ from amfe.viz.scene import COLOR_ARRAYS
 
 SCRIPT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "amfe_view_pv.py")
 TIMEOUT_S = 300
+X_ATTEMPTS = 3
+"""Runs of pvpython when Xvfb refused the connection: on a loaded machine it now and then
+does ("bad X server connection": 2 of about 20 runs here), and a failed start costs
+about 3 s."""
 INSTALL_HINT = "apt-get install paraview python3-paraview xvfb"
 
 
@@ -81,10 +85,10 @@ def render(cmd, scene, png, size, state=None):
     if state:
         args += ["--state", state]
     try:
-        for _ in range(2):                            # once more after an X server race
+        for _ in range(X_ATTEMPTS):
             proc = subprocess.run(_with_server_number(args), capture_output=True, text=True,
                                   timeout=TIMEOUT_S)
-            if "bad X server connection" not in proc.stderr:
+            if "bad X server connection" not in proc.stdout + proc.stderr:
                 break
         ok = proc.returncode == 0 and os.path.isfile(tmp) and os.path.getsize(tmp) > 0
         if ok:

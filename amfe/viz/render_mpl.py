@@ -108,10 +108,10 @@ def render(scene, png, size=(1200, 900), dpi=100):
     ax.set_ylabel("y [mm]")
     ax.set_zlabel("z [mm]")
     ax.view_init(elev=25, azim=-60)
-    thinned = (f"\n1 in {lstep} bonds and 1 in {pstep} particles drawn"
+    thinned = (f"; 1 in {lstep} bonds and 1 in {pstep} particles drawn"
                if max(lstep, pstep) > 1 else "")
-    ax.set_title(f"case {scene.label}  |  displacement x {scene.warp:.3g} (largest = "
-                 f"{100 * WARP_SHARE:g} % of box)  |  dashed: undeformed box{thinned}", fontsize=10)
+    ax.set_title(f"case {scene.label}\ndisplacement x {scene.warp:.3g} (largest = "
+                 f"{100 * WARP_SHARE:g} % of box); dashed: undeformed box{thinned}", fontsize=10)
     bar = fig.colorbar(lines, cax=fig.add_axes([0.87, 0.15, 0.025, 0.7]), extend="both")
     bar.ax.set_yscale("linear")                # a diverging bar in proportion to the values
     bar.set_label(f"{scene.title}, {PERCENTILES[0]:g}-{PERCENTILES[1]:g} percentile range")
