@@ -1,4 +1,4 @@
-"""ParaView files of the load cases: ``case_<name>.vtp`` per case and ``cases.pvd`` (docs/viewing.md).
+"""ParaView files of the load cases: ``case_<name>.vtp`` each and ``cases.pvd`` (docs/viewing.md).
 
 Why PolyData, not an UnstructuredGrid (``.vtu``): ParaView 5.11's Tube filter
 refuses an UnstructuredGrid ("requires vtkPolyData") and works on these files
@@ -136,8 +136,9 @@ def write_fields_vtp(directory, fields, field_data=None):
         a failed write (then no ``cases.pvd`` is left).
     """
     names = _check(fields)
-    common = {"units": [f"{k}: {u}" for k, (u, _) in {**POINT_ARRAYS, **CELL_ARRAYS}.items()],
-              "descriptions": [f"{k}: {d}" for k, (_, d) in {**POINT_ARRAYS, **CELL_ARRAYS}.items()],
+    arrays = {**POINT_ARRAYS, **CELL_ARRAYS}
+    common = {"units": [f"{k}: {u}" for k, (u, _) in arrays.items()],
+              "descriptions": [f"{k}: {d}" for k, (_, d) in arrays.items()],
               "end_convention": END_CONVENTION, "bc": fields.bc, "amfe_version": __version__,
               "per_unit_strain": "displacements, rotations and loads are per unit macro-strain"}
     common.update(field_data or {})
