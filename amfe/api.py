@@ -15,7 +15,7 @@ from amfe.io.result_meta import describe_input, material_source
 
 def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_options=None,
                a_star_cap=None, material=None, max_it=None, diagnose=False, progress=False,
-               vtu_dir=None, input_path=None):
+               vtu_dir=None, solver="auto", input_path=None):
     """Effective elastic constants of a powder bed, as a :class:`~amfe.io.result.Result`.
 
     Parameters
@@ -24,10 +24,15 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
         The bed: an :class:`amfe.Bed`, the path of a bed file (read on rank 0
         and broadcast), or arrays centers (N, 3) [m] and radii (N,) [m] that
         must be the same on every rank.
-    bc : {"kubc", "mixed"}
-        Boundary conditions (docs/model.md, section 5).
+    bc : {"kubc", "mixed", "subc", "periodic", "all"}
+        Boundary conditions (docs/model.md, sections 5 and 9). "periodic"
+        needs a periodic bed (``generate_bed(..., periodic=True)``, whose
+        attrs carry ``periodic``). "all" solves KUBC and SUBC (and periodic
+        on a periodic bed) and returns a dict {bc: Result}, VTU files in
+        ``vtu_dir``/<bc>.
     rtol : float, optional
-        Relative residual tolerance of the solves (default 1e-8).
+        GAMG's relative residual tolerance (default: 1e-8 with ``solver="gamg"``,
+        1e-7 for the beds ``"auto"`` gives to GAMG).
     comm : mpi4py or PETSc communicator, optional
         The ranks that share the solve (default: all of them).
     fields : bool
@@ -45,14 +50,19 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
         Add per-case solver diagnostics; print progress lines to stderr.
     vtu_dir : str, optional
         Write the ParaView files there: one .vtp per load case and cases.pvd
-        (docs/viewing.md).
+        (docs/viewing.md); with bc="all", one subdirectory per condition.
+    solver : {"auto", "gamg", "cholesky"}
+        How to solve: ``"auto"`` picks per bed the cheapest method whose
+        constants stay within 1e-5 of a tight reference (Cholesky on one rank
+        where the predicted fill is low, else CG + GAMG); ``result.solver``
+        says which and why.
     input_path : str, optional
         The bed file to name in the result's ``input`` block (default: ``bed``
         itself when it is a path).
 
     Returns
     -------
-    Result
+    Result (a dict {bc: Result} for bc="all")
         C, S, the nine constants (also as attributes: ``result.Ex``), volume,
         counts and the solver record.
 
@@ -68,7 +78,6 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
     """
     from amfe.model.bed import Bed
     from amfe.solvers.driver import homogenize_bed
-    from amfe.solvers.ksp import DEFAULT_RTOL
     from amfe.solvers.petsc import init_petsc
 
     PETSc = init_petsc()
@@ -80,8 +89,9 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
         from amfe.io.bedfile import read_bed
         bed = on_root(mpi, read_bed, bed)
     source = material_source(bed, material)
+    box = None
     if isinstance(bed, Bed):
-        centers, radii = bed.centers, bed.radii
+        centers, radii, box = bed.centers, bed.radii, bed.attrs.get("periodic")
         material = bed.material() if material is None else material
     elif isinstance(bed, (tuple, list)) and len(bed) == 2:
         centers, radii = bed
@@ -89,9 +99,15 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
         raise AmfeError("homogenize: bed must be an amfe.Bed, a bed file's path, or "
                         f"(centers, radii); got {type(bed).__name__}")
     kw = {} if material is None else {"material": material}
-    d = homogenize_bed(centers, radii, **kw, a_star_cap=a_star_cap,
-                       rtol=DEFAULT_RTOL if rtol is None else rtol, max_it=max_it,
-                       vtu_dir=vtu_dir, comm=pcomm, ksp_options=petsc_options, bc=bc,
-                       diagnose=diagnose, progress=progress, fields=fields)
-    describe_input(d, input_path, source)
-    return Result.from_dict(d, fields=d.pop("fields", None))
+
+    def one(bc, vtu_dir):
+        d = homogenize_bed(centers, radii, **kw, a_star_cap=a_star_cap, rtol=rtol,
+                           max_it=max_it, solver=solver, vtu_dir=vtu_dir, comm=pcomm,
+                           ksp_options=petsc_options, bc=bc, diagnose=diagnose,
+                           progress=progress, fields=fields, box=box)
+        describe_input(d, input_path, source)
+        return Result.from_dict(d, fields=d.pop("fields", None))
+    if bc != "all":
+        return one(bc, vtu_dir)
+    names = ["kubc", "subc"] + (["periodic"] if box is not None else [])
+    return {name: one(name, vtu_dir and os.path.join(vtu_dir, name)) for name in names}

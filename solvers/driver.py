@@ -1,10 +1,15 @@
 """homogenize_bed: bed arrays in, effective elastic constants out (any rank count).
 
-bed -> frame (largest component, non-dimensional) -> six KUBC solves ->
-Bagi stress and strain -> C, S -> Ex, Ey, Ez, nu_yz, nu_xz, nu_xy, G_yz, G_xz, G_xy.
+bed -> frame (largest component, non-dimensional) -> six load cases of a
+boundary condition -> its averages -> C, S -> Ex, Ey, Ez, nu_yz, nu_xz, nu_xy,
+G_yz, G_xz, G_xy. Each condition of :data:`BOUNDARY_CONDITIONS` names its
+load-case groups and its average (docs/model.md, sections 5 and 9): KUBC and
+mixed take C from the Bagi hull strain and the reaction stress, SUBC from
+S = (1/V) F . U, periodic from the energy's dot products.
 """
 import sys
 import time
+from collections import namedtuple
 
 import numpy as np
 
@@ -17,34 +22,62 @@ from amfe.io.mpi import on_root
 from amfe.io.fields import frame_fields
 from amfe.io.result_meta import homogenize_header
 from amfe.io.vtp import write_fields_vtp
+from amfe.solvers.choice import USER_METHOD_OPTIONS, choose_solver, cholesky_package, solve_features
 from amfe.solvers.ksp import DEFAULT_RTOL
 from amfe.model.kubc import kubc_groups
 from amfe.solvers.loadcases import solve_load_cases
 from amfe.model.mixed import mixed_groups
+from amfe.model.periodic import periodic_average, periodic_groups
+from amfe.model.subc import subc_average, subc_groups
+from amfe.model.torus import NOT_PERIODIC
 from amfe.solvers.petsc import init_petsc
 
-BOUNDARY_CONDITIONS = {"kubc": kubc_groups, "mixed": mixed_groups}
+
+def bagi_average(frame, groups, u, moments, diagnose=False):
+    """KUBC and mixed: (C, V, stats) from the Bagi hull strains and reaction stresses."""
+    hull = hull_of(frame.centers)
+    strains, stresses, stress_asym = [], [], []
+    for k in range(6):
+        strains.append(voigt_strain(bagi_strain(hull, u[k][:, :3])))
+        sigma = moments[k] / hull.volume
+        stress_asym.append(asymmetry(sigma))
+        stresses.append(voigt(symmetric(sigma)))
+    C, c_asym = stiffness(np.array(strains), np.array(stresses))
+    return C, hull.volume, {"stress_asymmetry": float(max(stress_asym)),
+                            "C_asymmetry": float(c_asym)}
 
 
-def homogenize_bed(centers, radii, material=STEEL, *, a_star_cap=None, rtol=DEFAULT_RTOL,
+#: name -> (groups(frame), average(frame, groups, u, moments, diagnose), needs a periodic bed)
+Condition = namedtuple("Condition", "groups average periodic")
+BOUNDARY_CONDITIONS = {"kubc": Condition(kubc_groups, bagi_average, False),
+                       "mixed": Condition(mixed_groups, bagi_average, False),
+                       "subc": Condition(subc_groups, subc_average, False),
+                       "periodic": Condition(periodic_groups, periodic_average, True)}
+
+
+def homogenize_bed(centers, radii, material=STEEL, *, a_star_cap=None, rtol=None,
                    max_it=None, vtu_dir=None, comm=None, petsc_args=None, ksp_options=None,
-                   nondimensional=True, bc="kubc", diagnose=False, progress=False, fields=False):
+                   nondimensional=True, bc="kubc", diagnose=False, progress=False, fields=False,
+                   solver="gamg", box=None):
     """Effective elastic constants of a bed of bonded spheres.
 
-    bc: "kubc" (default; six unit macro-strains on the boundary, one operator)
-    or "mixed" (the paper's figure-2 experiments, six operators; see
-    :mod:`amfe.model.mixed`). diagnose: add a ``diagnostics`` list (per case:
-    iterations, true residual, eigenvalue estimates of the preconditioned
-    operator and their ratio, GAMG levels and complexities).
+    bc: "kubc" (default; six unit macro-strains on the boundary, one operator),
+    "mixed" (the paper's figure-2 experiments, six operators; see
+    :mod:`amfe.model.mixed`), "subc" (six unit macro-stresses as boundary
+    loads, :mod:`amfe.model.subc`) or "periodic" (needs ``box`` (3,) [m], the
+    periods of a periodic bed; :mod:`amfe.model.periodic`). diagnose: add a
+    ``diagnostics`` list (per case: iterations, true residual, eigenvalue
+    estimates of the preconditioned operator and their ratio, GAMG levels and
+    complexities).
 
     centers (N,3) [m], radii (N,) [m]; every rank of ``comm`` (a PETSc or
     mpi4py communicator, default COMM_WORLD) passes the same arrays.
     Returns the result dict of docs/model.md, section 6 (the same on every rank):
     properties (SI: Pa and -), C and S (6x6, Voigt xx, yy, zz, yz, xz, xy,
     engineering shear; Pa and 1/Pa), volume [m^3], n_particles (input),
-    n_removed, n_bonds, bc ("kubc" or "mixed"), ranks, solver (ksp_type, pc_type, rtol,
+    n_removed, n_bonds, bc, ranks, solver (ksp_type, pc_type, rtol,
     iterations [6], setup_seconds, solve_seconds, plus residuals and the
-    stress and C asymmetries); with ``a_star_cap``, also n_capped. With
+    condition's checks, docs/model.md section 9); with ``a_star_cap``, also n_capped. With
     ``vtu_dir``, rank 0 writes the ParaView files there (one .vtp per load case and
     cases.pvd; docs/viewing.md). The dict starts with the header of
     :func:`amfe.io.result_meta.homogenize_header` (input hash, material, box, counts, ...).
@@ -53,6 +86,10 @@ def homogenize_bed(centers, radii, material=STEEL, *, a_star_cap=None, rtol=DEFA
     assembles in SI units (for the benchmark that shows why scaling matters).
     ``progress=True`` prints one line per phase and load case to stderr on rank 0.
     ``fields=True`` adds "fields": a :class:`~amfe.io.result.Fields` (every rank).
+    ``solver``: "gamg" (CG + GAMG, rtol default 1e-8), "cholesky" (one rank) or
+    "auto", the cheapest method that keeps the constants within 1e-5 of a tight
+    reference (:mod:`amfe.solvers.choice`); the choice and its reason go into
+    the result's ``solver`` record (method, reason).
     Raises AmfeError on every rank for bad input or a failed solve.
     """
     if bc not in BOUNDARY_CONDITIONS:
@@ -66,17 +103,30 @@ def homogenize_bed(centers, radii, material=STEEL, *, a_star_cap=None, rtol=DEFA
     mpi = comm.tompi4py()
     t0 = time.perf_counter()
     log = _stderr_log(mpi.rank) if progress else None
-    frame = build_frame(centers, radii, material, a_star_cap, nondimensional=nondimensional)
+    if BOUNDARY_CONDITIONS[bc].periodic and box is None:
+        raise AmfeError(NOT_PERIODIC)
+    frame = build_frame(centers, radii, material, a_star_cap, nondimensional=nondimensional,
+                        box=box if BOUNDARY_CONDITIONS[bc].periodic else None)
     t_frame = time.perf_counter() - t0
-    groups = BOUNDARY_CONDITIONS[bc](frame)
+    groups = BOUNDARY_CONDITIONS[bc].groups(frame)
     if log:
         log(f"frame: {frame.n_particles} load-carrying particles ({frame.n_removed} removed), "
             f"{len(frame.bonds)} bonds in {t_frame:.2f} s; {bc}, {mpi.size} rank(s)")
-    sol = solve_load_cases(PETSc, frame, comm, groups, rtol=rtol, max_it=max_it, log=log,
-                           ksp_options=ksp_options, diagnose=diagnose)
+    method, reason, rtol, options = choose_solver(
+        lambda: solve_features(frame), mpi.size, solver, rtol, cholesky_package(PETSc),
+        [k for k in USER_METHOD_OPTIONS
+         if PETSc.Options().hasName(k) or k in (ksp_options or {})],
+        singular=any(g.null_modes is not None for g in groups))
+    if log:
+        log(f"solver: {method} ({reason})")
+    sol = solve_load_cases(PETSc, frame, comm, groups, rtol=DEFAULT_RTOL if rtol is None else rtol,
+                           max_it=max_it, log=log, ksp_options={**options, **(ksp_options or {})},
+                           diagnose=diagnose)
 
-    return on_root(mpi, _average, frame, sol, bc, a_star_cap, mpi.size, t_frame, vtu_dir,
-                   diagnose, fields, (centers, radii, groups))
+    result = on_root(mpi, _average, frame, groups, sol, bc, a_star_cap, mpi.size, t_frame,
+                     vtu_dir, diagnose, fields, (centers, radii))
+    result["solver"].update(method=method, reason=reason, requested=solver)
+    return result
 
 
 def _stderr_log(rank):
@@ -88,20 +138,13 @@ def _stderr_log(rank):
     return log
 
 
-def _average(frame, sol, bc, a_star_cap, ranks, t_frame, vtu_dir, diagnose, fields, bed):
-    """Rank 0: Bagi averages, C, S, constants, the result dict (and the ParaView files).
-
-    ``bed``: (centers, radii, groups), the input arrays and the solved load-case groups.
-    """
+def _average(frame, groups, sol, bc, a_star_cap, ranks, t_frame, vtu_dir, diagnose, fields,
+             bed):
+    """Rank 0: the condition's averages, C, S, constants, the result dict (and the ParaView
+    files). ``bed``: (centers, radii), the input arrays."""
     t0 = time.perf_counter()
-    hull = hull_of(frame.centers)
-    strains, stresses, stress_asym = [], [], []
-    for k in range(6):
-        strains.append(voigt_strain(bagi_strain(hull, sol.u[k][:, :3])))
-        sigma = sol.moments[k] / hull.volume
-        stress_asym.append(asymmetry(sigma))
-        stresses.append(voigt(symmetric(sigma)))
-    C, c_asym = stiffness(np.array(strains), np.array(stresses))
+    C, volume, stats = BOUNDARY_CONDITIONS[bc].average(frame, groups, sol.u, sol.moments,
+                                                       diagnose=diagnose)
     C = C * frame.stress_scale
     S, props = compliance_and_constants(C)
     t_avg = time.perf_counter() - t0
@@ -109,7 +152,7 @@ def _average(frame, sol, bc, a_star_cap, ranks, t_frame, vtu_dir, diagnose, fiel
         "properties": {k: float(v) for k, v in props.items()},
         "C": C.tolist(),
         "S": S.tolist(),
-        "volume": float(hull.volume * frame.length_scale**3),
+        "volume": float(volume * frame.length_scale**3),
         "n_particles": int(frame.n_input),
         "n_removed": int(frame.n_removed),
         "n_bonds": int(len(frame.bonds)),
@@ -124,8 +167,7 @@ def _average(frame, sol, bc, a_star_cap, ranks, t_frame, vtu_dir, diagnose, fiel
             "frame_seconds": t_frame, "assembly_seconds": sol.assembly_seconds,
             "average_seconds": t_avg,
             "residuals": sol.residuals,
-            "stress_asymmetry": float(max(stress_asym)),
-            "C_asymmetry": float(c_asym),
+            **stats,
         },
     }
     result = {**homogenize_header(frame, bed[0], bed[1]), **result}
@@ -136,7 +178,7 @@ def _average(frame, sol, bc, a_star_cap, ranks, t_frame, vtu_dir, diagnose, fiel
     if diagnose:
         result["diagnostics"] = sol.diagnostics()
     if fields or vtu_dir is not None:
-        f = frame_fields(frame, sol.u, bed[2], bc, centers=bed[0], radii=bed[1])
+        f = frame_fields(frame, sol.u, groups, bc, centers=bed[0], radii=bed[1])
     if fields:
         result["fields"] = f
     if vtu_dir is not None:

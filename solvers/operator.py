@@ -84,14 +84,17 @@ class ConstrainedOperator:
         self._iscol = PETSc.IS().createStride(6 * nloc, first=6 * r0, step=1, comm=comm)
         self.A_r = A.createSubMatrix(self._isrow, self._iscol)  # unconstrained rows: reactions
         # Lift every case's prescribed values into its right-hand side while A
-        # is still unconstrained (b = -A x0 on the free rows).
+        # is still unconstrained (b = -A x0 on the free rows), plus any applied
+        # forces (SUBC, periodic; their entries on fixed rows are overwritten below).
         self._x0, self._b = [], []
-        for values in group.values:
+        for k, values in enumerate(group.values):
             x0 = A.createVecRight()
             x0.setArray(np.where(fixed_loc, values[r0:r1], 0.0).ravel())
             b = A.createVecLeft()
             A.mult(x0, b)
             b.scale(-1.0)
+            if group.forces is not None:
+                b.getArray()[:] += group.forces[k][r0:r1].ravel()
             self._x0.append(x0)
             self._b.append(b)
         # A prescribed DOF keeps its own diagonal entry on its identity row: one
@@ -110,10 +113,10 @@ class ConstrainedOperator:
             b.getArray()[self._local_dofs] = self._dvals * x0.getArray()[self._local_dofs]
         x = frame.centers
         A.setNearNullSpace(near_nullspace(PETSc, A, x[r0:r1], x.mean(axis=0)))
-        if PETSc.Options().getString("amfe_operator_type", "sbaij") == "aij":
-            A_op = A
-        else:
-            A_op = sbaij_operator(PETSc, comm, n, r0, r1, *block_rows, fixed=group.fixed)
+        with petsc_options(PETSc, ksp_options):  # a direct solve sets amfe_operator_type aij
+            aij_only = PETSc.Options().getString("amfe_operator_type", "sbaij") == "aij"
+        A_op = A if aij_only else sbaij_operator(PETSc, comm, n, r0, r1, *block_rows,
+                                                 fixed=group.fixed)
         self.nullspace = None
         if group.null_modes is not None:
             self.nullspace = orthonormal_nullspace(PETSc, A, group.null_modes[:, r0:r1])

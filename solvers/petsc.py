@@ -13,6 +13,7 @@ def init_petsc(argv=None):
     if "petsc4py.PETSc" not in sys.modules:
         import petsc4py
         petsc4py.init([sys.argv[0] if sys.argv and sys.argv[0] else "amfe"] + argv)
+        _keep_python_sigpipe()
         from petsc4py import PETSc
         return PETSc
     from petsc4py import PETSc
@@ -20,6 +21,17 @@ def init_petsc(argv=None):
     for name, value in option_pairs(argv):
         opts.setValue(name, value)
     return PETSc
+
+
+def _keep_python_sigpipe():
+    """Undo PETSc's SIGPIPE handler: it turns a closed stdout pipe (`amfe ... | head`) into a
+    PETSc error and MPI_Abort. With Python's SIG_IGN the write raises BrokenPipeError, which
+    the command line ends quietly (amfe.cli.interrupt)."""
+    import signal
+    try:
+        signal.signal(signal.SIGPIPE, signal.SIG_IGN)
+    except ValueError:   # not the main thread: leave it
+        pass
 
 
 def option_pairs(argv):

@@ -56,7 +56,7 @@ def errors(result):
 def test_the_schema_is_a_valid_draft_2020_12_schema():
     schema = load_schema()
     jsonschema.Draft202012Validator.check_schema(schema)
-    assert schema["properties"]["schema_version"]["const"] == SCHEMA_VERSION
+    assert schema["$defs"]["result"]["properties"]["schema_version"]["const"] == SCHEMA_VERSION
 
 
 def test_homogenize_output_validates_and_its_header_is_right(homogenized, bed_path):
@@ -126,6 +126,23 @@ def test_the_keys_other_issues_add_validate(homogenized):
     assert errors(r) == []
 
 
+def test_the_bounds_report_validates(bed_path):
+    out = bed_path.parent / "all.json"
+    proc = run_cli(["homogenize", str(bed_path), "--bc", "all", "-o", str(out), "--quiet"])
+    assert proc.returncode == 0, proc.stderr
+    r = json.loads(out.read_text())
+    assert errors(r) == []
+    assert r["command"] == "homogenize" and r["input"]["path"] == str(bed_path)
+    assert set(r["conditions"]) == {"kubc", "subc"}
+    assert all(c["counts"]["bonds_kept"] == c["n_bonds"] for c in r["conditions"].values())
+    for change in (lambda d: d["conditions"].pop("subc"),
+                   lambda d: d["conditions"]["kubc"].pop("material"),
+                   lambda d: d.update(bc="kubc")):
+        wrong = copy.deepcopy(r)
+        change(wrong)
+        assert errors(wrong)
+
+
 def test_predict_output_validates_with_its_own_block(predicted):
     p = predicted
     assert errors(p) == []
@@ -134,6 +151,7 @@ def test_predict_output_validates_with_its_own_block(predicted):
     assert block["model"]["members"] == p["members"] and block["source"] == p["source"]
     assert block["spread"]["relative"] == p["spread"]
     assert block["flags"]["flagged"] == p["flagged"]
+    assert block["flags"]["reasons"] == p["flag_reasons"]
     assert block["flags"]["fill_value"] == p["fill"]
     no_block = {k: v for k, v in p.items() if k != "predict"}
     assert errors(no_block)

@@ -17,6 +17,7 @@ from amfe.model.material import STEEL
 from amfe.model.scales import SCALES
 from amfe.model.scanpath import ScanPath
 from amfe.model.springs import critical_a_star
+from amfe.model.torus import find_periodic_bonds
 
 MM = -3   # decimal exponents of the command-line units
 UM = -6
@@ -98,6 +99,10 @@ def register(subparsers):
                         "distribution (amfe.model.scales), seeded by --seed: `amfe pack --scale S "
                         "--seed <a record's seed>` regenerates that record's bed exactly; no "
                         "other generation option may be given with it")
+    p.add_argument("--periodic", action="store_true",
+                   help="make a bed that tiles space in x, y and z (for homogenize --bc "
+                        "periodic): the box snaps to whole periods of the HCP lattice (the "
+                        "shift is printed), bonds cross the faces by minimum image")
     for flag, kw in BED_ARGS:
         p.add_argument(flag, type=float, **kw)
     g = p.add_argument_group("scan path (paper figure 3); give at least --track-width and "
@@ -155,7 +160,8 @@ def run(args):
                        mean_radius=si(_value(args, "mean_radius"), UM),
                        enlargement=(lo, hi), jitter=_value(args, "jitter"),
                        layer_thickness=si(_value(args, "layer_thickness"), MM), scan=scan,
-                       seed=seed, a_star_max=a_star_max, material=STEEL)
+                       seed=seed, a_star_max=a_star_max, material=STEEL,
+                       periodic=args.periodic)
     report(bed, args.output, f"amfe pack: {size[0]:g} x {size[1]:g} x {size[2]:g} mm, seed "
                              f"{seed}, scan {bed.attrs['scan']}")
     return 0
@@ -173,7 +179,7 @@ def run_scale(args):
     seed = 0 if args.seed is None else args.seed
     if seed < 0:
         raise AmfeError(f"--seed must be a non-negative integer, got {seed}")
-    bed = generate_bed(**sample_bed_params(args.scale, seed))
+    bed = generate_bed(**sample_bed_params(args.scale, seed), periodic=args.periodic)
     size = [s * 1e3 for s in bed.attrs["size"]]
     report(bed, args.output, f"amfe pack: scale {args.scale}, bed seed {seed}: {size[0]:g} x "
                              f"{size[1]:g} x {size[2]:g} mm, scan {bed.attrs['scan']}")
@@ -182,11 +188,17 @@ def run_scale(args):
 
 def report(bed, output, title):
     """Write ``bed`` to ``output`` and print its summary under ``title``."""
-    bonds = find_bonds(bed.centers, bed.radii)
+    periodic = "periodic" in bed.attrs
+    bonds = find_periodic_bonds(bed.centers, bed.radii, bed.attrs["periodic"])[0] if periodic \
+        else find_bonds(bed.centers, bed.radii)
     write_bed(output, bed)
     a_star_max = bed.attrs["a_star_max"]
     box = float(np.prod(bed.attrs["size"]))
     print(title)
+    if periodic:
+        print(f"  periodic box      {' x '.join(f'{v * 1e3:.6g}' for v in bed.attrs['periodic'])} "
+              f"mm, snapped to whole lattice periods by "
+              f"{', '.join(f'{v * 1e3:+.4g}' for v in bed.attrs['periodic_snap'])} mm")
     print(f"  particles         {bed.n} (of {bed.attrs['n_lattice']} lattice sites)")
     print(f"  bonds             {len(bonds)}")
     print(f"  mean radius       {bed.radii.mean() * 1e6:.4f} um")

@@ -19,6 +19,7 @@ import numpy as np
 
 from amfe.model.bed import Bed
 from amfe.model.bonds import validate_particles
+from amfe.model.torus import check_box
 from amfe.io.atomic import atomic_write
 from amfe.errors import AmfeError
 
@@ -129,6 +130,8 @@ def read_bed(path) -> Bed:
         raise AmfeError(f"cannot read bed file {path}: {exc}") from None
     try:
         centers, radii = validate_particles(centers, radii)
+        if "periodic" in attrs:  # a periodic bed (docs/model.md, section 9)
+            check_box(attrs["periodic"], radii)
     except AmfeError as exc:
         raise AmfeError(f"{path}: {exc}") from None
     return Bed(centers=centers, radii=radii, attrs=attrs)

@@ -7,7 +7,13 @@ What ``homogenize(..., fields=True)`` returns and what the ParaView files
 arrays are given. Bond loads are those on particle i's end (the bond's first
 particle, the line runs i -> j); j's end follows from the bond's equilibrium
 (:func:`amfe.model.element.bond_end_loads`). Everything is per unit
-macro-strain: a frame under eps_xx = 1 doubles its length, so views scale it.
+macro-strain (SUBC: per unit macro-stress of E, the particles' modulus): a
+frame under eps_xx = 1 doubles its length, so views scale it.
+
+On a periodic frame (docs/model.md, section 9) a bond may join particle i to
+an image of j one period away (``shift``); its loads include the jump of the
+macro-strain across the face, and the ParaView files leave it out (it would
+span the box).
 """
 from dataclasses import dataclass
 
@@ -15,6 +21,8 @@ import numpy as np
 
 from amfe.model.averages import unit_strains
 from amfe.model.element import bond_end_loads
+from amfe.model.periodic import bond_jumps
+from amfe.model.subc import unit_stresses
 from amfe.vocab import CASE_NAMES
 
 
@@ -36,9 +44,12 @@ class Fields:
     a_star : ndarray (M,) [-]
         Contact radius over effective radius, a / R_eff (geometric, before any cap).
     boundary : ndarray (K, n) bool
-        Translations prescribed in the case (the boundary particles).
-    macro_strain : ndarray (K, 3, 3) [-]
-        The macro-strain each case applies (mixed conditions: the grips' nominal strain).
+        Where the boundary condition acts in the case: translations prescribed
+        (kubc, mixed, a pin), loads applied (subc's boundary layer), or a bond
+        across a face (periodic). Everywhere else the bond loads balance.
+    macro_strain : ndarray (K, 3, 3) [-], or None
+        The macro-strain each case applies (mixed: the grips' nominal strain;
+        None for subc, whose cases are stresses).
     displacement, rotation : ndarray (K, n, 3) [m], [rad]
         Per unit macro-strain; rotations are axial vectors.
     force, moment : ndarray (K, M, 3) [N], [N m]
@@ -53,7 +64,12 @@ class Fields:
         Magnitude of the bending couple.
     case_names : tuple of str
     bc : str
-        Boundary condition of the cases (docs/model.md, section 5).
+        Boundary condition of the cases (docs/model.md, sections 5 and 9).
+    macro_stress : ndarray (K, 3, 3) [Pa], or None
+        The macro-stress each case applies (subc only).
+    shift : ndarray (M, 3) int, or None
+        Periodic frames only: bond k joins the image of its second particle
+        shifted by ``shift[k]`` periods.
     """
 
     particle_id: np.ndarray
@@ -73,6 +89,8 @@ class Fields:
     bending_moment: np.ndarray
     case_names: tuple = CASE_NAMES
     bc: str = "kubc"
+    macro_stress: np.ndarray = None
+    shift: np.ndarray = None
 
     @property
     def n_particles(self):
@@ -101,7 +119,7 @@ def frame_fields(frame, u, groups, bc="kubc", centers=None, radii=None, strains=
         The input bed: points and radii are then its values bit for bit
         (``frame.centers * length_scale`` can differ in the last bit).
     strains : ndarray (K, 3, 3), optional
-        Macro-strain of each case; default the six unit strains.
+        Macro-strain of each case; default the six unit strains (none for subc).
 
     Returns
     -------
@@ -113,23 +131,46 @@ def frame_fields(frame, u, groups, bc="kubc", centers=None, radii=None, strains=
     rank = np.empty_like(order)
     rank[order] = np.arange(order.size)
     ids = frame.kept[order].astype(np.int64)
+    strains = unit_strains() if strains is None else np.asarray(strains, dtype=float)
     b = frame.bonds
+    uj = u[:, b.j].copy()
+    if frame.shift is not None:          # the image of j moves by the jump eps (s L) more
+        uj[:, :, :3] += bond_jumps(frame, strains)
     loads = [bond_end_loads(b.normal, b.d_i, b.d_j, frame.k_n, frame.k_t, frame.kappa_n,
-                            frame.kappa_t, uk[b.i], uk[b.j]) for uk in u]
+                            frame.kappa_t, uk[b.i], ujk) for uk, ujk in zip(u, uj)]
 
     def stack(key, scale):
         return np.array([d[key] * scale for d in loads])
 
+    subc = bc == "subc"
     return Fields(
         particle_id=ids,
         centers=frame.centers[order] * L if centers is None else np.asarray(centers, float)[ids],
         radii=frame.radii[order] * L if radii is None else np.asarray(radii, float)[ids],
         bonds=np.stack([rank[b.i], rank[b.j]], axis=1).astype(np.int64),
         a_star=np.asarray(b.a_star, dtype=float),
-        boundary=np.array([g.fixed[order, :3].any(axis=1) for g in groups for _ in g.names]),
-        macro_strain=unit_strains() if strains is None else np.asarray(strains, dtype=float),
+        boundary=acted_on(frame, groups)[:, order],
+        macro_strain=None if subc else strains,
+        macro_stress=unit_stresses() * frame.stress_scale if subc else None,
         displacement=u[:, order, :3] * L, rotation=u[:, order, 3:].copy(),
         force=stack("force_i", F), moment=stack("moment_i", F * L),
         axial_force=stack("axial", F), shear_force=stack("shear", F),
         torsion=stack("torsion", F * L), bending_moment=stack("bending", F * L),
-        case_names=tuple(n for g in groups for n in g.names), bc=bc)
+        case_names=tuple(n for g in groups for n in g.names), bc=bc, shift=frame.shift)
+
+
+def acted_on(frame, groups):
+    """(K, n) bool, frame order: where each case's boundary condition acts (see Fields)."""
+    out = []
+    for g in groups:
+        for k in range(len(g.names)):
+            mask = g.fixed[:, :3].any(axis=1)
+            if g.forces is not None:
+                mask = mask | np.any(np.asarray(g.forces[k]) != 0, axis=1)
+            out.append(mask)
+    out = np.array(out)
+    if frame.shift is not None:          # bonds across a face are not drawn
+        across = np.any(frame.shift != 0, axis=1)
+        out[:, frame.bonds.i[across]] = True
+        out[:, frame.bonds.j[across]] = True
+    return out

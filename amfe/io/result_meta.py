@@ -128,19 +128,25 @@ def homogenize_header(frame, centers, radii):
 
 
 def predict_block(out):
-    """``amfe predict``'s own block (model, spread, flags) from its output dict."""
-    fill_range = out.get("fill_range")
-    threshold = out.get("threshold")
+    """``amfe predict``'s own block (model, spread, flags) from its output dict.
+
+    The flags come from ``flag_reasons`` ("spread", "fill", "non-finite") when
+    the output has them, else from the spread score and the fill range.
+    """
+    fill_range, threshold, score = out.get("fill_range"), out.get("threshold"), out["spread_score"]
+    reasons = out.get("flag_reasons")
+    if reasons is None:
+        reasons = (["spread"] if threshold is not None and out["members"] > 1
+                   and score is not None and score > threshold else []) + \
+                  (["fill"] if fill_range is not None
+                   and not fill_range[0] <= out["fill"] <= fill_range[1] else [])
     return {"model": {"path": out["model"], "arch": out["arch"], "members": out["members"],
                       "inputs": list(out.get("inputs", ["fill"]))},
-            "spread": {"relative": out["spread"], "score": out["spread_score"],
-                       "threshold": threshold},
-            "flags": {"flagged": bool(out["flagged"]),
-                      "spread": bool(threshold is not None and out["members"] > 1
-                                     and out["spread_score"] > threshold),
-                      "fill": bool(fill_range is not None
-                                   and not fill_range[0] <= out["fill"] <= fill_range[1]),
-                      "fill_value": out["fill"], "fill_range": fill_range},
+            "spread": {"relative": out["spread"], "score": score, "threshold": threshold},
+            "flags": {"flagged": bool(out["flagged"]), "spread": "spread" in reasons,
+                      "fill": "fill" in reasons, "non_finite": "non-finite" in reasons,
+                      "reasons": list(reasons), "fill_value": out["fill"],
+                      "fill_range": fill_range},
             "source": out["source"]}
 
 

@@ -7,7 +7,8 @@ directly, as do Glyph and Warp By Vector (tried in ParaView, docs/viewing.md).
 Layout of ``case_<name>.vtp`` (SI; the unit ends each array's name)
 ------------------------------------------------------------------
 Points: the kept (load-carrying) particles' centres [m] in input order. Cells:
-one 2-point line per bond, running from particle i to particle j. No vertex
+one 2-point line per bond, running from particle i to particle j (on a
+periodic frame, not the bonds across a face: they would span the box). No vertex
 cells: every kept particle has a bond, and vertex cells would make every bond
 array carry fake values on them (zeros that spoil colour ranges).
 
@@ -17,7 +18,8 @@ Cell data (:data:`CELL_ARRAYS`): ``i``, ``j`` (input ids), ``a_star``,
 ``force_i_N``, ``moment_i_Nm``, ``axial_force_N``, ``shear_force_N``,
 ``torsion_Nm``, ``bending_moment_Nm``.
 Field data: ``case_name``, ``case_label`` (e.g. "yz: gamma_yz = 1"),
-``macro_strain`` (9, row-major), ``macro_strain_voigt`` (6, engineering shear),
+``macro_strain`` (9, row-major), ``macro_strain_voigt`` (6, engineering shear)
+or, for SUBC's unit stresses, ``macro_stress_Pa`` (9), ``bonds_not_drawn``,
 ``warp_factor``, ``units`` and ``descriptions`` (one "array: ..." line per
 array), ``end_convention``, ``bc``, ``amfe_version`` and what the caller adds.
 
@@ -106,10 +108,17 @@ def voigt_of(eps):
     return np.array([(1.0 if i == j else 2.0) * eps[i, j] for _, i, j in _VOIGT])
 
 
-def case_label(name, eps):
-    """``"yz: gamma_yz = 1"``: the case's name and its non-zero Voigt strains."""
-    comps = [f"{sym} = {v:g}" for (sym, _, _), v in zip(_VOIGT, voigt_of(eps)) if v != 0]
-    return f"{name}: " + (", ".join(comps) if comps else "no macro-strain")
+def case_label(name, eps=None, sigma=None):
+    """``"yz: gamma_yz = 1"``: the case's name and its non-zero Voigt strains.
+
+    With ``sigma`` [Pa] instead of ``eps``, its stresses: ``"yz: sigma_yz = 2.1e+11 Pa"``.
+    """
+    if eps is None:
+        comps = [f"sigma_{sym[-2:]} = {sigma[i, j]:.3g} Pa" for sym, i, j in _VOIGT
+                 if sigma[i, j] != 0]
+    else:
+        comps = [f"{sym} = {v:g}" for (sym, _, _), v in zip(_VOIGT, voigt_of(eps)) if v != 0]
+    return f"{name}: " + (", ".join(comps) if comps else "no load")
 
 
 def write_fields_vtp(directory, fields, field_data=None):
@@ -137,28 +146,42 @@ def write_fields_vtp(directory, fields, field_data=None):
     """
     names = _check(fields)
     arrays = {**POINT_ARRAYS, **CELL_ARRAYS}
+    stress = fields.macro_strain is None
+    # A periodic frame's bonds across a face would span the box: left out.
+    drawn = np.ones(len(fields.bonds), bool) if fields.shift is None else \
+        ~np.any(np.asarray(fields.shift) != 0, axis=1)
     common = {"units": [f"{k}: {u}" for k, (u, _) in arrays.items()],
               "descriptions": [f"{k}: {d}" for k, (_, d) in arrays.items()],
               "end_convention": END_CONVENTION, "bc": fields.bc, "amfe_version": __version__,
-              "per_unit_strain": "displacements, rotations and loads are per unit macro-strain"}
+              "per_unit_strain": "displacements, rotations and loads are per unit "
+                                 + ("macro-stress of E (the particles' modulus)" if stress
+                                    else "macro-strain"),
+              "bonds_not_drawn": np.array([int((~drawn).sum())])}
     common.update(field_data or {})
     pid = np.asarray(fields.particle_id, dtype=np.int64)
-    bonds = np.asarray(fields.bonds, dtype=np.int64)
+    bonds = np.asarray(fields.bonds, dtype=np.int64)[drawn]
     static_cells = {"i": pid[bonds[:, 0]], "j": pid[bonds[:, 1]],
-                    "a_star": np.asarray(fields.a_star, dtype=float)}
+                    "a_star": np.asarray(fields.a_star, dtype=float)[drawn]}
 
     def blob(k):
-        eps = np.asarray(fields.macro_strain[k], dtype=float)
         disp = np.asarray(fields.displacement[k], dtype=float)
-        fd = {"case_name": names[k], "case_label": case_label(names[k], eps),
-              "macro_strain": eps.reshape(9), "macro_strain_voigt": voigt_of(eps),
+        if stress:
+            sig = np.asarray(fields.macro_stress[k], dtype=float)
+            load = {"case_label": case_label(names[k], sigma=sig),
+                    "macro_stress_Pa": sig.reshape(9)}
+        else:
+            eps = np.asarray(fields.macro_strain[k], dtype=float)
+            load = {"case_label": case_label(names[k], eps), "macro_strain": eps.reshape(9),
+                    "macro_strain_voigt": voigt_of(eps)}
+        fd = {"case_name": names[k], **load,
               "warp_factor": np.array([warp_factor(fields.centers, disp)]), **common}
         pd = {"particle_id": pid, "radius_m": np.asarray(fields.radii, dtype=float),
               "boundary": np.asarray(fields.boundary[k]).astype(np.uint8),
               "displacement_m": disp, "rotation_rad": np.asarray(fields.rotation[k], float)}
-        cd = {**static_cells, "force_i_N": fields.force[k], "moment_i_Nm": fields.moment[k],
+        cd = {"force_i_N": fields.force[k], "moment_i_Nm": fields.moment[k],
               "axial_force_N": fields.axial_force[k], "shear_force_N": fields.shear_force[k],
               "torsion_Nm": fields.torsion[k], "bending_moment_Nm": fields.bending_moment[k]}
+        cd = {**static_cells, **{key: np.asarray(v)[drawn] for key, v in cd.items()}}
         return polydata_xml(fields.centers, bonds, pd, cd, fd, vectors="displacement_m")
 
     return _write_set(os.fspath(directory), blob, names)
@@ -172,11 +195,14 @@ def _check(f):
         raise AmfeError(f"case names must be distinct, non-empty strings of letters, digits, "
                         f"'_' and '-'; got {names}")
     n, m, k = len(f.particle_id), len(f.bonds), len(names)
+    load = "macro_strain" if f.macro_strain is not None else "macro_stress"
     shapes = {"centers": (n, 3), "radii": (n,), "bonds": (m, 2), "a_star": (m,),
-              "boundary": (k, n), "macro_strain": (k, 3, 3), "displacement": (k, n, 3),
+              "boundary": (k, n), load: (k, 3, 3), "displacement": (k, n, 3),
               "rotation": (k, n, 3), "force": (k, m, 3), "moment": (k, m, 3),
               "axial_force": (k, m), "shear_force": (k, m), "torsion": (k, m),
               "bending_moment": (k, m)}
+    if f.shift is not None:
+        shapes["shift"] = (m, 3)
     for key, shape in shapes.items():
         arr = np.asarray(getattr(f, key))
         if arr.shape != shape:

@@ -18,6 +18,7 @@ from amfe.errors import AmfeError
 from amfe.model.material import STEEL, Material
 from amfe.model.scanpath import ScanPath, scanned_mask
 from amfe.model.springs import critical_a_star
+from amfe.model.torus import find_periodic_bonds, periodic_hcp_lattice, snap_box, wrap
 
 SQRT3 = math.sqrt(3.0)
 
@@ -125,7 +126,7 @@ def shrink_factor(L, Ri, Rj, a_star_target, iterations=64):
     return lo
 
 
-def limit_a_star(centers, radii, a_star_max, max_passes=50):
+def limit_a_star(centers, radii, a_star_max, max_passes=50, box=None):
     """Shrink radii until every bond has a* <= a_star_max.
 
     Rule (the generator's a* guarantee, docs/model.md, sections 2 and 5a): find the bonds; for
@@ -140,14 +141,16 @@ def limit_a_star(centers, radii, a_star_max, max_passes=50):
     practice), so a pass creates no new offenders and the loop ends after
     one pass plus the checking one; the cap only guards against the unforeseen.
 
-    centers (N,3) [m], radii (N,) [m]. Returns (radii (N,) new array, n_shrunk:
+    centers (N,3) [m], radii (N,) [m]; box (3,) [m]: bonds by minimum image on
+    this torus (a periodic bed, docs/model.md, section 9). Returns (radii (N,) new array, n_shrunk:
     the number of particles whose radius was reduced, passes: shrinking passes
     made). Raises AmfeError if max_passes passes do not settle.
     """
     radii = np.array(radii, dtype=float)
     shrunk = np.zeros(radii.size, dtype=bool)
     for passes in range(max_passes + 1):
-        bonds = find_bonds(centers, radii)
+        bonds = find_bonds(centers, radii) if box is None else \
+            find_periodic_bonds(centers, radii, box)[0]
         bad = np.flatnonzero(bonds.a_star > a_star_max)
         if bad.size == 0:
             return radii, int(shrunk.sum()), passes
@@ -185,7 +188,8 @@ def _check_number(name, value, lo=None, hi=None, lo_open=False, hi_open=False, u
 
 def generate_bed(size=(250e-6, 250e-6, 100e-6), *, mean_radius=12.5e-6,
                  enlargement=(1.05, 1.14), jitter=0.025, layer_thickness=100e-6,
-                 scan=None, seed=0, a_star_max=0.98, material=STEEL):
+                 scan=None, seed=0, a_star_max=0.98, material=STEEL, periodic=False,
+                 offset=None):
     """A powder bed on a jittered, enlarged HCP lattice, cut by a scan path.
 
     size: (Lx, Ly, Lz) of the box [m] (default: the paper's figure-2 bed,
@@ -197,7 +201,13 @@ def generate_bed(size=(250e-6, 250e-6, 100e-6), *, mean_radius=12.5e-6,
     powder layer thickness for the scan path [m]; scan: :class:`ScanPath` or
     None (fully scanned); seed: int >= 0; a_star_max: bound on every bond's
     a* (0 < a_star_max < critical a* of the material, 0.9934 for steel);
-    material: :class:`Material` (recorded in attrs and used for the critical a*).
+    material: :class:`Material` (recorded in attrs and used for the critical a*);
+    periodic: make a bed that tiles space (docs/model.md, section 9): the box
+    is snapped to whole lattice periods (:func:`amfe.model.torus.snap_box`),
+    the sites are the infinite lattice's in [0, L), centres are wrapped into
+    the box after the jitter, bonds in step 5 are found by minimum image;
+    offset (3,) [m], periodic only: shift the whole lattice (default 0).
+    The random numbers are drawn in the same order as for a non-periodic bed.
 
     Steps, all random numbers from one ``np.random.default_rng(seed)`` drawn
     in this order, so the same arguments give the same bed bit for bit:
@@ -224,7 +234,9 @@ def generate_bed(size=(250e-6, 250e-6, 100e-6), *, mean_radius=12.5e-6,
     :class:`ScanPath` fields, when raster), material_E, material_nu,
     material_psi, material_density, a_star_max, a_star_critical, n_lattice
     (sites before the scan path), n_scanned_out (deleted by it), n_shrunk,
-    shrink_passes.
+    shrink_passes; a periodic bed adds periodic = [Lx, Ly, Lz] (the snapped
+    box, also its size), periodic_requested, periodic_snap (L - requested),
+    periodic_periods, periodic_offset.
     """
     try:
         size = tuple(float(s) for s in size)
@@ -257,7 +269,15 @@ def generate_bed(size=(250e-6, 250e-6, 100e-6), *, mean_radius=12.5e-6,
         raise AmfeError(f"scan must be an amfe.model.scanpath.ScanPath or None, got {type(scan).__name__}")
 
     r0 = mean_radius / (0.5 * (lo_f + hi_f))
-    lattice = hcp_lattice(size, r0)
+    if periodic:
+        requested, offset = size, np.zeros(3) if offset is None else np.asarray(offset, float)
+        box, counts, moved = snap_box(size, r0, hi_f * r0)
+        size = tuple(box.tolist())
+        lattice = periodic_hcp_lattice(counts, r0, offset)
+    elif offset is not None:
+        raise AmfeError("offset shifts the lattice of a periodic bed only: pass periodic=True")
+    else:
+        lattice = hcp_lattice(size, r0)
     n_lattice = lattice.shape[0]
     if n_lattice == 0:
         raise AmfeError(f"the box {tuple(s * 1e3 for s in size)} mm holds no particle: every side "
@@ -266,6 +286,8 @@ def generate_bed(size=(250e-6, 250e-6, 100e-6), *, mean_radius=12.5e-6,
     rng = np.random.default_rng(seed)
     radii = r0 * rng.uniform(lo_f, hi_f, n_lattice)
     centers = lattice + rng.uniform(-1.0, 1.0, (n_lattice, 3)) * (jitter * radii)[:, None]
+    if periodic:
+        centers = wrap(centers, box)
 
     keep = scanned_mask(centers, size, layer_thickness, scan, rng)
     if not keep.any():
@@ -273,7 +295,8 @@ def generate_bed(size=(250e-6, 250e-6, 100e-6), *, mean_radius=12.5e-6,
                         "narrow the hatch spacing or lower the skip fraction")
     centers, radii = centers[keep], radii[keep]
 
-    radii, n_shrunk, passes = limit_a_star(centers, radii, a_star_max)
+    radii, n_shrunk, passes = limit_a_star(centers, radii, a_star_max,
+                                           box=box if periodic else None)
 
     attrs = {
         "generator": "amfe.hcp",
@@ -302,4 +325,8 @@ def generate_bed(size=(250e-6, 250e-6, 100e-6), *, mean_radius=12.5e-6,
         "n_shrunk": n_shrunk,
         "shrink_passes": passes,
     })
+    if periodic:
+        attrs.update({"periodic": list(size), "periodic_requested": list(requested),
+                      "periodic_snap": moved.tolist(), "periodic_periods": counts.tolist(),
+                      "periodic_offset": offset.tolist()})
     return Bed(centers=centers, radii=radii, attrs=attrs)

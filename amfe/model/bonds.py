@@ -86,8 +86,11 @@ class Bonds:
         return Bonds(**{k: v[mask] for k, v in self.__dict__.items()})
 
 
-def contact_geometry(centers, radii, i, j):
+def contact_geometry(centers, radii, i, j, offset=None):
     """Contact geometry of the bonds (i, j); raises AmfeError on degenerate pairs.
+
+    ``offset`` (M,3), optional: added to x_j (a periodic bond joins i to an
+    image of j, docs/model.md, section 9).
 
     Degenerate: coincident centres (L = 0) and a contact plane outside the
     segment between the centres (d_i <= 0 or d_j <= 0: a small sphere deep
@@ -95,7 +98,7 @@ def contact_geometry(centers, radii, i, j):
     which stays accurate for shallow overlaps where R_i^2 - d_i^2 cancels.
     """
     Ri, Rj = radii[i], radii[j]
-    branch = centers[j] - centers[i]
+    branch = centers[j] - centers[i] if offset is None else centers[j] + offset - centers[i]
     L = np.sqrt(np.einsum("ij,ij->i", branch, branch))
     tiny = L <= 1e-12 * np.maximum(Ri, Rj)
     if tiny.any():
