@@ -21,6 +21,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 from amfe.errors import AmfeError
+from amfe.model.memory import direct_bytes
 from amfe.solvers.ksp import DEFAULT_RTOL
 
 METHODS = ("auto", "gamg", "cholesky")
@@ -75,7 +76,7 @@ def solve_features(frame):
 
 
 def choose_solver(features, nranks, requested="auto", rtol=None, package="cholmod",
-                  user_options=(), singular=False):
+                  user_options=(), singular=False, check_memory=None):
     """(method, reason, rtol, ksp_options) for one bed.
 
     features: the dict of :func:`solve_features` (or a callable that returns
@@ -85,7 +86,10 @@ def choose_solver(features, nranks, requested="auto", rtol=None, package="cholmo
     when PETSc has none; user_options: the PETSc options the user set (one of
     :data:`USER_METHOD_OPTIONS` among them makes auto keep the iterative path
     those options configure); singular: the constrained operator keeps rigid
-    modes (the mixed conditions), which a factorisation cannot take. The
+    modes (the mixed conditions), which a factorisation cannot take;
+    check_memory(estimate [bytes], what): raises AmfeError when an estimate
+    is over the memory limit (:func:`amfe.model.memory.direct_bytes` of the
+    factorisation): auto then takes GAMG, ``cholesky`` is refused. The
     returned rtol is None for Cholesky.
     """
     if requested not in METHODS:
@@ -104,6 +108,8 @@ def choose_solver(features, nranks, requested="auto", rtol=None, package="cholmo
         if package is None:
             raise AmfeError("--solver cholesky needs PETSc with CHOLMOD or MUMPS; this PETSc "
                             "has neither: use --solver gamg")
+        if check_memory is not None:
+            _check_factor(features() if callable(features) else features, check_memory)
         return "cholesky", f"asked for (--solver cholesky, {package})", None, direct
     auto_rtol = GAMG_RTOL_AUTO if rtol is None else rtol
     given = [k for k in USER_METHOD_OPTIONS if k in user_options]
@@ -120,8 +126,18 @@ def choose_solver(features, nranks, requested="auto", rtol=None, package="cholmo
     if f["n_particles"] > MAX_DIRECT_PARTICLES:
         return "gamg", (f"auto: {f['n_particles']} particles > {MAX_DIRECT_PARTICLES}, too many "
                         "to factorise"), auto_rtol, {}
+    if f["fill_ratio"] <= FILL_RATIO_MAX and check_memory is not None:
+        try:
+            _check_factor(f, check_memory)
+        except AmfeError as exc:
+            return "gamg", f"auto: {exc}", auto_rtol, {}
     if f["fill_ratio"] <= FILL_RATIO_MAX:
         return "cholesky", (f"auto: predicted fill {f['fill_ratio']:.1f} <= {FILL_RATIO_MAX:g} "
                             f"(RCM envelope / non-zeros), {package}"), None, direct
     return "gamg", (f"auto: predicted fill {f['fill_ratio']:.1f} > {FILL_RATIO_MAX:g} "
                     "(RCM envelope / non-zeros)"), auto_rtol, {}
+
+
+def _check_factor(f, check_memory):
+    check_memory(direct_bytes(f["n_particles"], f["n_bonds"], f["fill_ratio"]),
+                 f"factorising {f['n_particles']} particles (predicted fill {f['fill_ratio']:.1f})")

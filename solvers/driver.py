@@ -13,24 +13,23 @@ from collections import namedtuple
 
 import numpy as np
 
-from amfe.errors import AmfeError
 from amfe.model.frame import build_frame
 from amfe.model.averages import (asymmetry, bagi_strain, compliance_and_constants, hull_of,
                              stiffness, symmetric, voigt, voigt_strain)
-from amfe.model.material import STEEL
+from amfe.model.material import SOURCE_DEFAULT
 from amfe.io.mpi import on_root
 from amfe.io.fields import frame_fields
 from amfe.io.result_meta import homogenize_header
 from amfe.io.vtp import write_fields_vtp
 from amfe.solvers.choice import USER_METHOD_OPTIONS, choose_solver, cholesky_package, solve_features
-from amfe.solvers.ksp import DEFAULT_RTOL
+from amfe.solvers.inputs import checked_inputs
+from amfe.solvers.ksp import DEFAULT_RTOL, RESIDUAL_FACTOR
 from amfe.model.kubc import kubc_groups
 from amfe.solvers.loadcases import solve_load_cases
 from amfe.model.mixed import mixed_groups
 from amfe.model.periodic import periodic_average, periodic_groups
 from amfe.model.subc import subc_average, subc_groups
-from amfe.model.torus import NOT_PERIODIC
-from amfe.solvers.petsc import init_petsc
+from amfe.solvers.petsc import init_petsc, unused_options_warning
 
 
 def bagi_average(frame, groups, u, moments, diagnose=False):
@@ -55,10 +54,11 @@ BOUNDARY_CONDITIONS = {"kubc": Condition(kubc_groups, bagi_average, False),
                        "periodic": Condition(periodic_groups, periodic_average, True)}
 
 
-def homogenize_bed(centers, radii, material=STEEL, *, a_star_cap=None, rtol=None,
+def homogenize_bed(centers, radii, material=None, *, a_star_cap=None, rtol=None,
                    max_it=None, vtu_dir=None, comm=None, petsc_args=None, ksp_options=None,
                    nondimensional=True, bc="kubc", diagnose=False, progress=False, fields=False,
-                   solver="gamg", box=None):
+                   solver="gamg", box=None, accept_unconverged=False, max_memory=None,
+                   material_source=None, input_error=None):
     """Effective elastic constants of a bed of bonded spheres.
 
     bc: "kubc" (default; six unit macro-strains on the boundary, one operator),
@@ -71,13 +71,20 @@ def homogenize_bed(centers, radii, material=STEEL, *, a_star_cap=None, rtol=None
     complexities).
 
     centers (N,3) [m], radii (N,) [m]; every rank of ``comm`` (a PETSc or
-    mpi4py communicator, default COMM_WORLD) passes the same arrays.
+    mpi4py communicator, default COMM_WORLD) passes bit-identical arrays,
+    material and options: checked in one collective before anything else,
+    a difference is an AmfeError on every rank (:mod:`amfe.solvers.inputs`).
+    material: a :class:`~amfe.model.material.Material` (default: steel);
+    material_source: where it came from, for the result (default "default
+    (steel)" without a material, else "argument").
     Returns the result dict of docs/model.md, section 6 (the same on every rank):
     properties (SI: Pa and -), C and S (6x6, Voigt xx, yy, zz, yz, xz, xy,
     engineering shear; Pa and 1/Pa), volume [m^3], n_particles (input),
     n_removed, n_bonds, bc, ranks, solver (ksp_type, pc_type, rtol,
-    iterations [6], setup_seconds, solve_seconds, plus residuals and the
-    condition's checks, docs/model.md section 9); with ``a_star_cap``, also n_capped. With
+    residual_limit, iterations [6], setup_seconds, solve_seconds, plus
+    residuals and the condition's checks, docs/model.md section 9), material
+    (E, nu, psi, source) and warnings (list of str: accepted unconverged
+    solves, PETSc options never used); with ``a_star_cap``, also n_capped. With
     ``vtu_dir``, rank 0 writes the ParaView files there (one .vtp per load case and
     cases.pvd; docs/viewing.md). The dict starts with the header of
     :func:`amfe.io.result_meta.homogenize_header` (input hash, material, box, counts, ...).
@@ -90,21 +97,30 @@ def homogenize_bed(centers, radii, material=STEEL, *, a_star_cap=None, rtol=None
     "auto", the cheapest method that keeps the constants within 1e-5 of a tight
     reference (:mod:`amfe.solvers.choice`); the choice and its reason go into
     the result's ``solver`` record (method, reason).
+    Every solve must reach a true relative residual of at most
+    :data:`~amfe.solvers.ksp.RESIDUAL_FACTOR` x rtol (or x the rounding floor);
+    ``accept_unconverged=True`` keeps the numbers of one that does not, with a
+    warning. ``max_memory``: bytes the solve may take over all ranks (default:
+    half the memory of the machines the ranks run on); a larger estimate is
+    refused before any work. ``input_error``: an AmfeError the caller met
+    preparing this rank's input, raised on every rank after the ranks are
+    compared (so that no rank waits in a collective).
     Raises AmfeError on every rank for bad input or a failed solve.
     """
-    if bc not in BOUNDARY_CONDITIONS:
-        raise AmfeError(f"unknown boundary condition {bc!r}; choose one of "
-                        + ", ".join(BOUNDARY_CONDITIONS))
     PETSc = init_petsc(petsc_args)
     if comm is None:
         comm = PETSc.COMM_WORLD
     elif not isinstance(comm, PETSc.Comm):
         comm = PETSc.Comm(comm)  # an mpi4py communicator, e.g. a batch group
     mpi = comm.tompi4py()
+    source = material_source or (SOURCE_DEFAULT if material is None else "argument")
+    centers, radii, material, check_memory = checked_inputs(
+        PETSc, mpi, centers, radii, material, bcs=BOUNDARY_CONDITIONS, bc=bc, rtol=rtol,
+        max_it=max_it, a_star_cap=a_star_cap, ksp_options=ksp_options, max_memory=max_memory,
+        input_error=input_error, box=box, nondimensional=nondimensional,
+        diagnose=diagnose, accept_unconverged=accept_unconverged, solver=solver)
     t0 = time.perf_counter()
     log = _stderr_log(mpi.rank) if progress else None
-    if BOUNDARY_CONDITIONS[bc].periodic and box is None:
-        raise AmfeError(NOT_PERIODIC)
     frame = build_frame(centers, radii, material, a_star_cap, nondimensional=nondimensional,
                         box=box if BOUNDARY_CONDITIONS[bc].periodic else None)
     t_frame = time.perf_counter() - t0
@@ -116,15 +132,26 @@ def homogenize_bed(centers, radii, material=STEEL, *, a_star_cap=None, rtol=None
         lambda: solve_features(frame), mpi.size, solver, rtol, cholesky_package(PETSc),
         [k for k in USER_METHOD_OPTIONS
          if PETSc.Options().hasName(k) or k in (ksp_options or {})],
-        singular=any(g.null_modes is not None for g in groups))
+        singular=any(g.null_modes is not None for g in groups), check_memory=check_memory)
     if log:
         log(f"solver: {method} ({reason})")
     sol = solve_load_cases(PETSc, frame, comm, groups, rtol=DEFAULT_RTOL if rtol is None else rtol,
                            max_it=max_it, log=log, ksp_options={**options, **(ksp_options or {})},
-                           diagnose=diagnose)
-
+                           diagnose=diagnose, accept_unconverged=accept_unconverged)
+    warnings = sol.warnings
+    if warnings and mpi.rank == 0:
+        missed = [c for c in sol.cases if c.warning]
+        print(f"amfe: warning: {len(missed)} load case(s) missed the convergence contract "
+              f"(true relative residual <= {RESIDUAL_FACTOR:g} x rtol) and were kept as asked "
+              "(accept_unconverged): " + ", ".join(f"{c.name} {c.residual:.1e}" for c in missed),
+              file=sys.stderr, flush=True)
+    # of the per-solve options, only the caller's count (not those the solver choice adds)
+    unused = unused_options_warning(PETSc, mpi.rank, [
+        n for n in sol.unused_options if n.lstrip("-") in {k.lstrip("-") for k in ksp_options or {}}])
+    record = {"E": material.E, "nu": material.nu, "psi": material.psi, "source": source}
     result = on_root(mpi, _average, frame, groups, sol, bc, a_star_cap, mpi.size, t_frame,
-                     vtu_dir, diagnose, fields, (centers, radii))
+                     vtu_dir, diagnose, fields, record, warnings + ([unused] if unused else []),
+                     (centers, radii))
     result["solver"].update(method=method, reason=reason, requested=solver)
     return result
 
@@ -139,7 +166,7 @@ def _stderr_log(rank):
 
 
 def _average(frame, groups, sol, bc, a_star_cap, ranks, t_frame, vtu_dir, diagnose, fields,
-             bed):
+             material, warnings, bed):
     """Rank 0: the condition's averages, C, S, constants, the result dict (and the ParaView
     files). ``bed``: (centers, radii), the input arrays."""
     t0 = time.perf_counter()
@@ -160,7 +187,8 @@ def _average(frame, groups, sol, bc, a_star_cap, ranks, t_frame, vtu_dir, diagno
         "ranks": int(ranks),
         "solver": {
             "ksp_type": sol.setups[0].ksp_type, "pc_type": sol.setups[0].pc_type,
-            "rtol": sol.setups[0].rtol,
+            "rtol": sol.setups[0].rtol, "residual_limit": RESIDUAL_FACTOR * sol.setups[0].rtol,
+            "norm_type": sol.setups[0].norm_type,
             "iterations": sol.iterations,
             "setup_seconds": sol.setup_seconds, "solve_seconds": sol.solve_seconds,
             "case_seconds": [c.seconds for c in sol.cases],
@@ -169,8 +197,10 @@ def _average(frame, groups, sol, bc, a_star_cap, ranks, t_frame, vtu_dir, diagno
             "residuals": sol.residuals,
             **stats,
         },
+        "material": material,
+        "warnings": list(warnings),
     }
-    result = {**homogenize_header(frame, bed[0], bed[1]), **result}
+    result = {**homogenize_header(frame, bed[0], bed[1], material), **result}
     if sol.notes:
         result["solver"]["notes"] = sol.notes
     if a_star_cap is not None:

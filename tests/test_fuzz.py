@@ -14,9 +14,9 @@ in one of two ways:
 The input files are never changed (hashed before and after). Each command
 gets a bounded number of examples (derandomized: the same cases every run).
 
-Cases that wait for another branch are listed in PENDING (each with its
-issue-18 item) and drawn only with AMFE_FUZZ_ALL=1; the lead widens the
-test by moving them into the drawn sets once that branch is merged.
+PENDING lists the cases that waited for the solve-side fixes of issue 18
+(each with its item); they are drawn like the others now that those fixes
+are in (AMFE_FUZZ_ALL=0 leaves them out, to compare).
 AMFE_FUZZ_LOG=FILE appends one line per run (case, options, exit code, last
 stderr line) to FILE, to see what was drawn.
 """
@@ -33,7 +33,7 @@ from hypothesis import strategies as st
 
 from cli_fixtures import assert_one_error, mutated_checkpoint, run_main, sha256, tiny_model
 
-ALL = os.environ.get("AMFE_FUZZ_ALL") == "1"
+ALL = os.environ.get("AMFE_FUZZ_ALL", "1") == "1"
 FUZZ = settings(max_examples=25, deadline=None, derandomize=True, database=None,
                 suppress_health_check=list(HealthCheck))
 
@@ -64,11 +64,9 @@ MUTATIONS = ["none", "subset", "value", "radius", "radius_huge", "shape_centers"
 PREDICT_MUTATIONS = ["value_huge", "scale_1e-300", "scale_1e300", "material_text",
                      "material_partial"]
 
-# Cases another branch fixes (issue 18 items), drawn only with AMFE_FUZZ_ALL=1; they fail
-# today. rel-solve: coordinates at 1e-300 / 1e300 and material attributes of the wrong type
+# Cases the solve side of issue 18 fixed, drawn by default (AMFE_FUZZ_ALL=0 leaves them out): coordinates at 1e-300 / 1e300 and material attributes of the wrong type
 # or incomplete (items 3, 12) in homogenize (predict handles them: drawn for it); a bed
-# declaring 2e9 particles (11: read_bed allocates 45 GiB: DO NOT run it on a small machine
-# before the fix); absurd pack sizes and radii, seeds >= 2^64 (10, 11); homogenize -o
+# declaring 2e9 particles (11: refused from the dataset shapes before reading); absurd pack sizes and radii, seeds >= 2^64 (10, 11); homogenize -o
 # checked before the solve (6, 7). Pack's: PACK_PENDING.
 PENDING = {
     "homogenize_bed": PREDICT_MUTATIONS,

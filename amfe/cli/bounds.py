@@ -72,15 +72,18 @@ def table(results, gaps):
     return "\n".join(lines)
 
 
-def run_all(args, bed, comm, summary):
-    """Solve every condition the bed allows and print them side by side (rank 0)."""
+def run_all(args, bed, comm, summary, **options):
+    """Solve every condition the bed allows and print them side by side (rank 0).
+
+    options: more keywords of :func:`amfe.api.homogenize` (material, accept_unconverged, ...).
+    """
     from amfe.api import homogenize
     from amfe.io.atomic import write_json
     from amfe.io.result_meta import HEADER_KEYS
 
     results = homogenize(bed, comm=comm, a_star_cap=args.cap_a_star, rtol=args.rtol,
                          vtu_dir=args.vtu, bc="all", diagnose=args.diagnose,
-                         progress=not args.quiet, input_path=args.bed)
+                         progress=not args.quiet, input_path=args.bed, **options)
     if comm.rank != 0:
         return 0
     gaps = compare(results)
@@ -94,7 +97,7 @@ def run_all(args, bed, comm, summary):
         print(summary(r.to_dict(), args.bed, vtu=args.vtu and os.path.join(args.vtu, name)))
     print("== bounds (docs/model.md, section 9)")
     print(table(results, gaps))
-    note = above_e_note(results["kubc"].properties, bed.material().E)
+    note = above_e_note(results["kubc"].properties, results["kubc"].extra["material"]["E"])
     if note:
         print(textwrap.fill(note, 100))
     if args.output:

@@ -45,7 +45,34 @@ def register(sub):
                         "(also in the JSON under 'diagnostics')")
     p.add_argument("--quiet", action="store_true",
                    help="no progress lines on stderr (one per phase and load case)")
+    p.add_argument("--accept-unconverged", action="store_true",
+                   help="keep the constants of a solve whose true relative residual misses "
+                        "10 x rtol (an error otherwise), with a warning in the JSON")
+    add_material_args(p, "override the bed file's")
+    add_memory_arg(p)
     p.set_defaults(func=run)
+
+
+def add_material_args(p, what):
+    """--E, --nu, --psi: the particles' elastic material (shared with `amfe pack`)."""
+    p.add_argument("--E", type=float, metavar="PA", help=f"Young's modulus in Pa ({what}; "
+                   "default: the bed file's, else steel's 210e9)")
+    p.add_argument("--nu", type=float, metavar="NU", help=f"Poisson's ratio ({what}; "
+                   "default: the bed file's, else 0.28)")
+    p.add_argument("--psi", type=float, metavar="PSI", help=f"psi of paper eqs. 1 and 4 ({what}; "
+                   "default: the bed file's, else 0.08)")
+
+
+def add_memory_arg(p):
+    """--max-memory SIZE (shared with `amfe pack`)."""
+    p.add_argument("--max-memory", metavar="SIZE", default=None,
+                   help="refuse work estimated to need more memory than SIZE (e.g. 8G, 500M), "
+                        "in total over the ranks; default: half the machine's memory")
+
+
+def given_material(args):
+    """{"E": ..., "nu": ..., "psi": ...} of the material options given (maybe empty)."""
+    return {k: getattr(args, k) for k in ("E", "nu", "psi") if getattr(args, k) is not None}
 
 
 def run(args):
@@ -55,27 +82,48 @@ def run(args):
     from amfe.cli.bounds import above_e_note
     from amfe.io.bedfile import read_bed
     from amfe.io.mpi import on_root
+    from amfe.io.paths import check_output, check_output_dir
+    from amfe.model.memory import parse_size
+    from amfe.solvers.inputs import check_rtol
     from amfe.solvers.petsc import init_petsc
 
     init_petsc(args.petsc_args)
     comm = MPI.COMM_WORLD
-    bed = on_root(comm, read_bed, args.bed)
-    if args.rtol is not None and not (0 < args.rtol < 1):
-        raise AmfeError(f"--rtol must lie in (0, 1), got {args.rtol}")
+
+    def check_arguments():  # everything that can be refused, before reading or solving
+        if args.rtol is not None:
+            check_rtol(args.rtol, "--rtol")
+        if args.output:
+            check_output(args.output, inputs=[args.bed])
+        if args.vtu:
+            check_output_dir(args.vtu)
+        return None if args.max_memory is None else parse_size(args.max_memory)
+
+    max_memory = on_root(comm, check_arguments)
+    bed = on_root(comm, read_bed, args.bed, max_memory=max_memory)
+    options = dict(accept_unconverged=args.accept_unconverged, max_memory=max_memory,
+                   material=given_material(args) or None, material_source="command line")
     if args.bc == "all":
         from amfe.cli.bounds import run_all
-        return run_all(args, bed, comm, summary)
+        return run_all(args, bed, comm, summary, **options)
     result = homogenize(bed, comm=comm, a_star_cap=args.cap_a_star, rtol=args.rtol,
                         vtu_dir=args.vtu, bc=args.bc, diagnose=args.diagnose,
-                        progress=not args.quiet, solver=args.solver, input_path=args.bed)
-    if comm.rank == 0:
+                        progress=not args.quiet, solver=args.solver, input_path=args.bed,
+                        **options)
+
+    def write_and_report():
         if args.output:
-            result.to_json(args.output)
+            try:
+                result.to_json(args.output)
+            except OSError as exc:
+                raise AmfeError(f"cannot write -o {args.output}: {exc.strerror or exc}") from None
         print(summary(result.to_dict(), args.bed, args.output, args.vtu))
-        note = above_e_note(result.properties, bed.material().E)
+        note = above_e_note(result.properties, result.extra["material"]["E"])
         if note:
             print(note)
         sys.stdout.flush()
+
+    on_root(comm, write_and_report)
     return 0
 
 
@@ -90,6 +138,10 @@ def summary(result, bed_path, output=None, vtu=None):
              f"boundary conditions: {result['bc']}; "
              + ", ".join(f"{k.replace('_', ' ')} {v:.1e}" for k, v in s.items()
                          if "asymmetry" in k or k.startswith("love_weber"))]
+    if "material" in result:
+        m = result["material"]
+        lines.append(f"material: E {m['E'] / 1e9:g} GPa, nu {m['nu']:g}, psi {m['psi']:g} "
+                     f"({m['source']})")
     if "n_capped" in result:
         lines.append(f"a* capped on {result['n_capped']} bonds")
     props = result["properties"]
@@ -98,6 +150,9 @@ def summary(result, bed_path, output=None, vtu=None):
         lines.append(f"  {key:6s} {value:12.6g} {unit}")
     if "diagnostics" in result:
         lines.append(diagnostics_table(result["diagnostics"]))
+    if result.get("warnings"):
+        lines.append(f"warnings: {len(result['warnings'])} (printed above; the JSON's "
+                     "'warnings' has them in full)")
     if output:
         lines.append(f"wrote {output}")
     if vtu:

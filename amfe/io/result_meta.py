@@ -2,8 +2,8 @@
 ``amfe predict`` result carries, and the JSON Schema they follow (``result_schema.json``).
 
 The header: ``schema_version``, ``command``, ``amfe_version``, ``input`` (path
-and a content hash of the bed), ``material`` (E, nu, psi, density and where
-each came from), ``box``, ``units``, ``counts`` (particles and bonds, in the
+and a content hash of the bed), ``material`` (E, nu, psi and where they
+came from), ``box``, ``units``, ``counts`` (particles and bonds, in the
 input and kept), the Poisson convention and the units of C and S.
 """
 import hashlib
@@ -30,7 +30,6 @@ UNITS = {"length": "m", "displacement": "m", "stress": "Pa", "modulus": "Pa",
 HASH_OF = "sha256 of the float64 little-endian bytes of /particles/centers then /particles/radii"
 HEADER_KEYS = ("schema_version", "command", "amfe_version", "input", "material", "box",
                "units", "counts", "poisson_convention", "S_unit", "C_unit", "voigt_order")
-MATERIAL_KEYS = ("E", "nu", "psi", "density")
 
 
 def bed_sha256(centers, radii):
@@ -44,7 +43,7 @@ def bed_sha256(centers, radii):
     return h.hexdigest()
 
 
-def header(command, centers, radii, material, *, input_path=None, material_source=None):
+def header(command, centers, radii, material, *, input_path=None):
     """The header of a result of ``command`` on the bed (centers, radii).
 
     Parameters
@@ -52,13 +51,13 @@ def header(command, centers, radii, material, *, input_path=None, material_sourc
     command : {"homogenize", "predict"}
     centers : ndarray (N, 3) [m]; radii : ndarray (N,) [m]
         The input bed.
-    material : amfe.Material
-        The particle material used.
+    material : dict
+        The material record: E [Pa], nu, psi and ``source`` ("bed file",
+        "default (steel)", "command line", "argument", or a mix such as
+        "command line (E); bed file (nu, psi)"), as
+        :func:`amfe.model.material.resolve_material` gives it.
     input_path : str, optional
         The bed file (None: the bed came as arrays).
-    material_source : str or dict, optional
-        Where the material came from ("bed file", "command line", "argument"
-        or "default"), one for all values or one per value; omitted if None.
 
     Returns
     -------
@@ -67,53 +66,30 @@ def header(command, centers, radii, material, *, input_path=None, material_sourc
     """
     centers = np.asarray(centers, dtype=float)
     lo, hi = centers.min(axis=0), centers.max(axis=0)
-    out = {"schema_version": SCHEMA_VERSION, "command": command, "amfe_version": __version__,
-           "input": {"path": None if input_path is None else str(input_path),
-                     "sha256": bed_sha256(centers, radii), "hash_of": HASH_OF},
-           "material": {k: float(getattr(material, k)) for k in MATERIAL_KEYS},
-           "box": {"min": lo.tolist(), "max": hi.tolist(), "size": (hi - lo).tolist(),
-                   "of": "centres of the input particles"},
-           "units": dict(UNITS), "counts": {"particles_input": int(len(centers))},
-           "poisson_convention": POISSON_CONVENTION, "S_unit": "1/Pa", "C_unit": "Pa",
-           "voigt_order": list(CASE_NAMES)}
-    if material_source is not None:
-        set_material_source(out, material_source)
-    return out
+    return {"schema_version": SCHEMA_VERSION, "command": command, "amfe_version": __version__,
+            "input": {"path": None if input_path is None else str(input_path),
+                      "sha256": bed_sha256(centers, radii), "hash_of": HASH_OF},
+            "material": {k: (v if k == "source" else float(v)) for k, v in material.items()},
+            "box": {"min": lo.tolist(), "max": hi.tolist(), "size": (hi - lo).tolist(),
+                    "of": "centres of the input particles"},
+            "units": dict(UNITS), "counts": {"particles_input": int(len(centers))},
+            "poisson_convention": POISSON_CONVENTION, "S_unit": "1/Pa", "C_unit": "Pa",
+            "voigt_order": list(CASE_NAMES)}
 
 
-def set_material_source(result, source):
-    """Record where the material came from: one str for all values, or a dict per value."""
-    if isinstance(source, str):
-        source = {k: source for k in MATERIAL_KEYS}
-    result["material"]["source"] = dict(source)
-
-
-def material_source(bed, material=None):
-    """Where a solve's material comes from: "argument" (given), "bed file" or "default".
-
-    ``bed`` is an :class:`amfe.Bed` (its attrs hold material_E, ... when the
-    file recorded them: :meth:`amfe.Bed.material`) or arrays.
-    """
-    if material is not None:
-        return "argument"
-    attrs = getattr(bed, "attrs", {}) or {}
-    return "bed file" if all(f"material_{k}" in attrs for k in MATERIAL_KEYS) else "default"
-
-
-def describe_input(result, input_path, source):
-    """Fill in what only the caller knows: the bed file's path and the material's source."""
+def describe_input(result, input_path):
+    """Fill in what only the caller knows: the bed file's path."""
     result["input"]["path"] = None if input_path is None else str(input_path)
-    set_material_source(result, source)
 
 
-def homogenize_header(frame, centers, radii):
+def homogenize_header(frame, centers, radii, material):
     """:func:`header` of a homogenization, with the kept counts of ``frame``.
 
     ``bonds_input`` adds the bonds among the removed particles (a bond lies in
     the kept component iff one of its ends does), found at the frame's scale
     as :func:`amfe.model.frame.build_frame` found them.
     """
-    out = header("homogenize", centers, radii, frame.material)
+    out = header("homogenize", centers, radii, material)
     removed = np.ones(len(radii), bool)
     removed[frame.kept] = False
     n_lost = 0

@@ -88,6 +88,25 @@ def largest_component(n, i, j):
     return labels == np.argmax(sizes)
 
 
+def _check_spans_volume(x, mean_radius):
+    """AmfeError when the centres x (n,3) lie within one mean radius of a plane or a line.
+
+    The axis-aligned case is caught just before (its message names the axis);
+    this catches tilted sheets and chains (a straight chain along (1, 1, 1)),
+    whose KUBC problem is singular, before any solve. The thinnest direction
+    is the principal axis of least spread.
+    """
+    d = x - x.mean(axis=0)
+    normal = np.linalg.eigh(d.T @ d)[1][:, 0]
+    width = float(np.ptp(d @ normal)) / mean_radius
+    if width < 1.0:
+        raise AmfeError(
+            f"the load-carrying particles form a sheet or a line: their centres span only "
+            f"{width:.3g} mean radii across the direction ({normal[0]:.3f}, {normal[1]:.3f}, "
+            f"{normal[2]:.3f}), less than one radius, so they span no volume to average over; "
+            "a bed needs at least two particle layers in every direction")
+
+
 def build_frame(centers, radii, material: Material = STEEL, a_star_cap=None, nondimensional=True,
                 box=None):
     """The largest connected, non-dimensionalised frame of a bed.
@@ -143,6 +162,7 @@ def build_frame(centers, radii, material: Material = STEEL, a_star_cap=None, non
             f"{extent.min():.3g} mean radii along {axis}, less than one radius, so they span "
             "no volume to average over; a bed needs at least two particle layers in every "
             "direction")
+    _check_spans_volume(x, r.mean())
     bonds = contact_geometry(x, r, lo[order], hi[order], None if box is None else shift * L)
     E = 1.0 if nondimensional else material.E
     unit = Material(E=E, nu=material.nu, psi=material.psi, density=material.density)
