@@ -35,6 +35,7 @@ def homogenize(beds, bc):
     """`amfe homogenize` at rtol 1e-12 with --vtu: (JSON result, output directory, bed)."""
     bed, out = beds / ("periodic.h5" if bc == "periodic" else "bed.h5"), beds / bc
     if not (out / "r.json").exists():
+        out.mkdir(exist_ok=True)
         proc = run_cli(["homogenize", str(bed), "-o", str(out / "r.json"), "--vtu", str(out),
                         "--rtol", "1e-12", "--bc", bc, "--solver", "gamg", "--quiet"])
         assert proc.returncode == 0, proc.stderr
