@@ -19,6 +19,7 @@ layout: amfe.io.datasetfile.
 import os
 import sys
 
+from amfe.cli.options import add_solver_args
 from amfe.errors import AmfeError
 from amfe.model.scales import SCALES
 
@@ -38,12 +39,7 @@ def register(sub):
                    help="bed distribution (default small; see amfe.model.scales)")
     p.add_argument("--ranks-per-bed", type=int, default=1, metavar="K",
                    help="MPI ranks that solve one bed together (default 1)")
-    p.add_argument("--solver", choices=["auto", "gamg", "cholesky"], default="auto",
-                   help="auto (default): per bed, Cholesky where its predicted fill is low, "
-                        "else CG + GAMG; labels within 1e-5 of a tight reference either way")
-    p.add_argument("--rtol", type=float, default=None,
-                   help="GAMG's relative tolerance (default 1e-8 with --solver gamg, 1e-7 "
-                        "for the beds auto gives to GAMG)")
+    add_solver_args(p)
     p.add_argument("--max-failed-share", type=float, default=None, metavar="F",
                    help="exit with an error (status 2, the file is still written) when more than "
                         "this share of the records failed (default 0.05)")

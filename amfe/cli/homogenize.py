@@ -8,6 +8,7 @@ owns a block of its rows; rank 0 writes the JSON (atomically) and the VTU files.
 import os
 import sys
 
+from amfe.cli.options import add_solver_args
 from amfe.errors import AmfeError
 
 PROPERTY_UNITS = [("Ex", "GPa"), ("Ey", "GPa"), ("Ez", "GPa"), ("nu_yz", ""), ("nu_xz", ""),
@@ -23,12 +24,7 @@ def register(sub):
     p.add_argument("-o", "--output", help="write the result as JSON here")
     p.add_argument("--vtu", metavar="DIR", help="write the ParaView files here: case_<name>.vtp "
                    "per load case and cases.pvd (view them: amfe view DIR)")
-    p.add_argument("--solver", choices=["auto", "gamg", "cholesky"], default="auto",
-                   help="auto (default): Cholesky on one rank where its predicted fill is low, "
-                        "else CG + GAMG; the constants stay within 1e-5 of a tight reference")
-    p.add_argument("--rtol", type=float, default=None,
-                   help="GAMG's relative tolerance (default 1e-8 with --solver gamg, 1e-7 "
-                        "when auto picks GAMG)")
+    add_solver_args(p)
     p.add_argument("--cap-a-star", type=float, default=None, metavar="A",
                    help="evaluate bonds with a* > A at a* = A (A below the critical a*) "
                         "instead of refusing them; the JSON reports n_capped")

@@ -50,3 +50,13 @@ positive_float = _checked(float, 0.0, above=True)  # learning rates, widths
 def finite_float(text):
     """A finite float (not nan, inf)."""
     return _number(text, float)
+
+
+def add_solver_args(p):
+    """--solver and --rtol, as homogenize and dataset take them (amfe.solvers.choice)."""
+    p.add_argument("--solver", choices=["auto", "gamg", "cholesky"], default="auto",
+                   help="auto (default): Cholesky on one rank where its predicted fill is low, "
+                        "else CG + GAMG; the constants stay within 1e-5 of a tight reference")
+    p.add_argument("--rtol", type=float, default=None,
+                   help="GAMG's relative tolerance (default 1e-8 with --solver gamg, 1e-7 "
+                        "when auto picks GAMG)")
