@@ -10,12 +10,13 @@ import os
 from amfe.errors import AmfeError
 from amfe.io.mpi import on_root
 from amfe.io.result import Result
+from amfe.io.result_meta import describe_input
 
 
 def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_options=None,
                a_star_cap=None, material=None, max_it=None, diagnose=False, progress=False,
                vtu_dir=None, solver="auto", accept_unconverged=False, max_memory=None,
-               material_source=None):
+               material_source=None, input_path=None):
     """Effective elastic constants of a powder bed, as a :class:`~amfe.io.result.Result`.
 
     Parameters
@@ -53,7 +54,8 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
     diagnose, progress : bool
         Add per-case solver diagnostics; print progress lines to stderr.
     vtu_dir : str, optional
-        Write one VTU per load case and cases.pvd there.
+        Write the ParaView files there: one .vtp per load case and cases.pvd
+        (docs/viewing.md); with bc="all", one subdirectory per condition.
     solver : {"auto", "gamg", "cholesky"}
         How to solve: ``"auto"`` picks per bed the cheapest method whose
         constants stay within 1e-5 of a tight reference (Cholesky on one rank
@@ -69,6 +71,9 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
     material_source : str, optional
         What to call the given material's origin in the result (default
         "argument"; the CLI says "command line").
+    input_path : str, optional
+        The bed file to name in the result's ``input`` block (default: ``bed``
+        itself when it is a path).
 
     Returns
     -------
@@ -94,6 +99,7 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
         comm if isinstance(comm, PETSc.Comm) else PETSc.Comm(comm))
     mpi = pcomm.tompi4py()
     if isinstance(bed, (str, os.PathLike)):
+        input_path = bed if input_path is None else input_path
         from amfe.io.bedfile import read_bed
         bed = on_root(mpi, read_bed, bed, max_memory=max_memory)
     centers = radii = source = error = box = None
@@ -110,6 +116,7 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
                            progress=progress, fields=fields, box=box,
                            accept_unconverged=accept_unconverged, max_memory=max_memory,
                            material_source=source, input_error=error)
+        describe_input(d, input_path)
         return Result.from_dict(d, fields=d.pop("fields", None))
     if bc != "all":
         return one(bc, vtu_dir)

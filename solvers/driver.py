@@ -13,20 +13,21 @@ from collections import namedtuple
 
 import numpy as np
 
-from amfe.model.element import bond_forces
 from amfe.model.frame import build_frame
 from amfe.model.averages import (asymmetry, bagi_strain, compliance_and_constants, hull_of,
-                             stiffness, symmetric, unit_strains, voigt, voigt_strain)
+                             stiffness, symmetric, voigt, voigt_strain)
 from amfe.model.material import SOURCE_DEFAULT
 from amfe.io.mpi import on_root
-from amfe.io.result import Fields, write_fields_vtu
+from amfe.io.fields import frame_fields
+from amfe.io.result_meta import homogenize_header
+from amfe.io.vtp import write_fields_vtp
 from amfe.solvers.choice import USER_METHOD_OPTIONS, choose_solver, cholesky_package, solve_features
 from amfe.solvers.inputs import checked_inputs
 from amfe.solvers.ksp import DEFAULT_RTOL, RESIDUAL_FACTOR
-from amfe.model.kubc import CASE_NAMES, kubc_groups
+from amfe.model.kubc import kubc_groups
 from amfe.solvers.loadcases import solve_load_cases
 from amfe.model.mixed import mixed_groups
-from amfe.model.periodic import bond_jumps, periodic_average, periodic_groups
+from amfe.model.periodic import periodic_average, periodic_groups
 from amfe.model.subc import subc_average, subc_groups
 from amfe.solvers.petsc import init_petsc, unused_options_warning
 
@@ -84,7 +85,9 @@ def homogenize_bed(centers, radii, material=None, *, a_star_cap=None, rtol=None,
     residuals and the condition's checks, docs/model.md section 9), material
     (E, nu, psi, source) and warnings (list of str: accepted unconverged
     solves, PETSc options never used); with ``a_star_cap``, also n_capped. With
-    ``vtu_dir``, rank 0 writes one VTU per load case and cases.pvd there.
+    ``vtu_dir``, rank 0 writes the ParaView files there (one .vtp per load case and
+    cases.pvd; docs/viewing.md). The dict starts with the header of
+    :func:`amfe.io.result_meta.homogenize_header` (input hash, material, box, counts, ...).
     ``ksp_options`` (dict) sets PETSc options for this solve only, e.g.
     {"ksp_type": "preonly", "pc_type": "cholesky"}; ``nondimensional=False``
     assembles in SI units (for the benchmark that shows why scaling matters).
@@ -147,7 +150,8 @@ def homogenize_bed(centers, radii, material=None, *, a_star_cap=None, rtol=None,
         n for n in sol.unused_options if n.lstrip("-") in {k.lstrip("-") for k in ksp_options or {}}])
     record = {"E": material.E, "nu": material.nu, "psi": material.psi, "source": source}
     result = on_root(mpi, _average, frame, groups, sol, bc, a_star_cap, mpi.size, t_frame,
-                     vtu_dir, diagnose, fields, record, warnings + ([unused] if unused else []))
+                     vtu_dir, diagnose, fields, record, warnings + ([unused] if unused else []),
+                     (centers, radii))
     result["solver"].update(method=method, reason=reason, requested=solver)
     return result
 
@@ -162,8 +166,9 @@ def _stderr_log(rank):
 
 
 def _average(frame, groups, sol, bc, a_star_cap, ranks, t_frame, vtu_dir, diagnose, fields,
-             material, warnings):
-    """Rank 0: the condition's averages, C, S, constants, the result dict (and the VTU files)."""
+             material, warnings, bed):
+    """Rank 0: the condition's averages, C, S, constants, the result dict (and the ParaView
+    files). ``bed``: (centers, radii), the input arrays."""
     t0 = time.perf_counter()
     C, volume, stats = BOUNDARY_CONDITIONS[bc].average(frame, groups, sol.u, sol.moments,
                                                        diagnose=diagnose)
@@ -195,35 +200,19 @@ def _average(frame, groups, sol, bc, a_star_cap, ranks, t_frame, vtu_dir, diagno
         "material": material,
         "warnings": list(warnings),
     }
+    result = {**homogenize_header(frame, bed[0], bed[1], material), **result}
     if sol.notes:
         result["solver"]["notes"] = sol.notes
     if a_star_cap is not None:
         result["n_capped"] = int(frame.n_capped)
     if diagnose:
         result["diagnostics"] = sol.diagnostics()
+    if fields or vtu_dir is not None:
+        f = frame_fields(frame, sol.u, groups, bc, centers=bed[0], radii=bed[1])
     if fields:
-        result["fields"] = frame_fields(frame, sol.u)
+        result["fields"] = f
     if vtu_dir is not None:
-        write_frame_vtu(vtu_dir, frame, sol.u)
+        paths = write_fields_vtp(vtu_dir, f)
+        result["vtk"] = {"collection": paths[-1], "files": paths[:-1]}
     return result
 
-
-def frame_fields(frame, u):
-    """The :class:`~amfe.io.result.Fields` of the six solutions ``u`` (6, n, 6), in SI units."""
-    b, L, F = frame.bonds, frame.length_scale, frame.force_scale
-    uj = u[:, b.j].copy()
-    if frame.shift is not None:  # the image of j moves by the jump eps (s L) more
-        uj[:, :, :3] += bond_jumps(frame, unit_strains())
-    forces = [bond_forces(b.normal, b.d_i, b.d_j, frame.k_n, frame.k_t, frame.kappa_n,
-                          frame.kappa_t, u[k][b.i], uj[k]) for k in range(len(u))]
-    axial, shear, moment = (np.array(a) for a in zip(*forces))
-    return Fields(particle_id=np.asarray(frame.kept), centers=frame.centers * L,
-                  radii=frame.radii * L, bonds=np.stack([b.i, b.j], axis=1),
-                  displacement=u[:, :, :3] * L, rotation=u[:, :, 3:].copy(),
-                  axial_force=axial * F, shear_force=shear * F, moment=moment * F * L,
-                  case_names=tuple(CASE_NAMES), shift=frame.shift)
-
-
-def write_frame_vtu(directory, frame, u):
-    """One VTU per load case (SI units, per unit macro-strain) and cases.pvd."""
-    return write_fields_vtu(directory, frame_fields(frame, u))

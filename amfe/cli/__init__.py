@@ -32,7 +32,7 @@ from amfe.cli.interrupt import Interrupted, end_broken_pipe, end_interrupted, si
 from amfe.errors import AmfeError
 from amfe.version import __version__
 
-COMMANDS = ["pack", "homogenize", "dataset", "train", "predict"]
+COMMANDS = ["pack", "homogenize", "dataset", "train", "predict", "view"]
 # Commands that hand single-dash options to PETSc (predict: with --check or --fallback).
 PETSC_COMMANDS = ("homogenize", "dataset", "predict")
 DISK_FULL = (errno.ENOSPC, errno.EDQUOT)

@@ -79,16 +79,18 @@ def run_all(args, bed, comm, summary, **options):
     """
     from amfe.api import homogenize
     from amfe.io.atomic import write_json
-    from amfe.io.result import SCHEMA_VERSION
+    from amfe.io.result_meta import HEADER_KEYS
 
     results = homogenize(bed, comm=comm, a_star_cap=args.cap_a_star, rtol=args.rtol,
                          vtu_dir=args.vtu, bc="all", diagnose=args.diagnose,
-                         progress=not args.quiet, **options)
+                         progress=not args.quiet, input_path=args.bed, **options)
     if comm.rank != 0:
         return 0
     gaps = compare(results)
     if args.output:
-        write_json(args.output, {"schema_version": SCHEMA_VERSION, "bc": "all", **gaps,
+        head = {k: v for k, v in results["kubc"].to_dict().items()  # the bed's header;
+                if k in HEADER_KEYS and k != "counts"}                # counts: per condition
+        write_json(args.output, {**head, "bc": "all", **gaps,
                                  "conditions": {n: r.to_dict() for n, r in results.items()}})
     for name, r in results.items():
         print(f"== {name}")

@@ -22,7 +22,8 @@ def register(sub):
                               "-log_view, -pc_type hypre.")
     p.add_argument("bed", help="bed HDF5 file (/particles/centers, /particles/radii)")
     p.add_argument("-o", "--output", help="write the result as JSON here")
-    p.add_argument("--vtu", metavar="DIR", help="write one VTU per load case and cases.pvd here")
+    p.add_argument("--vtu", metavar="DIR", help="write the ParaView files here: case_<name>.vtp "
+                   "per load case and cases.pvd (view them: amfe view DIR)")
     add_solver_args(p)
     p.add_argument("--cap-a-star", type=float, default=None, metavar="A",
                    help="evaluate bonds with a* > A at a* = A (A below the critical a*) "
@@ -103,7 +104,8 @@ def run(args):
         return run_all(args, bed, comm, summary, **options)
     result = homogenize(bed, comm=comm, a_star_cap=args.cap_a_star, rtol=args.rtol,
                         vtu_dir=args.vtu, bc=args.bc, diagnose=args.diagnose,
-                        progress=not args.quiet, solver=args.solver, **options)
+                        progress=not args.quiet, solver=args.solver, input_path=args.bed,
+                        **options)
 
     def write_and_report():
         if args.output:

@@ -25,6 +25,8 @@ from amfe.cli.options import nonnegative_float, thread_count
 from amfe.errors import AmfeError
 from amfe.io.atomic import write_json
 from amfe.io.paths import STDOUT, check_output
+from amfe.io.result_meta import header, predict_block
+from amfe.model.material import resolve_material
 
 from amfe.vocab import LABEL_NAMES as SIX
 NINE = SIX + ("G_yz", "G_xz", "G_xy")
@@ -142,6 +144,8 @@ def run(args):
                             "relative_difference": {k: _relative(surrogate_props[k],
                                                                  solver_props[k]) for k in SIX}}
         out["solver"] = solver["solver"]
+    out = {**header("predict", bed.centers, bed.radii, resolve_material(bed.attrs)[1],
+                    input_path=args.bed), **out, "predict": predict_block(out)}
     times["total"] = time.perf_counter() - t_start
     out["seconds"] = times["total"]
     out["timings"] = times
