@@ -16,11 +16,11 @@ mpirun -n 2 .venv/bin/amfe homogenize "$out/bed.h5" -o "$out/result.json" --vtu 
 # A picture of load case xx (ParaView's pvpython when installed, else matplotlib); it
 # prints the warp factor and the PNG's path. docs/viewing.md: the other cases, ParaView.
 .venv/bin/amfe view "$out/vtu" --case xx
+echo "Open $out/vtu/cases.pvd in ParaView to see the six deformed frames (docs/viewing.md)."
 # The bounds report (docs/model.md, section 9): KUBC beside SUBC on the periodic twin of the
 # bed, and the periodic value, the material's own stiffness, with their gaps.
 .venv/bin/amfe pack -o "$out/bed_periodic.h5" --seed 0 --periodic
 mpirun -n 2 .venv/bin/amfe homogenize "$out/bed_periodic.h5" --bc all --quiet -o "$out/bounds.json"
-echo "Open $out/vtu/cases.pvd in ParaView to see the six deformed frames (docs/viewing.md)."
 # The CNN surrogate shipped in amfe/models/ on a bed of the scale it was trained on
 # (0.6 x 0.6 x 0.3 mm), printed beside the PETSc solve of the same bed (--check). The bed
 # is record 0 of the held-out test set of docs/surrogate.md (data-set seed 2), which no
