@@ -98,14 +98,14 @@ def run(args):
     max_memory = on_root(comm, check_arguments)
     bed = on_root(comm, read_bed, args.bed, max_memory=max_memory)
     options = dict(accept_unconverged=args.accept_unconverged, max_memory=max_memory,
-                   material=given_material(args) or None, material_source="command line")
+                   material=given_material(args) or None, material_source="command line",
+                   solver=args.solver)
     if args.bc == "all":
         from amfe.cli.bounds import run_all
         return run_all(args, bed, comm, summary, **options)
     result = homogenize(bed, comm=comm, a_star_cap=args.cap_a_star, rtol=args.rtol,
                         vtu_dir=args.vtu, bc=args.bc, diagnose=args.diagnose,
-                        progress=not args.quiet, solver=args.solver, input_path=args.bed,
-                        **options)
+                        progress=not args.quiet, input_path=args.bed, **options)
 
     def write_and_report():
         if args.output:
