@@ -139,3 +139,13 @@ def test_example_3_mpi_matches_one_rank(bed_path, with_fields):
     assert proc.returncode == 0, proc.stderr
     ex = float(proc.stdout.split("Ex = ")[1].split()[0])
     assert ex == pytest.approx(with_fields.Ex / 1e9, abs=1e-4)
+
+
+def test_json_to_stdout_matches_the_file(bed_path, tmp_path):
+    out = tmp_path / "r.json"
+    to_file = run_cli(["homogenize", str(bed_path), "-o", str(out), "--quiet"])
+    to_stdout = run_cli(["homogenize", str(bed_path), "-o", "-", "--quiet"])
+    assert to_file.returncode == 0 and to_stdout.returncode == 0, to_stdout.stderr
+    piped, saved = json.loads(to_stdout.stdout), json.loads(out.read_text())
+    assert piped["C"] == saved["C"] and piped["properties"] == saved["properties"]
+    assert "Ex" in to_stdout.stderr and not (tmp_path / "-").exists()

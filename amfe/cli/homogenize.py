@@ -5,6 +5,7 @@
 Rank 0 reads the bed and broadcasts it; every rank builds the same frame and
 owns a block of its rows; rank 0 writes the JSON (atomically) and the VTU files.
 """
+import json
 import os
 import sys
 
@@ -21,7 +22,7 @@ def register(sub):
                        epilog="Any -option (single dash) goes to PETSc, e.g. -ksp_monitor, "
                               "-log_view, -pc_type hypre.")
     p.add_argument("bed", help="bed HDF5 file (/particles/centers, /particles/radii)")
-    p.add_argument("-o", "--output", help="write the result as JSON here")
+    p.add_argument("-o", "--output", help="write the result as JSON here (- : to stdout, the table to stderr)")
     p.add_argument("--vtu", metavar="DIR", help="write the ParaView files here: case_<name>.vtp "
                    "per load case and cases.pvd (view them: amfe view DIR)")
     add_solver_args(p)
@@ -78,7 +79,7 @@ def run(args):
     from amfe.cli.bounds import above_e_note
     from amfe.io.bedfile import read_bed
     from amfe.io.mpi import on_root
-    from amfe.io.paths import check_output, check_output_dir
+    from amfe.io.paths import STDOUT, check_output, check_output_dir
     from amfe.model.memory import parse_size
     from amfe.solvers.inputs import check_rtol
     from amfe.solvers.petsc import init_petsc
@@ -90,7 +91,7 @@ def run(args):
         if args.rtol is not None:
             check_rtol(args.rtol, "--rtol")
         if args.output:
-            check_output(args.output, inputs=[args.bed])
+            check_output(args.output, inputs=[args.bed], allow_stdout=True)
         if args.vtu:
             check_output_dir(args.vtu)
         return None if args.max_memory is None else parse_size(args.max_memory)
@@ -108,16 +109,21 @@ def run(args):
                         progress=not args.quiet, input_path=args.bed, **options)
 
     def write_and_report():
-        if args.output:
+        # `-o -`: the JSON alone on stdout (for a pipe), the table on stderr
+        table_to = sys.stderr if args.output == STDOUT else sys.stdout
+        if args.output == STDOUT:
+            print(json.dumps(result.to_dict(), indent=2), flush=True)
+        elif args.output:
             try:
                 result.to_json(args.output)
             except OSError as exc:
                 raise AmfeError(f"cannot write -o {args.output}: {exc.strerror or exc}") from None
-        print(summary(result.to_dict(), args.bed, args.output, args.vtu))
+        print(summary(result.to_dict(), args.bed,
+                      None if args.output == STDOUT else args.output, args.vtu), file=table_to)
         note = above_e_note(result.properties, result.extra["material"]["E"])
         if note:
-            print(note)
-        sys.stdout.flush()
+            print(note, file=table_to)
+        table_to.flush()
 
     on_root(comm, write_and_report)
     return 0
