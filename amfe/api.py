@@ -10,23 +10,31 @@ import os
 from amfe.errors import AmfeError
 from amfe.io.mpi import on_root
 from amfe.io.result import Result
+from amfe.io.result_meta import describe_input
 
 
 def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_options=None,
                a_star_cap=None, material=None, max_it=None, diagnose=False, progress=False,
-               vtu_dir=None):
+               vtu_dir=None, solver="auto", accept_unconverged=False, max_memory=None,
+               material_source=None, input_path=None):
     """Effective elastic constants of a powder bed, as a :class:`~amfe.io.result.Result`.
 
     Parameters
     ----------
     bed : Bed, str or path-like, or (centers, radii)
         The bed: an :class:`amfe.Bed`, the path of a bed file (read on rank 0
-        and broadcast), or arrays centers (N, 3) [m] and radii (N,) [m] that
-        must be the same on every rank.
-    bc : {"kubc", "mixed"}
-        Boundary conditions (docs/model.md, section 5).
+        and broadcast), or arrays centers (N, 3) [m] and radii (N,) [m] of
+        real numbers that must be bit-identical on every rank (checked; a
+        difference is an error on every rank).
+    bc : {"kubc", "mixed", "subc", "periodic", "all"}
+        Boundary conditions (docs/model.md, sections 5 and 9). "periodic"
+        needs a periodic bed (``generate_bed(..., periodic=True)``, whose
+        attrs carry ``periodic``). "all" solves KUBC and SUBC (and periodic
+        on a periodic bed) and returns a dict {bc: Result}, VTU files in
+        ``vtu_dir``/<bc>.
     rtol : float, optional
-        Relative residual tolerance of the solves (default 1e-8).
+        GAMG's relative residual tolerance (default: 1e-8 with ``solver="gamg"``,
+        1e-7 for the beds ``"auto"`` gives to GAMG).
     comm : mpi4py or PETSc communicator, optional
         The ranks that share the solve (default: all of them).
     fields : bool
@@ -36,20 +44,42 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
         PETSc options for this solve only, e.g. ``{"ksp_monitor": None}``.
     a_star_cap : float, optional
         Cap every bond's a* at this value instead of refusing near-critical bonds.
-    material : Material, optional
-        The particles' material; default: the bed file's, else steel.
+    material : Material or dict, optional
+        The particles' material. A :class:`Material` replaces the bed's; a
+        dict of some of E [Pa], nu, psi overrides those of the bed file (whose
+        E, nu, psi must otherwise be complete or absent). Default: the bed
+        file's, else steel. ``result.extra["material"]`` says which was used.
     max_it : int, optional
         Iteration limit of each solve.
     diagnose, progress : bool
         Add per-case solver diagnostics; print progress lines to stderr.
     vtu_dir : str, optional
-        Write one VTU per load case and cases.pvd there.
+        Write the ParaView files there: one .vtp per load case and cases.pvd
+        (docs/viewing.md); with bc="all", one subdirectory per condition.
+    solver : {"auto", "gamg", "cholesky"}
+        How to solve: ``"auto"`` picks per bed the cheapest method whose
+        constants stay within 1e-5 of a tight reference (Cholesky on one rank
+        where the predicted fill is low, else CG + GAMG); ``result.solver``
+        says which and why.
+    accept_unconverged : bool
+        Keep the numbers of a solve that misses its tolerance (true relative
+        residual above 10 x rtol), with a warning in ``result.extra["warnings"]``,
+        instead of raising AmfeError.
+    max_memory : float, optional
+        Bytes reading and solving may take, over all ranks (default: half the
+        machine's memory); a larger estimate is refused before any work.
+    material_source : str, optional
+        What to call the given material's origin in the result (default
+        "argument"; the CLI says "command line").
+    input_path : str, optional
+        The bed file to name in the result's ``input`` block (default: ``bed``
+        itself when it is a path).
 
     Returns
     -------
-    Result
+    Result (a dict {bc: Result} for bc="all")
         C, S, the nine constants (also as attributes: ``result.Ex``), volume,
-        counts and the solver record.
+        counts, the solver record, ``extra["material"]`` and ``extra["warnings"]``.
 
     Examples
     --------
@@ -61,9 +91,7 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
     >>> result.C.shape
     (6, 6)
     """
-    from amfe.model.bed import Bed
     from amfe.solvers.driver import homogenize_bed
-    from amfe.solvers.ksp import DEFAULT_RTOL
     from amfe.solvers.petsc import init_petsc
 
     PETSc = init_petsc()
@@ -71,19 +99,47 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
         comm if isinstance(comm, PETSc.Comm) else PETSc.Comm(comm))
     mpi = pcomm.tompi4py()
     if isinstance(bed, (str, os.PathLike)):
+        input_path = bed if input_path is None else input_path
         from amfe.io.bedfile import read_bed
-        bed = on_root(mpi, read_bed, bed)
+        bed = on_root(mpi, read_bed, bed, max_memory=max_memory)
+    centers = radii = source = error = box = None
+    try:  # a failure here on one rank only must still reach the collective check
+        centers, radii, material, source, box = _inputs(bed, material,
+                                                        material_source or "argument")
+    except AmfeError as exc:
+        error = exc
+
+    def one(bc, vtu_dir):
+        d = homogenize_bed(centers, radii, material, a_star_cap=a_star_cap, rtol=rtol,
+                           max_it=max_it, solver=solver, vtu_dir=vtu_dir, comm=pcomm,
+                           ksp_options=petsc_options, bc=bc, diagnose=diagnose,
+                           progress=progress, fields=fields, box=box,
+                           accept_unconverged=accept_unconverged, max_memory=max_memory,
+                           material_source=source, input_error=error)
+        describe_input(d, input_path)
+        return Result.from_dict(d, fields=d.pop("fields", None))
+    if bc != "all":
+        return one(bc, vtu_dir)
+    names = ["kubc", "subc"] + (["periodic"] if box is not None else [])
+    return {name: one(name, vtu_dir and os.path.join(vtu_dir, name)) for name in names}
+
+
+def _inputs(bed, material, given_source):
+    """(centers, radii, Material, its source, periodic box or None) of the arguments."""
+    from amfe.model.bed import Bed
+    from amfe.model.material import Material, resolve_material
+
     if isinstance(bed, Bed):
-        centers, radii = bed.centers, bed.radii
-        material = bed.material() if material is None else material
+        centers, radii, attrs = bed.centers, bed.radii, bed.attrs
     elif isinstance(bed, (tuple, list)) and len(bed) == 2:
-        centers, radii = bed
+        (centers, radii), attrs = bed, {}
     else:
         raise AmfeError("homogenize: bed must be an amfe.Bed, a bed file's path, or "
                         f"(centers, radii); got {type(bed).__name__}")
-    kw = {} if material is None else {"material": material}
-    d = homogenize_bed(centers, radii, **kw, a_star_cap=a_star_cap,
-                       rtol=DEFAULT_RTOL if rtol is None else rtol, max_it=max_it,
-                       vtu_dir=vtu_dir, comm=pcomm, ksp_options=petsc_options, bc=bc,
-                       diagnose=diagnose, progress=progress, fields=fields)
-    return Result.from_dict(d, fields=d.pop("fields", None))
+    if isinstance(material, Material):
+        return centers, radii, material, given_source, attrs.get("periodic")
+    if material is not None and not isinstance(material, dict):
+        raise AmfeError("homogenize: material must be an amfe.Material or a dict of E, nu, "
+                        f"psi; got {type(material).__name__}")
+    material, record = resolve_material(attrs, material, given_source=given_source)
+    return centers, radii, material, record["source"], attrs.get("periodic")

@@ -1,6 +1,7 @@
-"""Data-set benchmark (issue item 6): beds per hour per core, batch overhead, one paper bed.
+"""Data-set benchmark: beds per hour of the old and the new labelling path, batch overhead.
 
-    python run/bench_dataset.py                  # small scale, 20 beds on 1 and on 2 ranks
+    python run/bench_dataset.py                  # small scale, 20 beds on 1 and on 2 ranks,
+                                                 # old path (GAMG, rtol 1e-8) and new (auto)
     python run/bench_dataset.py --count 40 --ranks 2
     python run/bench_dataset.py --paper          # + one bed of the paper scale (1 rank)
 
@@ -25,6 +26,14 @@ parent measures the whole command's wall time. All times are rank-seconds
 neither the solve nor the data (generation, image). "steady" leaves out the
 one-off terms (start-up, setup+merge, tail) that do not grow with the count.
 The machine may be shared: the load average before each run is printed.
+
+Each configuration runs the same beds in the same invocation: "old" is the
+first round's path (``--solver gamg``, rtol 1e-8, ``-amfe_block no``), "new"
+is the default (``--solver auto``); the ratio of their beds per hour is printed.
+On a shared machine wall times drift with the load between the two runs, so
+``--interleave`` (the first thing printed) labels each bed with both paths in
+turn in one process and compares their CPU seconds, which time-sharing leaves
+alone.
 """
 import argparse
 import json
@@ -42,12 +51,10 @@ MARK = "BENCH-RESULT "
 
 
 def worker(args):
-    from amfe.solvers.petsc import init_petsc
-    init_petsc([])
     import h5py
     from amfe.dataset.driver import run_dataset
     res = run_dataset(args.output, args.count, seed=args.seed, scale=args.scale,
-                      progress=False, out=open(os.devnull, "w"))
+                      progress=False, out=open(os.devnull, "w"), solver=args.solver)
     if res is not None:
         with h5py.File(args.output, "r") as f:
             n = f["n_particles"][()]
@@ -63,10 +70,42 @@ def worker(args):
         print(MARK + json.dumps(res), flush=True)
 
 
-def run(scale, count, ranks, seed, workdir):
-    out = os.path.join(workdir, f"{scale}_{ranks}.h5")
+PATHS = {"old": ["--solver", "gamg", "-amfe_block", "no"], "new": ["--solver", "auto"]}
+
+
+def interleaved(count, seed):
+    """Label beds 0..count-1 of the small scale with both paths in turn; CPU seconds each."""
+    from mpi4py import MPI
+
+    from amfe.dataset.record import load_pixelate, make_record
+    from amfe.solvers.petsc import init_petsc
+    PETSc = init_petsc([])
+    pix = load_pixelate()
+    total = {"old": 0.0, "new": 0.0}
+    methods = []
+    for k in range(count):
+        for path, solver, block in (("old", "gamg", "no"), ("new", "auto", None)):
+            opts = PETSc.Options()
+            if block:
+                opts.setValue("amfe_block", block)
+            t0 = time.process_time()
+            rec = make_record(k, seed, "small", MPI.COMM_SELF, rtol=None, pixelate=pix,
+                              solver=solver)
+            total[path] += time.process_time() - t0
+            opts.delValue("amfe_block")
+            if path == "new":
+                methods.append(json.loads(rec["solver"])["method"])
+    old, new = (3600 * count / total[p] for p in ("old", "new"))
+    print(f"interleaved, small scale, {count} beds on 1 rank (CPU seconds, both paths per bed): "
+          f"old {total['old'] / count:.2f} s/bed = {old:.0f} beds/hour/core, new "
+          f"{total['new'] / count:.2f} s/bed = {new:.0f} beds/hour/core: new / old = "
+          f"{new / old:.2f}x; auto chose cholesky for {methods.count('cholesky')} of {count}")
+
+
+def run(scale, count, ranks, seed, workdir, path="new"):
+    out = os.path.join(workdir, f"{scale}_{ranks}_{path}.h5")
     cmd = [sys.executable, os.path.abspath(__file__), "--worker", "--output", out,
-           "--count", str(count), "--seed", str(seed), "--scale", scale]
+           "--count", str(count), "--seed", str(seed), "--scale", scale, *PATHS[path]]
     if ranks > 1:
         cmd = ["mpirun", "-n", str(ranks), *cmd]
     load = os.getloadavg()[0]
@@ -81,7 +120,7 @@ def run(scale, count, ranks, seed, workdir):
     return r
 
 
-def report(scale, count, ranks, r):
+def report(scale, count, ranks, r, path="new"):
     total = r["wall"] * ranks
     solve, gen, img = r["solve_rank_seconds"], r["generate_rank_seconds"], r["image_rank_seconds"]
     records = r["busy_rank_seconds"] - solve - gen - img
@@ -94,8 +133,8 @@ def report(scale, count, ranks, r):
     def pc(x, of=total):
         return f"{100 * x / of:.1f} %"
 
-    print(f"{scale} scale, {ranks} rank(s), {count} beds ({r['ok']} ok), load average before "
-          f"{r['load']:.2f}")
+    print(f"{scale} scale, {path} path ({' '.join(PATHS[path])}), {ranks} rank(s), {count} beds "
+          f"({r['ok']} ok), load average before {r['load']:.2f}")
     print(f"  particles mean {r['n_mean']:.0f} (min {r['n_min']}, max {r['n_max']}), bonds mean "
           f"{r['bonds_mean']:.0f}")
     print(f"  per bed: generate {r['gen_mean']:.3f} s, image {r['image_mean']:.3f} s, homogenize "
@@ -121,13 +160,30 @@ def main():
     ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--output", help=argparse.SUPPRESS)
     ap.add_argument("--scale", default="small", help=argparse.SUPPRESS)
-    args = ap.parse_args()
+    ap.add_argument("--solver", default="auto", help=argparse.SUPPRESS)
+    ap.add_argument("--paths", default="old,new", help="which paths to time (default old,new)")
+    ap.add_argument("--interleave", type=int, default=20, metavar="N",
+                    help="first label N beds with both paths in turn, in one process (CPU "
+                         "seconds; default 20; 0 skips)")
+    args, petsc = ap.parse_known_args()
+    if args.worker:
+        from amfe.solvers.petsc import init_petsc
+        init_petsc(petsc)
     if args.worker:
         return worker(args)
+    if args.interleave:
+        interleaved(args.interleave, args.seed)
     with tempfile.TemporaryDirectory(prefix="amfe-bench-") as d:
         if not args.no_small:
             for ranks in (int(x) for x in args.ranks.split(",")):
-                report("small", args.count, ranks, run("small", args.count, ranks, args.seed, d))
+                rates = {}
+                for path in args.paths.split(","):
+                    r = run("small", args.count, ranks, args.seed, d, path)
+                    report("small", args.count, ranks, r, path)
+                    rates[path] = args.count / r["wall"] * 3600
+                if len(rates) == 2:
+                    print(f"  {ranks} rank(s): new / old = {rates['new'] / rates['old']:.2f}x "
+                          f"({rates['old']:.0f} -> {rates['new']:.0f} beds/hour)")
         if args.paper:
             r = run("paper", 1, 1, args.seed, d)
             print(f"paper scale, 1 bed on 1 rank: {r['n_max']} particles, "

@@ -14,7 +14,7 @@ variant, outside what the training data saw:
 - wide:      tracks 0.2-0.3 mm wide (training 0.05-0.15);
 - jitter:    centre jitter +/-0.06 R (training 0.025).
 
-Each bed is the record of ``amfe.dataset.driver.make_record`` (the same
+Each bed is the record of ``amfe.dataset.record.make_record`` (the same
 generation, image and PETSc homogenisation as `amfe dataset`, one rank),
 its data-set seed 100 + variant number. The file has the data-set layout
 of amfe.io.datasetfile (images, labels, C, density, index, seed, status, reason,
@@ -63,7 +63,7 @@ def main(argv=None):
 
     from mpi4py import MPI
 
-    from amfe.dataset.driver import _load_pixelate, make_record
+    from amfe.dataset.record import load_pixelate, make_record
     from amfe.solvers.petsc import init_petsc
 
     init_petsc([])
@@ -72,7 +72,7 @@ def main(argv=None):
     plan = [(v, j) for v in args.variants for j in range(args.per_variant)]
     with open(os.path.join(parts, "plan.json"), "w") as fh:
         json.dump({"plan": plan, "variants": {v: str(VARIANTS[v]) for v in args.variants}}, fh)
-    pixelate = _load_pixelate()
+    pixelate = load_pixelate()
     done = set(done_indices(parts, len(plan)))
     t0 = time.perf_counter()
     for k, (v, j) in enumerate(plan):

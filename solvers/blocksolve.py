@@ -13,7 +13,9 @@ stops (converged or not) is frozen while the others go on, with no hang.
 
 :func:`block_path_applies` says when :meth:`ConstrainedOperator.solve_all
 <amfe.solvers.operator.ConstrainedOperator.solve_all>` takes this path;
-:func:`solve_block` runs it and raises for a case that did not converge.
+:func:`solve_block` runs it, and ``solve_all`` holds every case to the
+convergence contract (:func:`amfe.solvers.ksp.check_solution`) as the
+one-at-a-time path does, through a :class:`ColumnKSP` per case.
 """
 import time
 from dataclasses import dataclass, field
@@ -22,7 +24,6 @@ import numpy as np
 
 from amfe.errors import AmfeError
 from amfe.solvers.blockcycle import BlockUnsupported, BlockVCycle
-from amfe.solvers.ksp import IndefinitePreconditioner, reason_name
 
 # KSPConvergedReason values (PETSc 3.18)
 RTOL, ATOL, ITS, DTOL, INDEF_PC, NANORINF, INDEF_MAT = 2, 3, -3, -4, -8, -9, -10
@@ -82,12 +83,44 @@ def _wanted(option, n_cases, diagnose):
 @dataclass
 class BlockColumn:
     """One case's outcome of the block CG: u (a PETSc Vec, the caller destroys it),
-    iterations, residual (true ||b - A x|| / ||b||), seconds (the group's time / k)."""
+    iterations, residual (true ||b - A x|| / ||b||), seconds (the group's time / k),
+    and ksp: a :class:`ColumnKSP` for :func:`amfe.solvers.ksp.check_solution`."""
 
     u: object
     iterations: int
     residual: float
     seconds: float
+    ksp: object
+
+    @property
+    def indefinite(self):
+        return self.ksp.getConvergedReason() == INDEF_PC
+
+
+class ColumnKSP:
+    """What a KSP would say about one column: its reason, iterations and last residual
+    norm; type, preconditioner and tolerances those of the shared KSP."""
+
+    def __init__(self, ksp, reason, iterations, rnorm):
+        self._ksp, self._reason, self._its, self._rnorm = ksp, int(reason), int(iterations), rnorm
+
+    def getConvergedReason(self):
+        return self._reason
+
+    def getIterationNumber(self):
+        return self._its
+
+    def getResidualNorm(self):
+        return float(self._rnorm)
+
+    def getTolerances(self):
+        return self._ksp.getTolerances()
+
+    def getType(self):
+        return self._ksp.getType()
+
+    def getPC(self):
+        return self._ksp.getPC()
 
 
 @dataclass
@@ -99,6 +132,7 @@ class BlockCG:
     Z: np.ndarray
     rz: np.ndarray
     ref: np.ndarray
+    rnorm: np.ndarray
     reason: np.ndarray
     its: np.ndarray
     info: dict = field(default_factory=dict)
@@ -108,17 +142,15 @@ class BlockCG:
         return self.reason == 0
 
 
-def solve_block(PETSc, ksp, bs, X0, names, backend="auto", info=None):
+def solve_block(PETSc, ksp, bs, X0, backend="auto", info=None):
     """Solve A x_j = b_j for every case j with k CGs sharing one block V-cycle.
 
     ksp: a set-up KSP (CG with GAMG); bs: k right-hand side Vecs; X0: None or
-    k local initial guesses (m,) each; names: the cases' names (for errors).
-    Returns a list of :class:`BlockColumn`, or None when the preconditioner is
-    not one the block V-cycle reproduces (the caller then solves one at a time).
-    Raises IndefinitePreconditioner (DIVERGED_INDEFINITE_PC, so the caller can
-    set up again with more eigenvalue-estimate steps) or AmfeError naming each
-    case that did not converge. Collective. ``info`` (a dict) receives the
-    V-cycle check, the levels, the counts of iterations and V-cycles.
+    k local initial guesses (m,) each. Returns a list of :class:`BlockColumn`
+    (converged or not: the caller holds each to the convergence contract), or
+    None when the preconditioner is not one the block V-cycle reproduces (the
+    caller then solves one at a time). Collective. ``info`` (a dict) receives
+    the V-cycle check, the levels, the counts of iterations and V-cycles.
     """
     t0 = time.perf_counter()
     k = len(bs)
@@ -137,13 +169,13 @@ def solve_block(PETSc, ksp, bs, X0, names, backend="auto", info=None):
             info.update(cg.info, products=V.products_per_cycle())
     finally:
         V.destroy()
-    _raise_unconverged(PETSc, ksp, cg, residuals, names)
     seconds = time.perf_counter() - t0
     out = []
     for j in range(k):
         u = bs[j].duplicate()
         u.setArray(cg.X[:, j])
-        out.append(BlockColumn(u, int(cg.its[j]), float(residuals[j]), seconds / k))
+        out.append(BlockColumn(u, int(cg.its[j]), float(residuals[j]), seconds / k,
+                               ColumnKSP(ksp, cg.reason[j], cg.its[j], cg.rnorm[j])))
     return out
 
 
@@ -190,7 +222,7 @@ def _iterate(PETSc, ksp, V, bs, X0):
                                    "natural": np.abs(bz)}[norm]
     del B, MB  # (R and Z may be them: only the names go)
     k = X.shape[1]
-    cg = BlockCG(X, R, Z, rz, np.sqrt(ref), np.zeros(k, int), np.zeros(k, int),
+    cg = BlockCG(X, R, Z, rz, np.sqrt(ref), np.zeros(k), np.zeros(k, int), np.zeros(k, int),
                  {"vcycle_check": difference, "norm": norm, "levels": V.describe()})
     cg.reason[bb == 0] = ATOL  # a zero right-hand side: x = 0, as KSPSolve
     cg.X[:, bb == 0] = 0.0
@@ -231,6 +263,7 @@ def _stop(cg, mask, reason, it):
 def _test(cg, rnorm, it, rtol, atol, dtol):
     """KSPConvergedDefault on every active column at iteration ``it``."""
     active = cg.active
+    cg.rnorm[active] = rnorm[active]
     _stop(cg, active & ~np.isfinite(rnorm), NANORINF, it)
     ttol = np.maximum(rtol * cg.ref, atol)
     done = cg.active & (rnorm <= ttol)
@@ -246,23 +279,3 @@ def _true_residuals(A, B, X, work, mpi):
     rr, bb = np.sqrt(mpi.allreduce(np.array([np.einsum("ij,ij->j", work, work),
                                              np.einsum("ij,ij->j", B, B)])))
     return np.where(bb > 0, rr / np.where(bb > 0, bb, 1.0), rr)
-
-
-def _raise_unconverged(PETSc, ksp, cg, residuals, names):
-    """AmfeError (IndefinitePreconditioner, named first, if one is) for the cases that failed."""
-    failed = sorted((j for j in range(len(names)) if cg.reason[j] <= 0),
-                    key=lambda j: cg.reason[j] != INDEF_PC)
-    if not failed:
-        return
-
-    def what(j):
-        return (f"{reason_name(PETSc, int(cg.reason[j]))} after {cg.its[j]} iterations, true "
-                f"relative residual {residuals[j]:.3e}")
-    rtol, _, _, max_it = ksp.getTolerances()
-    also = "".join(f"; also load case {names[j]}: {what(j)}" for j in failed[1:])
-    raise (IndefinitePreconditioner if cg.reason[failed[0]] == INDEF_PC else AmfeError)(
-        f"load case {names[failed[0]]}: the block CG with {ksp.getPC().getType()} did not "
-        f"converge: {what(failed[0])}{also} (rtol {rtol:g}, max_it {max_it}; "
-        f"{len(names) - len(failed)} of {len(names)} cases converged). The frame may be "
-        "ill-conditioned or a near-mechanism; try -ksp_monitor_true_residual, -amfe_block no, "
-        "or a direct solver (-ksp_type preonly -pc_type cholesky).")

@@ -1,79 +1,159 @@
 """homogenize_bed: bed arrays in, effective elastic constants out (any rank count).
 
-bed -> frame (largest component, non-dimensional) -> six KUBC solves ->
-Bagi stress and strain -> C, S -> Ex, Ey, Ez, nu_yz, nu_xz, nu_xy, G_yz, G_xz, G_xy.
+bed -> frame (largest component, non-dimensional) -> six load cases of a
+boundary condition -> its averages -> C, S -> Ex, Ey, Ez, nu_yz, nu_xz, nu_xy,
+G_yz, G_xz, G_xy. Each condition of :data:`BOUNDARY_CONDITIONS` names its
+load-case groups and its average (docs/model.md, sections 5 and 9): KUBC and
+mixed take C from the Bagi hull strain and the reaction stress, SUBC from
+S = (1/V) F . U, periodic from the energy's dot products.
 """
 import sys
 import time
+from collections import namedtuple
 
 import numpy as np
 
-from amfe.model.element import bond_forces
-from amfe.errors import AmfeError
 from amfe.model.frame import build_frame
 from amfe.model.averages import (asymmetry, bagi_strain, compliance_and_constants, hull_of,
                              stiffness, symmetric, voigt, voigt_strain)
-from amfe.model.material import STEEL
+from amfe.model.material import SOURCE_DEFAULT
 from amfe.io.mpi import on_root
-from amfe.io.result import Fields, write_fields_vtu
-from amfe.solvers.ksp import DEFAULT_RTOL
-from amfe.model.kubc import CASE_NAMES, kubc_groups
+from amfe.io.fields import frame_fields
+from amfe.io.result_meta import homogenize_header
+from amfe.io.vtp import write_fields_vtp
+from amfe.solvers.choice import USER_METHOD_OPTIONS, choose_solver, cholesky_package, solve_features
+from amfe.solvers.inputs import checked_inputs
+from amfe.solvers.ksp import DEFAULT_RTOL, RESIDUAL_FACTOR
+from amfe.model.kubc import kubc_groups
 from amfe.solvers.loadcases import solve_load_cases
 from amfe.model.mixed import mixed_groups
-from amfe.solvers.petsc import init_petsc
+from amfe.model.periodic import periodic_average, periodic_groups
+from amfe.model.subc import subc_average, subc_groups
+from amfe.solvers.petsc import init_petsc, unused_options_warning
 
-BOUNDARY_CONDITIONS = {"kubc": kubc_groups, "mixed": mixed_groups}
+
+def bagi_average(frame, groups, u, moments, diagnose=False):
+    """KUBC and mixed: (C, V, stats) from the Bagi hull strains and reaction stresses."""
+    hull = hull_of(frame.centers)
+    strains, stresses, stress_asym = [], [], []
+    for k in range(6):
+        strains.append(voigt_strain(bagi_strain(hull, u[k][:, :3])))
+        sigma = moments[k] / hull.volume
+        stress_asym.append(asymmetry(sigma))
+        stresses.append(voigt(symmetric(sigma)))
+    C, c_asym = stiffness(np.array(strains), np.array(stresses))
+    return C, hull.volume, {"stress_asymmetry": float(max(stress_asym)),
+                            "C_asymmetry": float(c_asym)}
 
 
-def homogenize_bed(centers, radii, material=STEEL, *, a_star_cap=None, rtol=DEFAULT_RTOL,
+#: name -> (groups(frame), average(frame, groups, u, moments, diagnose), needs a periodic bed)
+Condition = namedtuple("Condition", "groups average periodic")
+BOUNDARY_CONDITIONS = {"kubc": Condition(kubc_groups, bagi_average, False),
+                       "mixed": Condition(mixed_groups, bagi_average, False),
+                       "subc": Condition(subc_groups, subc_average, False),
+                       "periodic": Condition(periodic_groups, periodic_average, True)}
+
+
+def homogenize_bed(centers, radii, material=None, *, a_star_cap=None, rtol=None,
                    max_it=None, vtu_dir=None, comm=None, petsc_args=None, ksp_options=None,
-                   nondimensional=True, bc="kubc", diagnose=False, progress=False, fields=False):
+                   nondimensional=True, bc="kubc", diagnose=False, progress=False, fields=False,
+                   solver="gamg", box=None, accept_unconverged=False, max_memory=None,
+                   material_source=None, input_error=None):
     """Effective elastic constants of a bed of bonded spheres.
 
-    bc: "kubc" (default; six unit macro-strains on the boundary, one operator)
-    or "mixed" (the paper's figure-2 experiments, six operators; see
-    :mod:`amfe.model.mixed`). diagnose: add a ``diagnostics`` list (per case:
-    iterations, true residual, eigenvalue estimates of the preconditioned
-    operator and their ratio, GAMG levels and complexities).
+    bc: "kubc" (default; six unit macro-strains on the boundary, one operator),
+    "mixed" (the paper's figure-2 experiments, six operators; see
+    :mod:`amfe.model.mixed`), "subc" (six unit macro-stresses as boundary
+    loads, :mod:`amfe.model.subc`) or "periodic" (needs ``box`` (3,) [m], the
+    periods of a periodic bed; :mod:`amfe.model.periodic`). diagnose: add a
+    ``diagnostics`` list (per case: iterations, true residual, eigenvalue
+    estimates of the preconditioned operator and their ratio, GAMG levels and
+    complexities).
 
     centers (N,3) [m], radii (N,) [m]; every rank of ``comm`` (a PETSc or
-    mpi4py communicator, default COMM_WORLD) passes the same arrays.
+    mpi4py communicator, default COMM_WORLD) passes bit-identical arrays,
+    material and options: checked in one collective before anything else,
+    a difference is an AmfeError on every rank (:mod:`amfe.solvers.inputs`).
+    material: a :class:`~amfe.model.material.Material` (default: steel);
+    material_source: where it came from, for the result (default "default
+    (steel)" without a material, else "argument").
     Returns the result dict of docs/model.md, section 6 (the same on every rank):
     properties (SI: Pa and -), C and S (6x6, Voigt xx, yy, zz, yz, xz, xy,
     engineering shear; Pa and 1/Pa), volume [m^3], n_particles (input),
-    n_removed, n_bonds, bc ("kubc" or "mixed"), ranks, solver (ksp_type, pc_type, rtol,
-    iterations [6], setup_seconds, solve_seconds, plus residuals and the
-    stress and C asymmetries); with ``a_star_cap``, also n_capped. With
-    ``vtu_dir``, rank 0 writes one VTU per load case and cases.pvd there.
+    n_removed, n_bonds, bc, ranks, solver (ksp_type, pc_type, rtol,
+    residual_limit, iterations [6], setup_seconds, solve_seconds, plus
+    residuals and the condition's checks, docs/model.md section 9), material
+    (E, nu, psi, source) and warnings (list of str: accepted unconverged
+    solves, PETSc options never used); with ``a_star_cap``, also n_capped. With
+    ``vtu_dir``, rank 0 writes the ParaView files there (one .vtp per load case and
+    cases.pvd; docs/viewing.md). The dict starts with the header of
+    :func:`amfe.io.result_meta.homogenize_header` (input hash, material, box, counts, ...).
     ``ksp_options`` (dict) sets PETSc options for this solve only, e.g.
     {"ksp_type": "preonly", "pc_type": "cholesky"}; ``nondimensional=False``
     assembles in SI units (for the benchmark that shows why scaling matters).
     ``progress=True`` prints one line per phase and load case to stderr on rank 0.
     ``fields=True`` adds "fields": a :class:`~amfe.io.result.Fields` (every rank).
+    ``solver``: "gamg" (CG + GAMG, rtol default 1e-8), "cholesky" (one rank) or
+    "auto", the cheapest method that keeps the constants within 1e-5 of a tight
+    reference (:mod:`amfe.solvers.choice`); the choice and its reason go into
+    the result's ``solver`` record (method, reason).
+    Every solve must reach a true relative residual of at most
+    :data:`~amfe.solvers.ksp.RESIDUAL_FACTOR` x rtol (or x the rounding floor);
+    ``accept_unconverged=True`` keeps the numbers of one that does not, with a
+    warning. ``max_memory``: bytes the solve may take over all ranks (default:
+    half the memory of the machines the ranks run on); a larger estimate is
+    refused before any work. ``input_error``: an AmfeError the caller met
+    preparing this rank's input, raised on every rank after the ranks are
+    compared (so that no rank waits in a collective).
     Raises AmfeError on every rank for bad input or a failed solve.
     """
-    if bc not in BOUNDARY_CONDITIONS:
-        raise AmfeError(f"unknown boundary condition {bc!r}; choose one of "
-                        + ", ".join(BOUNDARY_CONDITIONS))
     PETSc = init_petsc(petsc_args)
     if comm is None:
         comm = PETSc.COMM_WORLD
     elif not isinstance(comm, PETSc.Comm):
         comm = PETSc.Comm(comm)  # an mpi4py communicator, e.g. a batch group
     mpi = comm.tompi4py()
+    source = material_source or (SOURCE_DEFAULT if material is None else "argument")
+    centers, radii, material, check_memory = checked_inputs(
+        PETSc, mpi, centers, radii, material, bcs=BOUNDARY_CONDITIONS, bc=bc, rtol=rtol,
+        max_it=max_it, a_star_cap=a_star_cap, ksp_options=ksp_options, max_memory=max_memory,
+        input_error=input_error, box=box, nondimensional=nondimensional,
+        diagnose=diagnose, accept_unconverged=accept_unconverged, solver=solver)
     t0 = time.perf_counter()
     log = _stderr_log(mpi.rank) if progress else None
-    frame = build_frame(centers, radii, material, a_star_cap, nondimensional=nondimensional)
+    frame = build_frame(centers, radii, material, a_star_cap, nondimensional=nondimensional,
+                        box=box if BOUNDARY_CONDITIONS[bc].periodic else None)
     t_frame = time.perf_counter() - t0
-    groups = BOUNDARY_CONDITIONS[bc](frame)
+    groups = BOUNDARY_CONDITIONS[bc].groups(frame)
     if log:
         log(f"frame: {frame.n_particles} load-carrying particles ({frame.n_removed} removed), "
             f"{len(frame.bonds)} bonds in {t_frame:.2f} s; {bc}, {mpi.size} rank(s)")
-    sol = solve_load_cases(PETSc, frame, comm, groups, rtol=rtol, max_it=max_it, log=log,
-                           ksp_options=ksp_options, diagnose=diagnose)
-
-    return on_root(mpi, _average, frame, sol, bc, a_star_cap, mpi.size, t_frame, vtu_dir,
-                   diagnose, fields)
+    method, reason, rtol, options = choose_solver(
+        lambda: solve_features(frame), mpi.size, solver, rtol, cholesky_package(PETSc),
+        [k for k in USER_METHOD_OPTIONS
+         if PETSc.Options().hasName(k) or k in (ksp_options or {})],
+        singular=any(g.null_modes is not None for g in groups), check_memory=check_memory)
+    if log:
+        log(f"solver: {method} ({reason})")
+    sol = solve_load_cases(PETSc, frame, comm, groups, rtol=DEFAULT_RTOL if rtol is None else rtol,
+                           max_it=max_it, log=log, ksp_options={**options, **(ksp_options or {})},
+                           diagnose=diagnose, accept_unconverged=accept_unconverged)
+    warnings = sol.warnings
+    if warnings and mpi.rank == 0:
+        missed = [c for c in sol.cases if c.warning]
+        print(f"amfe: warning: {len(missed)} load case(s) missed the convergence contract "
+              f"(true relative residual <= {RESIDUAL_FACTOR:g} x rtol) and were kept as asked "
+              "(accept_unconverged): " + ", ".join(f"{c.name} {c.residual:.1e}" for c in missed),
+              file=sys.stderr, flush=True)
+    # of the per-solve options, only the caller's count (not those the solver choice adds)
+    unused = unused_options_warning(PETSc, mpi.rank, [
+        n for n in sol.unused_options if n.lstrip("-") in {k.lstrip("-") for k in ksp_options or {}}])
+    record = {"E": material.E, "nu": material.nu, "psi": material.psi, "source": source}
+    result = on_root(mpi, _average, frame, groups, sol, bc, a_star_cap, mpi.size, t_frame,
+                     vtu_dir, diagnose, fields, record, warnings + ([unused] if unused else []),
+                     (centers, radii))
+    result["solver"].update(method=method, reason=reason, requested=solver)
+    return result
 
 
 def _stderr_log(rank):
@@ -85,17 +165,13 @@ def _stderr_log(rank):
     return log
 
 
-def _average(frame, sol, bc, a_star_cap, ranks, t_frame, vtu_dir, diagnose, fields):
-    """Rank 0: Bagi averages, C, S, constants, the result dict (and the VTU files)."""
+def _average(frame, groups, sol, bc, a_star_cap, ranks, t_frame, vtu_dir, diagnose, fields,
+             material, warnings, bed):
+    """Rank 0: the condition's averages, C, S, constants, the result dict (and the ParaView
+    files). ``bed``: (centers, radii), the input arrays."""
     t0 = time.perf_counter()
-    hull = hull_of(frame.centers)
-    strains, stresses, stress_asym = [], [], []
-    for k in range(6):
-        strains.append(voigt_strain(bagi_strain(hull, sol.u[k][:, :3])))
-        sigma = sol.moments[k] / hull.volume
-        stress_asym.append(asymmetry(sigma))
-        stresses.append(voigt(symmetric(sigma)))
-    C, c_asym = stiffness(np.array(strains), np.array(stresses))
+    C, volume, stats = BOUNDARY_CONDITIONS[bc].average(frame, groups, sol.u, sol.moments,
+                                                       diagnose=diagnose)
     C = C * frame.stress_scale
     S, props = compliance_and_constants(C)
     t_avg = time.perf_counter() - t0
@@ -103,7 +179,7 @@ def _average(frame, sol, bc, a_star_cap, ranks, t_frame, vtu_dir, diagnose, fiel
         "properties": {k: float(v) for k, v in props.items()},
         "C": C.tolist(),
         "S": S.tolist(),
-        "volume": float(hull.volume * frame.length_scale**3),
+        "volume": float(volume * frame.length_scale**3),
         "n_particles": int(frame.n_input),
         "n_removed": int(frame.n_removed),
         "n_bonds": int(len(frame.bonds)),
@@ -111,43 +187,32 @@ def _average(frame, sol, bc, a_star_cap, ranks, t_frame, vtu_dir, diagnose, fiel
         "ranks": int(ranks),
         "solver": {
             "ksp_type": sol.setups[0].ksp_type, "pc_type": sol.setups[0].pc_type,
-            "rtol": sol.setups[0].rtol,
+            "rtol": sol.setups[0].rtol, "residual_limit": RESIDUAL_FACTOR * sol.setups[0].rtol,
+            "norm_type": sol.setups[0].norm_type,
             "iterations": sol.iterations,
             "setup_seconds": sol.setup_seconds, "solve_seconds": sol.solve_seconds,
             "case_seconds": [c.seconds for c in sol.cases],
             "frame_seconds": t_frame, "assembly_seconds": sol.assembly_seconds,
             "average_seconds": t_avg,
             "residuals": sol.residuals,
-            "stress_asymmetry": float(max(stress_asym)),
-            "C_asymmetry": float(c_asym),
+            **stats,
         },
+        "material": material,
+        "warnings": list(warnings),
     }
+    result = {**homogenize_header(frame, bed[0], bed[1], material), **result}
     if sol.notes:
         result["solver"]["notes"] = sol.notes
     if a_star_cap is not None:
         result["n_capped"] = int(frame.n_capped)
     if diagnose:
         result["diagnostics"] = sol.diagnostics()
+    if fields or vtu_dir is not None:
+        f = frame_fields(frame, sol.u, groups, bc, centers=bed[0], radii=bed[1])
     if fields:
-        result["fields"] = frame_fields(frame, sol.u)
+        result["fields"] = f
     if vtu_dir is not None:
-        write_frame_vtu(vtu_dir, frame, sol.u)
+        paths = write_fields_vtp(vtu_dir, f)
+        result["vtk"] = {"collection": paths[-1], "files": paths[:-1]}
     return result
 
-
-def frame_fields(frame, u):
-    """The :class:`~amfe.io.result.Fields` of the six solutions ``u`` (6, n, 6), in SI units."""
-    b, L, F = frame.bonds, frame.length_scale, frame.force_scale
-    forces = [bond_forces(b.normal, b.d_i, b.d_j, frame.k_n, frame.k_t, frame.kappa_n,
-                          frame.kappa_t, u[k][b.i], u[k][b.j]) for k in range(len(u))]
-    axial, shear, moment = (np.array(a) for a in zip(*forces))
-    return Fields(particle_id=np.asarray(frame.kept), centers=frame.centers * L,
-                  radii=frame.radii * L, bonds=np.stack([b.i, b.j], axis=1),
-                  displacement=u[:, :, :3] * L, rotation=u[:, :, 3:].copy(),
-                  axial_force=axial * F, shear_force=shear * F, moment=moment * F * L,
-                  case_names=tuple(CASE_NAMES))
-
-
-def write_frame_vtu(directory, frame, u):
-    """One VTU per load case (SI units, per unit macro-strain) and cases.pvd."""
-    return write_fields_vtu(directory, frame_fields(frame, u))

@@ -16,6 +16,7 @@ from amfe.solvers.assembly import local_block_rows
 from amfe.solvers.ksp import IndefinitePreconditioner
 from amfe.solvers.operator import ConstrainedOperator
 from amfe.solvers.partition import row_ranges
+from amfe.solvers.petsc import READ_AT_FINALIZE
 
 # GAMG's Chebyshev smoothers scale by an estimate of the largest eigenvalue of
 # D^-1 A from 10 Krylov steps. Very stiff bonds among the prescribed particles
@@ -60,6 +61,16 @@ class LoadCaseSolutions:
         return [c.residual for c in self.cases]
 
     @property
+    def warnings(self):
+        """Why accepted solves missed the convergence contract (accept_unconverged)."""
+        return [c.warning for c in self.cases if c.warning]
+
+    @property
+    def unused_options(self):
+        """Per-solve PETSc options (``ksp_options``) that PETSc never read, as "-name"."""
+        return sorted({n for s in self.setups for n in s.unused_options})
+
+    @property
     def setup_seconds(self):
         return float(sum(s.setup_seconds for s in self.setups))
 
@@ -79,12 +90,16 @@ class LoadCaseSolutions:
 
 
 def solve_load_cases(PETSc, frame, comm, groups, *, rtol, max_it=None, ksp_options=None,
-                     diagnose=False, center=None, log=None):
+                     diagnose=False, center=None, log=None, accept_unconverged=False):
     """Solve every group of load cases on ``frame``; returns :class:`LoadCaseSolutions`.
 
     ``log``: called with a progress line per operator and per case (on every
-    rank; the caller decides who prints). Raises AmfeError on every rank.
+    rank; the caller decides who prints). Raises AmfeError on every rank,
+    also for a solve that misses the convergence contract
+    (:func:`amfe.solvers.ksp.check_solution`) unless ``accept_unconverged``.
     """
+    opts = dict(rtol=rtol, max_it=max_it, diagnose=diagnose, log=log,
+                accept_unconverged=accept_unconverged)
     size, rank = comm.getSize(), comm.getRank()
     ranges = row_ranges(frame.n_particles, size)
     r0, r1 = int(ranges[rank]), int(ranges[rank + 1])
@@ -95,24 +110,30 @@ def solve_load_cases(PETSc, frame, comm, groups, *, rtol, max_it=None, ksp_optio
     cases, setups, group_of_case, notes, us = [], [], [], [], []
     for g, group in enumerate(groups):
         try:
-            c, rec = _solve_group(PETSc, frame, comm, r0, r1, block_rows, group, center, rtol,
-                                  max_it, ksp_options, diagnose, log)
+            c, rec = _solve_group(PETSc, frame, comm, r0, r1, block_rows, group, center,
+                                  ksp_options, **opts)
         except PETSc.Error as exc:
             # e.g. an option PETSc cannot use (-pc_type unknown); PETSc printed the details
+            given = sorted(set(PETSc.Options().getAll()) - READ_AT_FINALIZE
+                           | set(ksp_options or {}))
             raise AmfeError(f"PETSc stopped with {exc} while solving cases "
-                            f"{', '.join(group.names)}; its message is above. Check the PETSc "
-                            "options given.") from None
+                            f"{', '.join(group.names)}; its message is above. "
+                            + (f"Check the PETSc options given ({', '.join('-' + g for g in given)})."
+                               if given else "No PETSc option was given: the frame may be "
+                               "singular or its stiffness out of range; check the bed.")) from None
         except IndefinitePreconditioner as exc:
             if "pc_gamg_esteig_ksp_max_it" in (ksp_options or {}):
                 raise
             notes.append(f"cases {', '.join(group.names)}: {str(exc).split(':')[0]} met an "
                          "indefinite preconditioner; set up again with "
                          "-pc_gamg_esteig_ksp_max_it 50 -mg_levels_esteig_ksp_max_it 50")
-            c, rec = _solve_group(PETSc, frame, comm, r0, r1, block_rows, group, center, rtol,
-                                  max_it, {**(ksp_options or {}), **ROBUST_ESTEIG}, diagnose, log)
+            c, rec = _solve_group(PETSc, frame, comm, r0, r1, block_rows, group, center,
+                                  {**(ksp_options or {}), **ROBUST_ESTEIG}, **opts)
         for case in c:
             us.append(case.u)
             case.u = None
+            if case.note:
+                notes.append(case.note)
         cases += c
         setups.append(rec)
         group_of_case += [g] * len(c)
@@ -122,10 +143,11 @@ def solve_load_cases(PETSc, frame, comm, groups, *, rtol, max_it=None, ksp_optio
                              block_seconds=block_seconds, notes=notes)
 
 
-def _solve_group(PETSc, frame, comm, r0, r1, block_rows, group, center, rtol, max_it,
-                 ksp_options, diagnose, log):
+def _solve_group(PETSc, frame, comm, r0, r1, block_rows, group, center, ksp_options, *,
+                 rtol, max_it, diagnose, log, accept_unconverged):
     op = ConstrainedOperator(PETSc, frame, comm, r0, r1, block_rows, group, rtol=rtol,
-                             max_it=max_it, ksp_options=ksp_options, diagnose=diagnose)
+                             max_it=max_it, ksp_options=ksp_options, diagnose=diagnose,
+                             accept_unconverged=accept_unconverged)
     try:
         rec = op.record
         if log:

@@ -13,6 +13,7 @@ def init_petsc(argv=None):
     if "petsc4py.PETSc" not in sys.modules:
         import petsc4py
         petsc4py.init([sys.argv[0] if sys.argv and sys.argv[0] else "amfe"] + argv)
+        _keep_python_sigpipe()
         from petsc4py import PETSc
         return PETSc
     from petsc4py import PETSc
@@ -20,6 +21,17 @@ def init_petsc(argv=None):
     for name, value in option_pairs(argv):
         opts.setValue(name, value)
     return PETSc
+
+
+def _keep_python_sigpipe():
+    """Undo PETSc's SIGPIPE handler: it turns a closed stdout pipe (`amfe ... | head`) into a
+    PETSc error and MPI_Abort. With Python's SIG_IGN the write raises BrokenPipeError, which
+    the command line ends quietly (amfe.cli.interrupt)."""
+    import signal
+    try:
+        signal.signal(signal.SIGPIPE, signal.SIG_IGN)
+    except ValueError:   # not the main thread: leave it
+        pass
 
 
 def option_pairs(argv):
@@ -44,3 +56,73 @@ def is_option(token):
         return False
     except ValueError:
         return True
+
+
+# Options PETSc reads only in PetscFinalize (or never, for -help): not "unused" before then.
+READ_AT_FINALIZE = frozenset({"options_left", "options_view", "memory_view_threshold", "help"})
+_warned = set()
+_used_fn = {}  # "fn": PetscOptionsUsed, looked up once
+
+
+def _options_used_fn():
+    """PetscOptionsUsed from the PETSc library petsc4py loaded (None if not found).
+
+    petsc4py 3.18 has no binding for it; the library is the one mapped into
+    this process (so the same options database), found in /proc/self/maps.
+    """
+    import ctypes
+    path = None
+    try:
+        with open("/proc/self/maps") as maps:
+            for line in maps:
+                name = line.split()[-1]
+                if "/libpetsc" in name and ".so" in name:
+                    path = name
+                    break
+        fn = ctypes.CDLL(path).PetscOptionsUsed if path else None
+    except (OSError, AttributeError):
+        return None
+    if fn is not None:
+        fn.argtypes = [ctypes.c_void_p, ctypes.c_char_p, ctypes.POINTER(ctypes.c_int)]
+        fn.restype = ctypes.c_int
+    return fn
+
+
+def option_used(name):
+    """True if PETSc has read option ``name`` (without the dash); None if that cannot be told."""
+    import ctypes
+    if "fn" not in _used_fn:
+        _used_fn["fn"] = _options_used_fn()
+    fn = _used_fn["fn"]
+    flag = ctypes.c_int(0)
+    if fn is None or fn(None, name.encode(), ctypes.byref(flag)) != 0:
+        return None
+    return bool(flag.value)
+
+
+def unused_options(PETSc, names=None):
+    """The options of the database (or of ``names``) that PETSc never read, as "-name".
+
+    Call it after the solves: an option read only by an object never
+    created (-pc_hypre_* with GAMG) or misspelt (-ksp_rtoll) is unused.
+    Options read only at PetscFinalize (-options_left) are left out.
+    """
+    names = list(PETSc.Options().getAll()) if names is None else list(names)
+    return [f"-{n}" for n in names
+            if n.lstrip("-") not in READ_AT_FINALIZE and option_used(n.lstrip("-")) is False]
+
+
+def unused_options_warning(PETSc, rank, extra=()):
+    """One line naming the options never used (with ``extra``, names already found unused
+    elsewhere), or None. Rank 0 prints it to stderr the first time these names come up in
+    this process (a data set's hundred solves warn once); every rank returns it for the JSON.
+    """
+    names = sorted(set(unused_options(PETSc)) | set(extra))
+    if not names:
+        return None
+    line = (f"PETSc options never used: {' '.join(names)} (misspelt, or meant for a solver "
+            "or preconditioner that was not used); they had no effect")
+    if rank == 0 and not set(names) <= _warned:
+        print(f"amfe: warning: {line}", file=sys.stderr, flush=True)
+    _warned.update(names)
+    return line

@@ -66,3 +66,20 @@ def kubc_stiffness_scipy(frame, strain="applied"):
     elif strain != "applied":
         raise ValueError(f"strain must be 'applied' or 'bagi', got {strain!r}")
     return C, {"setup": t1 - t0, "factor": t2 - t1, "solve": t3 - t2}
+
+
+def group_solve_scipy(frame, group):
+    """SuperLU solution (c, n, 6) of a pinned, force-loaded group (SUBC, periodic).
+
+    The fixed DOFs of ``group`` are held at zero (its values must be zero),
+    the rest solve K U = F with F = group.forces; no PETSc. The tests'
+    reference for the SUBC and periodic paths.
+    """
+    K = global_stiffness(frame)
+    held = np.flatnonzero(group.fixed.ravel())
+    free = np.setdiff1d(np.arange(K.shape[0]), held)
+    F = np.asarray(group.forces).reshape(len(group.names), -1)
+    U = np.zeros_like(F)
+    lu = spla.splu(K[free][:, free].tocsc(), permc_spec="MMD_AT_PLUS_A")
+    U[:, free] = lu.solve(np.ascontiguousarray(F[:, free].T)).T
+    return U.reshape(len(group.names), frame.n_particles, 6)

@@ -4,12 +4,12 @@ import json
 import subprocess
 import sys
 
-import meshio
 import numpy as np
 import pytest
 
 import amfe
 from amfe.io.result import SCHEMA_VERSION, Result
+from amfe.io.vtp import read_case
 from amfe.vocab import CASE_NAMES, CONSTANT_NAMES
 from helpers import MPI_ENV, ROOT, run_cli
 
@@ -68,20 +68,20 @@ def test_fields_equal_what_the_vtu_holds(with_fields, bed_path, tmp_path):
     assert f.displacement.shape == (6, n, 3) and f.rotation.shape == (6, n, 3)
     assert f.axial_force.shape == (6, m) and f.bonds.shape == (m, 2)
     bed = amfe.read_bed(bed_path)
-    np.testing.assert_allclose(f.centers, bed.centers[f.particle_id], rtol=0, atol=1e-18)
-    # The VTU written from the API and the one the CLI writes hold the same arrays.
-    paths = r.write_vtu(tmp_path / "api")
+    np.testing.assert_array_equal(f.centers, bed.centers[f.particle_id])
+    # The files written from the API and those the CLI writes hold the same arrays.
+    paths = r.write_vtp(tmp_path / "api")
     proc = run_cli(["homogenize", str(bed_path), "--vtu", str(tmp_path / "cli"),
                     "--rtol", "1e-10", "--quiet"])
     assert proc.returncode == 0, proc.stderr
     for k, name in enumerate(CASE_NAMES):
-        mesh = meshio.read(paths[k])
-        cli = meshio.read(tmp_path / "cli" / f"case_{k}_{name}.vtu")
-        np.testing.assert_array_equal(mesh.points, f.centers)
-        np.testing.assert_array_equal(mesh.point_data["displacement"], f.displacement[k])
-        np.testing.assert_array_equal(mesh.point_data["rotation"], f.rotation[k])
-        np.testing.assert_array_equal(mesh.cell_data["axial_force"][0], f.axial_force[k])
-        np.testing.assert_allclose(cli.point_data["displacement"], f.displacement[k],
+        mesh = read_case(paths[k])
+        cli = read_case(tmp_path / "cli" / f"case_{name}.vtp")
+        np.testing.assert_array_equal(mesh["points"], f.centers)
+        np.testing.assert_array_equal(mesh["point_data"]["displacement_m"], f.displacement[k])
+        np.testing.assert_array_equal(mesh["point_data"]["rotation_rad"], f.rotation[k])
+        np.testing.assert_array_equal(mesh["cell_data"]["axial_force_N"], f.axial_force[k])
+        np.testing.assert_allclose(cli["point_data"]["displacement_m"], f.displacement[k],
                                    rtol=1e-12, atol=1e-12 * abs(f.displacement[k]).max())
     # The affine part: the mean displacement gradient of case xx is e_x e_x.
     u, x = f.displacement[0], f.centers - f.centers.mean(0)
@@ -139,3 +139,13 @@ def test_example_3_mpi_matches_one_rank(bed_path, with_fields):
     assert proc.returncode == 0, proc.stderr
     ex = float(proc.stdout.split("Ex = ")[1].split()[0])
     assert ex == pytest.approx(with_fields.Ex / 1e9, abs=1e-4)
+
+
+def test_json_to_stdout_matches_the_file(bed_path, tmp_path):
+    out = tmp_path / "r.json"
+    to_file = run_cli(["homogenize", str(bed_path), "-o", str(out), "--quiet"])
+    to_stdout = run_cli(["homogenize", str(bed_path), "-o", "-", "--quiet"])
+    assert to_file.returncode == 0 and to_stdout.returncode == 0, to_stdout.stderr
+    piped, saved = json.loads(to_stdout.stdout), json.loads(out.read_text())
+    assert piped["C"] == saved["C"] and piped["properties"] == saved["properties"]
+    assert "Ex" in to_stdout.stderr and not (tmp_path / "-").exists()

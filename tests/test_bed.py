@@ -490,3 +490,23 @@ def test_skipping_without_rng_is_an_error():
     scan = ScanPath(track_width=50e-6, hatch_spacing=100e-6, skip_fraction=0.2)
     with pytest.raises(AmfeError, match="rng"):
         scanned_mask(np.zeros((2, 3)), (1e-3, 1e-3, 1e-3), 1e-4, scan)
+
+
+def test_skip_seed_holds_the_holes_and_is_opt_in():
+    from amfe.model.scanpath import ScanPath
+    scan = ScanPath(track_width=0.1e-3, hatch_spacing=0.1e-3, skip_fraction=0.4,
+                    skip_length=0.08e-3)
+    kw = dict(size=(0.3e-3, 0.3e-3, 0.1e-3), scan=scan)
+    # Without skip_seed nothing changes: the same bed bit for bit.
+    a, b = generate_bed(**kw, seed=4), generate_bed(**kw, seed=4, skip_seed=None)
+    assert np.array_equal(a.centers, b.centers) and np.array_equal(a.radii, b.radii)
+    assert "skip_seed" not in b.attrs
+    # Fixed enlargement and no jitter: centres and radii do not depend on the seed,
+    # so only the skipped pieces can differ between two seeds.
+    fixed = dict(kw, enlargement=(1.08, 1.08), jitter=0.0)
+    one, two = generate_bed(**fixed, seed=1), generate_bed(**fixed, seed=2)
+    assert not np.array_equal(one.centers, two.centers)        # the holes moved
+    one, two = (generate_bed(**fixed, seed=s, skip_seed=9) for s in (1, 2))
+    assert np.array_equal(one.centers, two.centers) and one.attrs["skip_seed"] == 9
+    with pytest.raises(AmfeError, match="skip_seed"):
+        generate_bed(**kw, skip_seed=-1)

@@ -209,8 +209,8 @@ def test_a_nan_column_is_reported_for_its_case_only():
         op.solve_all(box_center(frame.centers), guesses)
     op.destroy()
     msg = str(info.value)
-    assert msg.startswith("load case xz: the block CG") and "DIVERGED_NANORINF" in msg
-    assert "5 of 6 cases converged" in msg and msg.count("load case") == 1
+    assert msg.startswith("load case xz: the CG solve") and "DIVERGED_NANORINF" in msg
+    assert msg.count("load case") == 1
 
 
 # Run under mpirun: both paths' constants (rtol 1e-10), and a forced failure in one column.
@@ -248,6 +248,10 @@ if "forced" in sys.argv:
         out["error"] = None
     except AmfeError as exc:
         out["error"] = str(exc)
+    sol = solve_load_cases(PETSc, frame, comm, [group], rtol=1e-8, max_it=3,
+                           accept_unconverged=True)
+    out.update(path=sol.setups[0].path, residuals=sol.residuals,
+               warned=[c.name for c in sol.cases if c.warning])
 out = mpi.gather(out, root=0)  # one line from rank 0: ranks' prints would interleave
 if mpi.rank == 0:
     print(json.dumps(out), flush=True)
@@ -268,8 +272,11 @@ def run_ranks(tmp_path, ranks, *args):
 def test_one_column_fails_alone_with_no_hang_on_two_ranks(tmp_path):
     for out in run_ranks(tmp_path, 2, "forced"):  # every rank raised the same error
         msg = out["error"]
-        assert msg.startswith("load case yz: the block CG") and msg.count("load case") == 1
-        assert "DIVERGED_MAX_IT after 3 iterations" in msg and "5 of 6 cases converged" in msg
+        assert msg.startswith("load case yz: the CG solve") and msg.count("load case") == 1
+        assert "DIVERGED_MAX_IT after 3 iterations" in msg
+        # accepted: a warning for yz alone, the other five converged
+        assert out["path"] == "block" and out["warned"] == ["yz"]
+        assert max(r for k, r in enumerate(out["residuals"]) if k != 3) < 1e-7
         assert out["C_diff"] < 1e-8
 
 

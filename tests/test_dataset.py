@@ -21,6 +21,8 @@ import pytest
 from amfe.model.bed import generate_bed
 from amfe.io.bedfile import read_bed
 from amfe.cli import main
+from amfe.dataset.lock import DatasetLock
+from amfe.errors import AmfeError
 from amfe.io.datasetparts import PARAMS_JSON, parts_dir
 from amfe.vocab import LABEL_NAMES
 from amfe.model.scales import (PARAM_NAMES, SCALES, bed_for, param_record, record_seed,
@@ -39,8 +41,9 @@ ROW_KEYS = ("images", "bond_images", "labels", "C", "density", "index", "seed", 
 
 
 def dataset_cmd(out, count=COUNT, seed=SEED, ranks=None, extra=()):
+    """The `amfe dataset` command line; the tiny scale fails a fifth of its beds on purpose."""
     cmd = [sys.executable, "-m", "amfe.cli", "dataset", "-o", str(out), "--count", str(count),
-           "--seed", str(seed), "--scale", "tiny", *extra]
+           "--seed", str(seed), "--scale", "tiny", "--max-failed-share", "1", *extra]
     return ["mpirun", "-n", str(ranks), *cmd] if ranks else cmd
 
 
@@ -243,7 +246,20 @@ def _start_and_kill(out, parts, at_least, how, extra=()):
     n = len(glob.glob(os.path.join(parts, "rec_*.npz")))
     assert at_least <= n < KILL_COUNT
     assert not out.exists()
+    remove_stale_lock(out)
     return n
+
+
+def remove_stale_lock(out):
+    """After a kill: the lock left behind (if any) is reported stale, with the rm command."""
+    lock = DatasetLock(out)
+    if not os.path.exists(lock.path):
+        return False
+    with pytest.raises(AmfeError, match="stale lock") as err:
+        lock.acquire()
+    assert f"rm {lock.path}" in str(err.value)
+    os.remove(lock.path)
+    return True
 
 
 def test_kill_and_resume(runs, tmp_path):
@@ -255,7 +271,7 @@ def test_kill_and_resume(runs, tmp_path):
     n2 = _start_and_kill(out, parts, n1 + 6, "session")
     # A different data set in the same place is refused, the parts are kept.
     r = run_cli(["dataset", "-o", str(out), "--count", str(KILL_COUNT), "--seed", "9",
-                 "--scale", "tiny"])
+                 "--scale", "tiny", "--max-failed-share", "1"])
     assert r.returncode == 2 and "other parameters" in r.stderr
     assert len(glob.glob(os.path.join(parts, "rec_*.npz"))) == n2
     r = subprocess.run(dataset_cmd(out, count=KILL_COUNT, ranks=2, extra=["--no-progress"]),
@@ -278,7 +294,7 @@ def test_rerun_of_a_complete_file_does_nothing(runs, capsys):
     path = runs[1][0]
     before = os.stat(path).st_mtime_ns
     assert main(["dataset", "-o", str(path), "--count", str(COUNT), "--seed", str(SEED),
-                 "--scale", "tiny", "--no-progress"]) == 0
+                 "--scale", "tiny", "--no-progress", "--max-failed-share", "1"]) == 0
     assert "already complete" in capsys.readouterr().out
     assert os.stat(path).st_mtime_ns == before
     assert main(["dataset", "-o", str(path), "--count", str(COUNT + 1), "--seed", str(SEED),

@@ -41,6 +41,8 @@ def layer_of(module):
         return "core"
     if parts[1] in ("model", "io", "solvers", "dataset", "training"):
         return parts[1]
+    if parts[1] == "viz":  # pictures of results: reads files via io, no PETSc or torch
+        return "dataset"
     raise AssertionError(f"module {module} belongs to no layer: add it to the layout")
 
 

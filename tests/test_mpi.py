@@ -2,19 +2,20 @@
 import json
 import os
 
-import meshio
 import numpy as np
 import pytest
 
 from amfe.model.bed import generate_bed
 from amfe.io.bedfile import write_bed
+from amfe.io.result_meta import HEADER_KEYS
+from amfe.io.vtp import read_case
 
 from helpers import run_cli
 
 pytestmark = pytest.mark.mpi
 
 RESULT_KEYS = {"properties", "C", "S", "volume", "n_particles", "n_removed", "n_bonds", "bc",
-               "ranks", "solver", "schema_version"}
+               "ranks", "solver", "schema_version", "material", "warnings"} | set(HEADER_KEYS)
 PROPERTY_KEYS = {"Ex", "Ey", "Ez", "nu_yz", "nu_xz", "nu_xy", "G_yz", "G_xz", "G_xy"}
 
 
@@ -76,17 +77,17 @@ def test_vtu_written_once_and_complete_under_two_ranks(bed_file, tmp_path):
     proc = run_cli(["homogenize", bed_file, "--vtu", str(vtu)], ranks=2)
     assert proc.returncode == 0, proc.stderr
     files = sorted(os.listdir(vtu))
-    assert files == sorted(["cases.pvd"] + [f"case_{k}_{n}.vtu" for k, n in
-                                            enumerate(["xx", "yy", "zz", "yz", "xz", "xy"])])
+    assert files == sorted(["cases.pvd"] + [f"case_{n}.vtp" for n in
+                                            ["xx", "yy", "zz", "yz", "xz", "xy"]])
     assert "Ex" in proc.stdout
-    m = meshio.read(vtu / "case_0_xx.vtu")
-    for name in ("displacement", "rotation", "radius"):
-        assert name in m.point_data
-    for name in ("axial_force", "shear_force", "moment"):
-        assert name in m.cell_data
+    m = read_case(vtu / "case_xx.vtp")
+    for name in ("displacement_m", "rotation_rad", "radius_m", "particle_id"):
+        assert name in m["point_data"]
+    for name in ("axial_force_N", "shear_force_N", "torsion_Nm", "bending_moment_Nm"):
+        assert name in m["cell_data"]
     # case xx, unit strain: boundary particles move by x - x_c along x
-    u = m.point_data["displacement"]
-    x = m.points
+    u = m["point_data"]["displacement_m"]
+    x = m["points"]
     xc = (x.max(axis=0) + x.min(axis=0)) / 2
     edge = np.isclose(x[:, 0], x[:, 0].min())
     assert np.allclose(u[edge, 0], x[edge, 0] - xc[0], rtol=1e-9)

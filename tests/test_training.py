@@ -118,7 +118,7 @@ def test_unknown_architecture_and_argument():
     with pytest.raises(AmfeError, match="unknown architecture"):
         build_net("resnet", SMALL)
     with pytest.raises(AmfeError, match="takes no argument"):
-        build_net("custom", SMALL, {"width": 2})
+        build_net("custom", SMALL, {"dropout": 0.5})
 
 
 # ---------------------------------------------------------------- data
@@ -427,3 +427,70 @@ def test_predict_cli_images_the_bonds_of_the_bed(tmp_path):
     want = Surrogate.load(model).predict(np.concatenate([fill, bonds])[None])["mean"][0]
     got = [res["properties"][k] for k in ("Ex", "Ey", "Ez", "nu_yz", "nu_xz", "nu_xy")]
     assert np.allclose(got, want, rtol=1e-6)
+
+
+# ---------------------------------------------------------------- issue 13: bigger nets, device
+
+def test_wider_and_deeper_custom_net_counts():
+    conv = _conv(3, 32) + _conv(32, 32) + _conv(32, 64) + _conv(64, 64) + _conv(64, 128) \
+        + _conv(128, 128) + _conv(128, 256) + _conv(256, 256)
+    wide_deep = build_net("custom", SMALL, {"width": 2.0, "convs": 2})
+    assert count_parameters(wide_deep) == conv + _fc(256, 512) + _fc(512, 256) + _fc(256, 128) \
+        + _fc(128, 6)
+    # the defaults are the paper's net: the shipped checkpoint rebuilds unchanged
+    assert count_parameters(build_net("custom", SMALL)) == count_parameters(
+        build_net("custom", SMALL, {"width": 1.0, "convs": 1}))
+
+
+def test_multiscale_net_sees_a_one_cell_hole():
+    torch.manual_seed(0)
+    net = build_net("multiscale", SMALL).eval()
+    x = torch.full((1, *SMALL), 0.6)
+    holed = x.clone()
+    holed[0, :, 7, 12] = 0.0          # one empty cell through all three layers
+    with torch.inference_mode():
+        a, b = net(x), net(holed)
+    assert a.shape == (1, 6) and not torch.allclose(a, b)
+    # the hole map of the emptiest layer reaches every stage: 4 stages x (mean, max)
+    assert net.head[0].in_features == 2 * (32 + 64 + 128 + 256)
+
+
+@pytest.mark.parametrize("arch", ["multiscale"])
+def test_new_architecture_lowers_the_loss(synth, arch):
+    cfg = TrainConfig(arch=arch, arch_args={"width": 0.25, "hidden": [32]}, epochs=5,
+                      batch_size=16, lr=3e-3)
+    ok = dataset_info(synth)["ok"]
+    ds = BedDataset(synth, ok, in_memory=True)
+    images, labels = read_rows(synth, ok)
+    norm = Normalizer.fit(labels)
+    net, hist = train_member(ds, images[:0], labels[:0], norm, cfg, SMALL, seed=5,
+                             progress=False, log=None)
+    assert hist["train_loss"][-1] < 0.7 * hist["train_loss"][0]
+    assert hist["device"] == "cpu" and all(p.device.type == "cpu" for p in net.parameters())
+
+
+def test_device_choice(synth, tmp_path):
+    from amfe.training.device import resolve_device
+    assert resolve_device("cpu").type == "cpu"
+    assert resolve_device("auto").type == ("cuda" if torch.cuda.is_available() else "cpu")
+    if not torch.cuda.is_available():
+        with pytest.raises(AmfeError, match="sees no CUDA device"):
+            resolve_device("cuda")
+        out = tmp_path / "m.pt"
+        proc = run_cli(["train", synth, "-o", str(out), "--epochs", "1", "--device", "cuda",
+                        "--quiet"])
+        assert proc.returncode == 2 and "no CUDA device" in proc.stderr and not out.exists()
+    with pytest.raises(AmfeError, match="unknown device"):
+        resolve_device("tpu")
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device here")
+def test_a_gpu_trained_checkpoint_predicts_on_the_cpu(synth, tmp_path):
+    cfg = TrainConfig(arch="custom", epochs=2, batch_size=16, device="cuda")
+    ckpt = train_model(synth, cfg, progress=False, log=lambda line: None)
+    path = tmp_path / "gpu.pt"
+    save_checkpoint(path, ckpt)
+    images, _ = read_rows(synth)
+    loaded = Surrogate.load(path)
+    assert all(p.device.type == "cpu" for p in loaded.nets[0].parameters())
+    assert np.isfinite(loaded.member_outputs(images)).all()

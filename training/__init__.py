@@ -4,6 +4,7 @@
   splits, label normalisation, label-preserving symmetries.
 - :mod:`amfe.training.nets`: Custom Net, LeNet-5, AlexNet and VGG with a six-output
   linear regression head.
+- :mod:`amfe.training.multiscale`: a multi-scale encoder that reads the holes.
 - :mod:`amfe.training.train`: training one network or a seeded ensemble.
 - :mod:`amfe.training.checkpoint`: plain-data checkpoints, loaded weights-only.
 - :mod:`amfe.training.predict`: inference on images and beds, the ensemble flag.
@@ -12,6 +13,6 @@
 This module imports nothing heavy, so the amfe command line can build its
 parsers without importing torch.
 """
-ARCH_NAMES = ("custom", "lenet5", "alexnet", "vgg")
+ARCH_NAMES = ("custom", "lenet5", "alexnet", "vgg", "multiscale")
 AUGMENTATIONS = ("none", "flips", "d4")
 SCHEDULES = ("constant", "cosine")

@@ -37,6 +37,7 @@ from amfe.io.atomic import atomic_write
 from amfe.errors import AmfeError
 
 from amfe.training.nets import ARCHITECTURES, build_net
+from amfe.training.validate import check_fields, check_members
 
 FORMAT = "amfe.surrogate"
 FORMAT_VERSION = 1
@@ -101,6 +102,8 @@ def load_checkpoint(path):
     and a dict that is not an amfe surrogate checkpoint.
     """
     path = os.fspath(path)
+    if os.path.isdir(path):
+        raise AmfeError(f"model file {path} is a directory; give the .pt file (amfe train -o)")
     if not os.path.isfile(path):
         raise AmfeError(f"model file {path} does not exist")
     try:
@@ -115,16 +118,20 @@ def load_checkpoint(path):
                         "checkpoint") from None
     if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
         raise AmfeError(f"{path} is not a plain amfe checkpoint (no format {FORMAT!r})")
-    if int(ckpt.get("format_version", -1)) > FORMAT_VERSION:
+    version = ckpt.get("format_version", -1)
+    if type(version) is not int:
+        raise AmfeError(f"{path}: format_version must be an integer, got {version!r}")
+    if version > FORMAT_VERSION:
         raise AmfeError(f"{path} has checkpoint format version {ckpt['format_version']}; this "
                         f"amfe reads up to {FORMAT_VERSION}: update amfe")
     missing = [k for k in REQUIRED if k not in ckpt]
     if missing:
         raise AmfeError(f"{path} is not a complete amfe checkpoint: missing {', '.join(missing)}")
-    if ckpt["arch"] not in ARCHITECTURES:
+    if not isinstance(ckpt["arch"], str) or ckpt["arch"] not in ARCHITECTURES:
         raise AmfeError(f"{path}: unknown architecture {ckpt['arch']!r}")
     if not isinstance(ckpt["members"], list) or not ckpt["members"]:
         raise AmfeError(f"{path}: the checkpoint holds no network weights")
+    check_fields(ckpt, path)
     return ckpt
 
 
@@ -138,7 +145,8 @@ def _unpickler_reason(exc):
 
 
 def build_members(ckpt, path="checkpoint"):
-    """The ensemble's networks, weights loaded, in eval mode."""
+    """The ensemble's networks, weights loaded, in eval mode (AmfeError for junk weights)."""
+    check_members(ckpt, path)
     nets = []
     for k, state in enumerate(ckpt["members"]):
         net = build_net(ckpt["arch"], ckpt["image_shape"], ckpt["arch_args"])
@@ -153,12 +161,18 @@ def build_members(ckpt, path="checkpoint"):
     return nets
 
 
-def check_image_shape(ckpt, shape, what="the image", path="the model"):
-    """AmfeError naming both shapes unless ``shape`` (layers, H, W) is the checkpoint's."""
+def check_image_shape(ckpt, shape, what="the image", path="the model", bed=False):
+    """AmfeError naming both shapes unless ``shape`` (layers, H, W) is the checkpoint's.
+
+    ``bed``: the image is a bed's, so the message also says how to make a bed
+    of the model's scale.
+    """
     want = tuple(int(s) for s in ckpt["image_shape"])
     got = tuple(int(s) for s in shape)
     if got != want:
+        scale = ckpt.get("pixelation", {}).get("scale")
+        fix = "use a model trained on this image shape"
+        if bed and isinstance(scale, str):
+            fix += f", or a bed of the model's scale (`amfe pack --scale {scale}`)"
         raise AmfeError(f"{what} has shape {'x'.join(map(str, got))} but {path} was trained on "
-                        f"images of shape {'x'.join(map(str, want))} (scale "
-                        f"{ckpt.get('pixelation', {}).get('scale')}); use a model trained on "
-                        "this image shape")
+                        f"images of shape {'x'.join(map(str, want))} (scale {scale}); {fix}")

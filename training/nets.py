@@ -46,6 +46,7 @@ from torch import nn
 from amfe.errors import AmfeError
 
 from amfe.training import ARCH_NAMES
+from amfe.training.multiscale import MultiScaleNet
 
 N_OUTPUTS = 6
 
@@ -108,9 +109,11 @@ class CustomNet(nn.Module):
     CHANNELS = (16, 32, 64, 128)
     HIDDEN = (512, 256, 128)
 
-    def __init__(self, image_shape, padding="auto"):
+    def __init__(self, image_shape, padding="auto", width=1.0, convs=1):
         super().__init__()
         layers_in, H, W = _check_shape(image_shape)
+        if int(convs) < 1:
+            raise AmfeError(f"Custom Net needs at least one convolution per block, got {convs}")
         if padding == "auto":
             padding = custom_padding(image_shape)
         if padding not in ("valid", "same"):
@@ -118,8 +121,10 @@ class CustomNet(nn.Module):
         pad = 0 if padding == "valid" else 1
         layers, c, hw = [], layers_in, (H, W)
         for out in self.CHANNELS:
-            layers += [nn.Conv2d(c, out, 3, padding=pad), nn.ReLU(inplace=True)]
-            c, hw = out, _out_hw(hw, 3, pad, False)
+            out = _ch(out, width)
+            for _ in range(int(convs)):   # convs > 1: a deeper block (same padding keeps hw)
+                layers += [nn.Conv2d(c, out, 3, padding=pad), nn.ReLU(inplace=True)]
+                c, hw = out, _out_hw(hw, 3, pad, False)
             if min(hw) < 1:
                 raise AmfeError(f"Custom Net with {padding} padding needs a larger image than "
                                 f"{H} x {W}")
@@ -218,13 +223,15 @@ class VGG(nn.Module):
         return self.head(torch.flatten(self.features(x), 1))
 
 
-ARCHITECTURES = dict(zip(ARCH_NAMES, (CustomNet, LeNet5, AlexNet, VGG)))
-DISPLAY_NAMES = {"custom": "Custom Net", "lenet5": "LeNet-5", "alexnet": "AlexNet", "vgg": "VGG"}
+ARCHITECTURES = dict(zip(ARCH_NAMES, (CustomNet, LeNet5, AlexNet, VGG, MultiScaleNet)))
+DISPLAY_NAMES = {"custom": "Custom Net", "lenet5": "LeNet-5", "alexnet": "AlexNet", "vgg": "VGG",
+                 "multiscale": "Multi-scale"}
 # Which keyword arguments each network takes, and their JSON-able types.
-ARCH_ARGS = {"custom": {"padding": str},
+ARCH_ARGS = {"custom": {"padding": str, "width": float, "convs": int},
              "lenet5": {},
              "alexnet": {"width": float, "hidden": list, "dropout": float},
-             "vgg": {"width": float, "hidden": list, "dropout": float, "batch_norm": bool}}
+             "vgg": {"width": float, "hidden": list, "dropout": float, "batch_norm": bool},
+             "multiscale": {"width": float, "hidden": list, "n_fill": int}}
 
 
 def build_net(arch, image_shape, arch_args=None):

@@ -3,6 +3,7 @@ import os
 
 import numpy as np
 
+from amfe.io.atomic import atomic_write
 from amfe.vocab import LABEL_NAMES
 
 
@@ -54,6 +55,9 @@ def plot_learning_curves(runs, path, title=""):
         fig.suptitle(title)
     fig.tight_layout()
     os.makedirs(os.path.dirname(os.path.abspath(os.fspath(path))), exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    fmt = os.path.splitext(os.fspath(path))[1].lstrip(".").lower() or "png"
+    try:   # atomically: an interrupted or failed write leaves no half picture
+        atomic_write(path, lambda fh: fig.savefig(fh, dpi=110, format=fmt))
+    finally:
+        plt.close(fig)
     return path

@@ -20,6 +20,7 @@ A checkpoint with a ``fill_range`` (the 0.5th and 99.5th percentiles of that
 statistic over its training beds, :func:`calibrate_fill`) flags a bed whose
 fill lies outside it, whatever the spread.
 """
+import math
 import os
 import time
 from pathlib import Path
@@ -31,6 +32,7 @@ from amfe.vocab import LABEL_NAMES
 from amfe.errors import AmfeError
 
 from amfe.training.checkpoint import build_members, check_image_shape, load_checkpoint
+from amfe.training.device import device_of
 from amfe.training.data import DEFAULT_INPUTS, Normalizer, check_inputs, flip_images, transpose_labels
 
 DEFAULT_MODEL_NAME = "custom_small.pt"
@@ -116,8 +118,9 @@ class Surrogate:
         ``images``: a :class:`~amfe.model.bed.Bed`, a bed file's path, or inputs
         (n, channels, H, W) (the image kinds of ``self.inputs`` stacked). Returns
         {mean (n, 6), spread (n, 6) relative, score (n,), fill (n,), fill_out
-        (n,) bool, flagged (n,) bool}, the six in label order (Ex, Ey, Ez [Pa],
-        nu_yz, nu_xz, nu_xy); flagged = spread over the threshold or fill_out.
+        (n,) bool, nonfinite (n,) bool, flagged (n,) bool}, the six in label
+        order (Ex, Ey, Ez [Pa], nu_yz, nu_xz, nu_xy); flagged = spread over the
+        threshold, fill_out, or a member's prediction not finite (NaN, inf).
         """
         if isinstance(images, (str, os.PathLike)):
             from amfe.io.bedfile import read_bed
@@ -191,6 +194,7 @@ def predict_raw(net, images, norm, tta="none", batch_size=1024):
     prediction is mapped back before averaging (in raw units).
     """
     net.eval()
+    dev = device_of(net)
     syms = symmetries(tta_mode(tta), images.shape[-1] == images.shape[-2])
     out = []
     with torch.inference_mode():
@@ -198,7 +202,7 @@ def predict_raw(net, images, norm, tta="none", batch_size=1024):
             xb = images[s:s + batch_size]
             acc = 0.0
             for fx, fy, tr in syms:
-                y = norm.decode(net(flip_images(xb, fx, fy, tr)))
+                y = norm.decode(net(flip_images(xb, fx, fy, tr).to(dev)).cpu())
                 acc = acc + (transpose_labels(y) if tr else y)
             out.append(acc / len(syms))
     return torch.cat(out) if out else torch.zeros(0, 6, dtype=torch.float64)
@@ -212,8 +216,11 @@ def summarize_members(members, spread_scale=None, threshold=None):
     rel = std / np.maximum(np.abs(mean), np.finfo(float).tiny)
     scale = np.ones(6) if spread_scale is None else np.asarray(spread_scale, np.float64)
     score = np.max(rel / scale, axis=1)
+    # NaN > threshold is False: a non-finite prediction is flagged on its own.
+    nonfinite = ~np.isfinite(members).all(axis=(0, 2))
     flagged = (score > threshold) if threshold is not None else np.zeros(mean.shape[0], bool)
-    return {"mean": mean, "spread": rel, "score": score, "flagged": flagged}
+    return {"mean": mean, "spread": rel, "score": score, "nonfinite": nonfinite,
+            "flagged": flagged | nonfinite}
 
 
 def pixelate_like_training(bed, ckpt, path="the model"):
@@ -227,12 +234,17 @@ def pixelate_like_training(bed, ckpt, path="the model"):
 
     px = ckpt["pixelation"]
     size = _image_size(bed, ckpt)
+    r_max = float(np.max(bed.radii))
+    if r_max > max(size):   # pixelate would size its sample blocks by it (docs/model.md, sec. 6)
+        raise AmfeError(f"the bed has a particle of radius {r_max:g} m, larger than the imaged "
+                        f"box ({_mm(size)} mm): not a bed {path} can predict")
+    n_kinds = len(check_inputs(ckpt.get("inputs", DEFAULT_INPUTS)))
+    _check_grid(size, px, n_kinds, ckpt, path)
     image = pixelate(bed, cell=tuple(px["image_cell"][:2]),
                      layer_thickness=float(px["layer_thickness"]),
                      box=((0.0, 0.0, 0.0), size), spacing=float(px["image_spacing"]))
-    n_kinds = len(check_inputs(ckpt.get("inputs", DEFAULT_INPUTS)))
     shape = (image.shape[0] * n_kinds, *image.shape[1:])
-    check_image_shape(ckpt, shape, f"the bed's image ({_mm(size)} mm)", path)
+    check_image_shape(ckpt, shape, f"the bed's image ({_mm(size)} mm)", path, bed=True)
     return np.asarray(image, np.float32)
 
 
@@ -246,12 +258,36 @@ def bond_image_like_training(bed, ckpt):
                       box=((0.0, 0.0, 0.0), _image_size(bed, ckpt)))
 
 
+def _check_grid(size, px, n_kinds, ckpt, path):
+    """Refuse a bed whose image would be far from the model's shape before pixelating it.
+
+    A bed that records a size of 1 m would otherwise be pixelated on a grid of
+    ~10^10 samples before the shapes are compared. The count here is the
+    number of whole cells (layers) the box holds; the exact comparison
+    follows the pixelation.
+    """
+    cells = [size[0] / float(px["image_cell"][0]), size[1] / float(px["image_cell"][1]),
+             size[2] / float(px["layer_thickness"])]
+    layers, h, w = (max(1, math.ceil(c - 1e-9)) for c in (cells[2], cells[1], cells[0]))
+    want = tuple(int(s) for s in ckpt["image_shape"])
+    if abs(layers * n_kinds - want[0]) > 1 or abs(h - want[1]) > 1 or abs(w - want[2]) > 1:
+        check_image_shape(ckpt, (layers * n_kinds, h, w), f"the bed's image ({_mm(size)} mm)",
+                          path, bed=True)
+
+
 def _image_size(bed, ckpt):
     """The imaged box's size [m]: the bed's recorded size, else the training beds'."""
     size = bed.attrs.get("size") if hasattr(bed, "attrs") else None
     if size is None:
         size = ckpt["pixelation"]["bed_size"]
-    return tuple(float(s) for s in size)
+    try:
+        out = tuple(float(s) for s in size)
+    except (TypeError, ValueError):
+        out = ()
+    if len(out) != 3 or not all(math.isfinite(s) and s > 0 for s in out):
+        raise AmfeError(f"the bed's size attribute must be three positive lengths in m, got "
+                        f"{size!r}; fix or remove it (the box is then the training beds')")
+    return out
 
 
 def _mm(size):
@@ -263,7 +299,11 @@ def check_material(bed, ckpt, path="the model"):
     want = ckpt.get("material")
     if not want:
         return
-    have = bed.material().asdict()
+    try:
+        have = bed.material().asdict()
+    except (TypeError, ValueError) as exc:   # material attributes of the wrong type
+        raise AmfeError(f"the bed's material attributes are not numbers ({exc}); fix or remove "
+                        "material_E, material_nu, material_psi, material_density") from None
     off = [k for k in ("E", "nu", "psi") if abs(float(have[k]) - float(want[k]))
            > 1e-9 * max(1.0, abs(float(want[k])))]
     if off:

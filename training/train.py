@@ -26,6 +26,7 @@ from amfe.model.material import STEEL
 
 from amfe.training import AUGMENTATIONS, SCHEDULES
 from amfe.training.checkpoint import check_image_shape
+from amfe.training.device import device_of, resolve_device
 from amfe.training.data import (DEFAULT_INPUTS, BedDataset, Normalizer, augment_batch, check_inputs,
                    dataset_hash, dataset_info, read_rows, split_indices)
 from amfe.training.metrics import metrics_line, property_metrics
@@ -55,12 +56,23 @@ class TrainConfig:
     workers: int = 0
     max_train: int = 0          # use at most this many training beds (0: all); for tests
     inputs: tuple = DEFAULT_INPUTS   # image kinds stacked as channels (amfe.training.data)
+    device: str = "auto"        # where to train (amfe.training.device); checkpoints stay on CPU
 
     def check(self):
         if self.epochs < 1 or self.batch_size < 1 or self.members < 1:
             raise AmfeError("epochs, batch size and members must be positive")
-        if not (self.lr > 0):
-            raise AmfeError(f"learning rate must be positive, got {self.lr}")
+        if not (math.isfinite(self.lr) and self.lr > 0):
+            raise AmfeError(f"learning rate must be a positive finite number, got {self.lr}")
+        if not (math.isfinite(self.weight_decay) and self.weight_decay >= 0):
+            raise AmfeError(f"weight decay must be a finite number >= 0, got {self.weight_decay}")
+        if not (0 <= self.val_fraction < 1):
+            raise AmfeError(f"the validation fraction must lie in [0, 1), got {self.val_fraction}")
+        if self.max_train < 0 or self.workers < 0:
+            raise AmfeError("max_train and workers must be >= 0")
+        # torch seeds are 64-bit: member k has seed + k; numpy's split seed must be >= 0.
+        if not (0 <= self.seed and self.seed + self.members - 1 < 2 ** 63 and self.split_seed >= 0):
+            raise AmfeError(f"seeds must lie in [0, 2^63 - members], got seed {self.seed}, "
+                            f"split seed {self.split_seed}")
         if self.schedule not in SCHEDULES:
             raise AmfeError(f"unknown schedule {self.schedule!r}; choose one of "
                             f"{', '.join(SCHEDULES)}")
@@ -69,6 +81,7 @@ class TrainConfig:
                             f"{', '.join(AUGMENTATIONS)}")
         self.tta = tta_mode(self.tta)
         self.inputs = check_inputs(self.inputs)
+        resolve_device(self.device)
         if not (0 < self.flag_percentile < 100):
             raise AmfeError("the flag percentile must lie in (0, 100)")
 
@@ -89,10 +102,12 @@ def _batches(ds, batch_size, generator, workers):
 
 
 def predict_normalised(net, images, batch_size=1024):
-    """Normalised outputs of ``net`` (eval mode) on an image tensor."""
+    """Normalised outputs of ``net`` (eval mode) on an image tensor; a CPU tensor."""
     net.eval()
+    dev = device_of(net)
     with torch.inference_mode():
-        out = [net(images[s:s + batch_size]) for s in range(0, images.shape[0], batch_size)]
+        out = [net(images[s:s + batch_size].to(dev)).cpu()
+               for s in range(0, images.shape[0], batch_size)]
     return torch.cat(out) if out else torch.zeros(0, 6)
 
 
@@ -100,7 +115,8 @@ def train_member(train_ds, val_images, val_labels, norm, cfg, image_shape, seed,
                  log=print, label=""):
     """Train one network; returns (net in eval mode, history dict)."""
     torch.manual_seed(seed)
-    net = build_net(cfg.arch, image_shape, cfg.arch_args)
+    dev = resolve_device(cfg.device)
+    net = build_net(cfg.arch, image_shape, cfg.arch_args).to(dev)
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     n_batches = math.ceil(len(train_ds) / cfg.batch_size)
     sched = None
@@ -124,7 +140,7 @@ def train_member(train_ds, val_images, val_labels, norm, cfg, image_shape, seed,
             total, count = 0.0, 0
             for xb, yb in _batches(train_ds, cfg.batch_size, gen, cfg.workers):
                 xb, yb = augment_batch(xb.float(), yb.double(), cfg.augment, gen)
-                loss = torch.nn.functional.mse_loss(net(xb), norm.encode(yb))
+                loss = torch.nn.functional.mse_loss(net(xb.to(dev)), norm.encode(yb).to(dev))
                 opt.zero_grad(set_to_none=True)
                 loss.backward()
                 opt.step()
@@ -158,7 +174,8 @@ def train_member(train_ds, val_images, val_labels, norm, cfg, image_shape, seed,
         if bar is not None:
             bar.close()
     hist["seconds"] = time.perf_counter() - t_start
-    net.eval()
+    hist["device"] = str(dev)
+    net.cpu().eval()   # inference and the checkpoint on the CPU, whatever trained it
     return net, hist
 
 
@@ -173,11 +190,15 @@ def train_model(data_path, cfg, progress=True, log=print):
     image_shape = tuple(info["image_shape"])
     n_fill = image_shape[0] // len(cfg.inputs)
     ok = info["ok"]
-    if ok.size < 2:
-        raise AmfeError(f"{data_path}: {ok.size} usable record(s); training needs more")
+    if ok.size < 1:
+        raise AmfeError(f"{data_path}: no usable record (status ok, finite labels); nothing to "
+                        "train on")
+    if cfg.arch == "multiscale":   # its hole maps read the fill layers only
+        cfg.arch_args = {"n_fill": n_fill, **cfg.arch_args}
     train_rows, val_rows = split_indices(ok, cfg.val_fraction, cfg.split_seed)
     if cfg.max_train:
         train_rows = train_rows[:cfg.max_train]
+    check_counts(data_path, ok.size, len(train_rows), len(val_rows), cfg)
     in_memory = len(train_rows) * int(np.prod(image_shape)) * 4 < MEMORY_LIMIT
     train_ds = BedDataset(data_path, train_rows, in_memory=in_memory, inputs=cfg.inputs)
     train_images, train_labels = read_rows(data_path, train_rows, cfg.inputs)
@@ -242,6 +263,20 @@ def train_model(data_path, cfg, progress=True, log=print):
             + metrics_line(ckpt["metrics"]["validation"]) + " | R^2 "
             + metrics_line(ckpt["metrics"]["validation"], "r2", 1.0, "{:.4f}"))
     return ckpt
+
+
+MIN_BEDS = 2   # per split: a standardisation, an R^2 and a spread percentile need two
+
+
+def check_counts(data_path, n_ok, n_train, n_val, cfg):
+    """AmfeError when a split is too small to train on or to validate (R^2 would be NaN)."""
+    if n_train >= MIN_BEDS and (n_val >= MIN_BEDS or cfg.val_fraction == 0):
+        return
+    raise AmfeError(f"{data_path}: {n_ok} usable record(s) give {n_train} training and {n_val} "
+                    f"validation bed(s) (--val-fraction {cfg.val_fraction:g}"
+                    f"{f', --max-train {cfg.max_train}' if cfg.max_train else ''}); training "
+                    f"needs at least {MIN_BEDS} of each, as R^2 and the validation error are "
+                    "undefined with fewer: make a larger data set (amfe dataset --count N)")
 
 
 def calibrate_spread(members, percentile=95.0):

@@ -2,22 +2,44 @@
 
 Every subcommand module defines ``register(subparsers)`` which adds its parser
 and sets ``func`` to a callable taking the parsed arguments and returning an
-exit code. Errors meant for users (:class:`amfe.errors.AmfeError`) are printed
-as one line and exit with status 2; nothing else is caught.
+exit code. How a run ends:
+
+- an error meant for users (:class:`amfe.errors.AmfeError`) is printed as one
+  line, ``amfe <command>: error: ...``, and the exit status is 2; a bad or
+  unknown option gets the subcommand's usage and one line (argparse, exit 2);
+- SIGINT or SIGTERM: one line, ``amfe <command>: interrupted (SIGINT)``, exit
+  130 or 143, every MPI rank stopped (amfe.cli.interrupt);
+- a reader that closed the pipe (``| head``): quiet, exit 141;
+- a full disk: one line naming the file, exit 2;
+- anything else is a bug: its traceback, and under MPI an abort of all ranks.
 """
 import argparse
+import errno
 import importlib
+import os
 import sys
+
+# One BLAS thread per MPI rank (amfe parallelises over ranks), and the same
+# summation order in every run: a Cholesky label must not change in its last
+# bit with the machine's core count, or a resumed data set would differ from an
+# uninterrupted one. Set before numpy, scipy or PETSc load OpenBLAS.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 from amfe.solvers.petsc import is_option
 
+from amfe.cli.interrupt import Interrupted, end_broken_pipe, end_interrupted, signals_raise, world
 from amfe.errors import AmfeError
 from amfe.version import __version__
 
-COMMANDS = ["pack", "homogenize", "dataset", "train", "predict"]
+COMMANDS = ["pack", "homogenize", "dataset", "train", "predict", "view"]
+# Commands that hand single-dash options to PETSc (predict: with --check or --fallback).
+PETSC_COMMANDS = ("homogenize", "dataset", "predict")
+DISK_FULL = (errno.ENOSPC, errno.EDQUOT)
 
 
 def build_parser():
+    """The top-level parser; ``parser.subcommands`` maps each command to its own parser."""
     parser = argparse.ArgumentParser(
         prog="amfe",
         description="Powder beds as bonded space frames: generate, homogenize, export.")
@@ -26,6 +48,7 @@ def build_parser():
     sub.required = True
     for name in COMMANDS:
         importlib.import_module(f"amfe.cli.{name}").register(sub)
+    parser.subcommands = sub.choices
     return parser
 
 
@@ -36,7 +59,7 @@ def split_petsc_args(argv):
     token after it is its value unless it looks like an option itself. So
     PETSc options go after amfe's own arguments: `amfe homogenize bed.h5
     -ksp_monitor -pc_type hypre`. (Handing them to argparse would read
-    -options_left as -o ptions_left.)
+    -options_left as -o ptions_left.) Numbers such as -inf or -1e3 are values.
     """
     ours, petsc, k = [], [], 0
     while k < len(argv):
@@ -53,31 +76,76 @@ def split_petsc_args(argv):
 
 
 def _is_petsc_option(tok):
-    return len(tok) > 2 and tok[0] == "-" and tok[1] != "-" and tok[1].isalpha()
+    return (len(tok) > 2 and tok[0] == "-" and tok[1] != "-" and tok[1].isalpha()
+            and is_option(tok))
+
+
+def parse(argv):
+    """Parsed arguments (with ``petsc_args``) of the command line ``argv`` (list of str).
+
+    A mistyped option gets the usage of its subcommand, not the top-level one
+    (argparse would report the subcommand's leftovers from the top parser);
+    PETSc options given to a command that runs no PETSc are refused the same way.
+    """
+    parser = build_parser()
+    ours, petsc = split_petsc_args(argv)
+    args, extra = parser.parse_known_args(ours)
+    sub = parser.subcommands[args.command]
+    if extra:
+        sub.error(f"unrecognized arguments: {' '.join(extra)}")
+    if petsc and args.command not in PETSC_COMMANDS:
+        sub.error(f"unrecognized arguments: {' '.join(petsc)} (single-dash options go to "
+                  f"PETSc, which amfe {args.command} does not run; its options start with --)")
+    args.petsc_args = petsc
+    return args
 
 
 def main(argv=None):
     argv = sys.argv[1:] if argv is None else list(argv)
-    ours, petsc = split_petsc_args(argv)
-    args = build_parser().parse_args(ours)
-    args.petsc_args = petsc
     try:
-        return int(args.func(args) or 0)
-    except AmfeError as exc:
-        # Raised alike on every rank: one message, then a clean non-zero exit everywhere.
-        if _world_rank() == 0:
-            print(f"amfe {args.command}: error: {exc}", file=sys.stderr)
-        return 2
-    except BaseException:
-        # An unexpected error on one rank would leave the others waiting in a
-        # collective: abort the whole MPI job instead of hanging.
-        mpi = sys.modules.get("mpi4py.MPI")
-        if mpi is not None and mpi.COMM_WORLD.size > 1:
-            import traceback
-            traceback.print_exc()
-            sys.stderr.flush()
-            mpi.COMM_WORLD.Abort(1)
-        raise
+        args = parse(argv)
+    except BrokenPipeError:   # `amfe -h | head -1`
+        return end_broken_pipe()
+    with signals_raise():
+        try:
+            code = int(args.func(args) or 0)
+            sys.stdout.flush()   # here, not at exit, so a closed pipe is caught below
+            return code
+        except AmfeError as exc:
+            # Raised alike on every rank: one message, then a clean non-zero exit everywhere.
+            if _world_rank() == 0:
+                print(f"amfe {args.command}: error: {exc}", file=sys.stderr)
+            return 2
+        except Interrupted as exc:
+            return end_interrupted(args.command, exc)
+        except BrokenPipeError:
+            return end_broken_pipe()
+        except OSError as exc:
+            if exc.errno not in DISK_FULL:
+                _abort_others()
+                raise
+            # Typically on the writing rank only: stop the others too.
+            where = f" writing {exc.filename}" if exc.filename else ""
+            print(f"amfe {args.command}: error: no space left on the device{where}; free some "
+                  "space and run again (files written before are kept)", file=sys.stderr)
+            _abort_others(2)
+            return 2
+        except BaseException:
+            _abort_others()
+            raise
+
+
+def _abort_others(code=1):
+    """An error on one rank would leave the others waiting in a collective: abort the MPI job
+    instead of hanging (after printing what went wrong; a no-op without MPI or on one rank)."""
+    comm = world()
+    if comm is None:
+        return
+    if code != 2:   # a bug: show where, before the abort ends this process
+        import traceback
+        traceback.print_exc()
+    sys.stderr.flush()
+    comm.Abort(code)
 
 
 def _world_rank():

@@ -1,7 +1,7 @@
 """`amfe dataset`: a training data set of beds, images and labels, under mpirun, kill-safe.
 
     mpirun -n N amfe dataset -o DATA.h5 --count M [--seed S] [--scale small|paper]
-                             [--ranks-per-bed k]
+                             [--ranks-per-bed k] [--max-failed-share F]
     amfe dataset --check DATA.h5
     amfe dataset --add-bond-images DATA.h5
 
@@ -10,12 +10,16 @@ distribution (amfe.model.scales), its image (amfe.dataset.images), the six label
 (homogenize_bed), the packing density and the generation parameters; it is a
 pure function of (S, k), whatever N and k. Rank groups of k ranks take beds
 from a shared counter (amfe.dataset.driver). Killing the job loses only the beds in
-flight: the same command resumes it. A bed that fails is recorded as failed
-with its reason. File layout: amfe.io.datasetfile.
+flight: the same command resumes it (after removing the stale lock
+DATA.h5.lock that the kill left; the message says how). One run at a time
+writes an output (amfe.dataset.lock). A bed that fails is recorded as failed
+with its reason; more than F of them failed makes the exit status 2. File
+layout: amfe.io.datasetfile.
 """
 import os
 import sys
 
+from amfe.cli.options import add_solver_args
 from amfe.errors import AmfeError
 from amfe.model.scales import SCALES
 
@@ -30,13 +34,18 @@ def register(sub):
     p.add_argument("-o", "--output", metavar="DATA.h5", help="data-set file to make (HDF5)")
     p.add_argument("--count", type=int, metavar="M", help="number of records")
     p.add_argument("--seed", type=int, default=0, metavar="S",
-                   help="data-set seed, integer >= 0 (default 0)")
+                   help="data-set seed, integer, 0 <= S < 2**64 (default 0)")
     p.add_argument("--scale", default="small", choices=list(SCALES),
                    help="bed distribution (default small; see amfe.model.scales)")
     p.add_argument("--ranks-per-bed", type=int, default=1, metavar="K",
                    help="MPI ranks that solve one bed together (default 1)")
-    p.add_argument("--rtol", type=float, default=None,
-                   help="KSP relative tolerance of the solves (default 1e-8)")
+    add_solver_args(p)
+    p.add_argument("--max-failed-share", type=float, default=None, metavar="F",
+                   help="exit with an error (status 2, the file is still written) when more than "
+                        "this share of the records failed (default 0.05)")
+    p.add_argument("--bc", choices=["kubc", "subc", "mixed"], default="kubc",
+                   help="boundary conditions of the labels (default kubc; see amfe homogenize "
+                        "--bc; data-set beds are not periodic)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--check", metavar="DATA.h5",
                    help="validate a data-set file and print its summary (exit 1 if bad)")
@@ -58,14 +67,15 @@ def run(args):
     if not args.output or args.count is None:
         raise AmfeError("give -o DATA.h5 and --count M (or --check DATA.h5)")
     from amfe.dataset.driver import run_dataset
-    from amfe.solvers.ksp import DEFAULT_RTOL
+    from amfe.dataset.plan import DEFAULT_MAX_FAILED_SHARE
     from amfe.solvers.petsc import init_petsc
 
     init_petsc(args.petsc_args)
     run_dataset(args.output, args.count, seed=args.seed, scale=args.scale,
                 ranks_per_bed=args.ranks_per_bed,
-                rtol=DEFAULT_RTOL if args.rtol is None else args.rtol,
-                progress=not args.no_progress)
+                rtol=args.rtol, solver=args.solver, progress=not args.no_progress,
+                max_failed_share=DEFAULT_MAX_FAILED_SHARE if args.max_failed_share is None
+                else args.max_failed_share, bc=args.bc)
     return 0
 
 

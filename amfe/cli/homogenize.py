@@ -5,9 +5,11 @@
 Rank 0 reads the bed and broadcasts it; every rank builds the same frame and
 owns a block of its rows; rank 0 writes the JSON (atomically) and the VTU files.
 """
+import json
 import os
 import sys
 
+from amfe.cli.options import add_solver_args
 from amfe.errors import AmfeError
 
 PROPERTY_UNITS = [("Ex", "GPa"), ("Ey", "GPa"), ("Ez", "GPa"), ("nu_yz", ""), ("nu_xz", ""),
@@ -20,46 +22,110 @@ def register(sub):
                        epilog="Any -option (single dash) goes to PETSc, e.g. -ksp_monitor, "
                               "-log_view, -pc_type hypre.")
     p.add_argument("bed", help="bed HDF5 file (/particles/centers, /particles/radii)")
-    p.add_argument("-o", "--output", help="write the result as JSON here")
-    p.add_argument("--vtu", metavar="DIR", help="write one VTU per load case and cases.pvd here")
-    p.add_argument("--rtol", type=float, default=None, help="KSP relative tolerance (default 1e-8)")
+    p.add_argument("-o", "--output", help="write the result as JSON here (- : to stdout, the table to stderr)")
+    p.add_argument("--vtu", metavar="DIR", help="write the ParaView files here: case_<name>.vtp "
+                   "per load case and cases.pvd (view them: amfe view DIR)")
+    add_solver_args(p)
     p.add_argument("--cap-a-star", type=float, default=None, metavar="A",
                    help="evaluate bonds with a* > A at a* = A (A below the critical a*) "
                         "instead of refusing them; the JSON reports n_capped")
-    p.add_argument("--bc", choices=["kubc", "mixed"], default="kubc",
+    p.add_argument("--bc", choices=["kubc", "mixed", "subc", "periodic", "all"], default="kubc",
                    help="kubc: six unit macro-strains on the boundary, one operator (default); "
                         "mixed: the paper's figure-2 experiments, prescribed displacements on "
-                        "one pair of faces, traction-free elsewhere, six operators")
+                        "one pair of faces, traction-free elsewhere, six operators; subc: six "
+                        "unit macro-stresses as loads on the boundary layer; periodic: a "
+                        "periodic bed (amfe pack --periodic) on its torus; all: kubc and subc "
+                        "(and periodic on a periodic bed) side by side with their gap")
     p.add_argument("--diagnose", action="store_true",
                    help="report per load case the iterations, true residual, eigenvalue "
                         "estimates of the preconditioned operator and GAMG complexities "
                         "(also in the JSON under 'diagnostics')")
     p.add_argument("--quiet", action="store_true",
                    help="no progress lines on stderr (one per phase and load case)")
+    p.add_argument("--accept-unconverged", action="store_true",
+                   help="keep the constants of a solve whose true relative residual misses "
+                        "10 x rtol (an error otherwise), with a warning in the JSON")
+    add_material_args(p, "override the bed file's")
+    add_memory_arg(p)
     p.set_defaults(func=run)
+
+
+def add_material_args(p, what):
+    """--E, --nu, --psi: the particles' elastic material (shared with `amfe pack`)."""
+    p.add_argument("--E", type=float, metavar="PA", help=f"Young's modulus in Pa ({what}; "
+                   "default: the bed file's, else steel's 210e9)")
+    p.add_argument("--nu", type=float, metavar="NU", help=f"Poisson's ratio ({what}; "
+                   "default: the bed file's, else 0.28)")
+    p.add_argument("--psi", type=float, metavar="PSI", help=f"psi of paper eqs. 1 and 4 ({what}; "
+                   "default: the bed file's, else 0.08)")
+
+
+def add_memory_arg(p):
+    """--max-memory SIZE (shared with `amfe pack`)."""
+    p.add_argument("--max-memory", metavar="SIZE", default=None,
+                   help="refuse work estimated to need more memory than SIZE (e.g. 8G, 500M), "
+                        "in total over the ranks; default: half the machine's memory")
+
+
+def given_material(args):
+    """{"E": ..., "nu": ..., "psi": ...} of the material options given (maybe empty)."""
+    return {k: getattr(args, k) for k in ("E", "nu", "psi") if getattr(args, k) is not None}
 
 
 def run(args):
     from mpi4py import MPI
 
     from amfe.api import homogenize
+    from amfe.cli.bounds import above_e_note
     from amfe.io.bedfile import read_bed
     from amfe.io.mpi import on_root
+    from amfe.io.paths import STDOUT, check_output, check_output_dir
+    from amfe.model.memory import parse_size
+    from amfe.solvers.inputs import check_rtol
     from amfe.solvers.petsc import init_petsc
 
     init_petsc(args.petsc_args)
     comm = MPI.COMM_WORLD
-    bed = on_root(comm, read_bed, args.bed)
-    if args.rtol is not None and not (0 < args.rtol < 1):
-        raise AmfeError(f"--rtol must lie in (0, 1), got {args.rtol}")
+
+    def check_arguments():  # everything that can be refused, before reading or solving
+        if args.rtol is not None:
+            check_rtol(args.rtol, "--rtol")
+        if args.output:
+            check_output(args.output, inputs=[args.bed], allow_stdout=True)
+        if args.vtu:
+            check_output_dir(args.vtu)
+        return None if args.max_memory is None else parse_size(args.max_memory)
+
+    max_memory = on_root(comm, check_arguments)
+    bed = on_root(comm, read_bed, args.bed, max_memory=max_memory)
+    options = dict(accept_unconverged=args.accept_unconverged, max_memory=max_memory,
+                   material=given_material(args) or None, material_source="command line",
+                   solver=args.solver)
+    if args.bc == "all":
+        from amfe.cli.bounds import run_all
+        return run_all(args, bed, comm, summary, **options)
     result = homogenize(bed, comm=comm, a_star_cap=args.cap_a_star, rtol=args.rtol,
                         vtu_dir=args.vtu, bc=args.bc, diagnose=args.diagnose,
-                        progress=not args.quiet)
-    if comm.rank == 0:
-        if args.output:
-            result.to_json(args.output)
-        print(summary(result.to_dict(), args.bed, args.output, args.vtu))
-        sys.stdout.flush()
+                        progress=not args.quiet, input_path=args.bed, **options)
+
+    def write_and_report():
+        # `-o -`: the JSON alone on stdout (for a pipe), the table on stderr
+        table_to = sys.stderr if args.output == STDOUT else sys.stdout
+        if args.output == STDOUT:
+            print(json.dumps(result.to_dict(), indent=2), flush=True)
+        elif args.output:
+            try:
+                result.to_json(args.output)
+            except OSError as exc:
+                raise AmfeError(f"cannot write -o {args.output}: {exc.strerror or exc}") from None
+        print(summary(result.to_dict(), args.bed,
+                      None if args.output == STDOUT else args.output, args.vtu), file=table_to)
+        note = above_e_note(result.properties, result.extra["material"]["E"])
+        if note:
+            print(note, file=table_to)
+        table_to.flush()
+
+    on_root(comm, write_and_report)
     return 0
 
 
@@ -71,8 +137,13 @@ def summary(result, bed_path, output=None, vtu=None):
              f"{result['ranks']} rank(s)",
              f"solver: {s['ksp_type']}+{s['pc_type']} rtol {s['rtol']:g}, iterations "
              f"{s['iterations']}, set-up {s['setup_seconds']:.3g} s, solves {s['solve_seconds']:.3g} s",
-             f"boundary conditions: {result['bc']}; asymmetry of stress {s['stress_asymmetry']:.1e}, "
-             f"of C {s['C_asymmetry']:.1e}"]
+             f"boundary conditions: {result['bc']}; "
+             + ", ".join(f"{k.replace('_', ' ')} {v:.1e}" for k, v in s.items()
+                         if "asymmetry" in k or k.startswith("love_weber"))]
+    if "material" in result:
+        m = result["material"]
+        lines.append(f"material: E {m['E'] / 1e9:g} GPa, nu {m['nu']:g}, psi {m['psi']:g} "
+                     f"({m['source']})")
     if "n_capped" in result:
         lines.append(f"a* capped on {result['n_capped']} bonds")
     props = result["properties"]
@@ -81,6 +152,9 @@ def summary(result, bed_path, output=None, vtu=None):
         lines.append(f"  {key:6s} {value:12.6g} {unit}")
     if "diagnostics" in result:
         lines.append(diagnostics_table(result["diagnostics"]))
+    if result.get("warnings"):
+        lines.append(f"warnings: {len(result['warnings'])} (printed above; the JSON's "
+                     "'warnings' has them in full)")
     if output:
         lines.append(f"wrote {output}")
     if vtu:

@@ -9,14 +9,18 @@ from decimal import Decimal
 
 import numpy as np
 
-from amfe.model.bed import generate_bed
-from amfe.io.bedfile import write_bed
-from amfe.model.bonds import find_bonds
+from amfe.cli.homogenize import add_material_args, add_memory_arg, given_material
 from amfe.errors import AmfeError
-from amfe.model.material import STEEL
+from amfe.io.bedfile import write_bed
+from amfe.io.paths import check_output
+from amfe.model.bed import check_seed, generate_bed
+from amfe.model.bonds import find_bonds
+from amfe.model.material import SOURCE_DEFAULT, STEEL, resolve_material
+from amfe.model.memory import parse_size
 from amfe.model.scales import SCALES
 from amfe.model.scanpath import ScanPath
 from amfe.model.springs import critical_a_star
+from amfe.model.torus import find_periodic_bonds
 
 MM = -3   # decimal exponents of the command-line units
 UM = -6
@@ -49,6 +53,8 @@ SCAN_OPTIONS = ("track_width", "hatch_spacing", "angle", "layer_rotation",
 # Options that set the bed's generation parameters: --scale draws them all instead.
 GENERATION_OPTIONS = ("size", "mean_radius", "enlargement", "jitter", "layer_thickness",
                       "a_star_max") + SCAN_OPTIONS
+
+MATERIAL_OPTIONS = ("E", "nu", "psi")
 
 # (flag, argparse keywords) of the generation options; all are floats.
 BED_ARGS = (
@@ -98,12 +104,21 @@ def register(subparsers):
                         "distribution (amfe.model.scales), seeded by --seed: `amfe pack --scale S "
                         "--seed <a record's seed>` regenerates that record's bed exactly; no "
                         "other generation option may be given with it")
+    p.add_argument("--periodic", action="store_true",
+                   help="make a bed that tiles space in x, y and z (for homogenize --bc "
+                        "periodic): the box snaps to whole periods of the HCP lattice (the "
+                        "shift is printed), bonds cross the faces by minimum image")
     for flag, kw in BED_ARGS:
         p.add_argument(flag, type=float, **kw)
     g = p.add_argument_group("scan path (paper figure 3); give at least --track-width and "
                              "--hatch-spacing, otherwise the bed is fully scanned")
     for flag, kw in SCAN_ARGS:
         g.add_argument(flag, type=float, **kw)
+    g.add_argument("--skip-seed", type=int, metavar="S",
+                   help="draw the skipped pieces from their own seed S (>= 0), so beds of other "
+                        "--seed keep the same holes (default: from --seed, as always)")
+    add_material_args(p, "recorded in the bed; the others stay steel's")
+    add_memory_arg(p)
     p.set_defaults(func=run)
     return p
 
@@ -133,60 +148,70 @@ def scan_from_args(args):
 
 
 def run(args):
+    check_output(args.output)  # before any work: a bad -o costs nothing
+    max_memory = None if args.max_memory is None else parse_size(args.max_memory)
     if getattr(args, "scale", None):
-        return run_scale(args)
+        return run_scale(args, max_memory)
     size = tuple(_value(args, "size"))
     if not all(math.isfinite(s) and s > 0 for s in size):
         raise AmfeError(f"--size must be three positive lengths in mm, got {' '.join(map(str, size))}")
     lo, hi = _value(args, "enlargement")
     if lo > hi:
         raise AmfeError(f"--enlargement LO HI needs LO <= HI, got {lo} {hi}")
-    seed = _value(args, "seed")
-    if seed < 0:
-        raise AmfeError(f"--seed must be a non-negative integer, got {seed}")
+    seed = check_seed(_value(args, "seed"), "--seed")
+    material, record = resolve_material(given=given_material(args))
     a_star_max = _value(args, "a_star_max")
-    crit = critical_a_star(STEEL.nu, STEEL.psi)
+    crit = critical_a_star(material.nu, material.psi)
     if not 0.0 < a_star_max < crit:
         raise AmfeError(f"--a-star-max must lie in (0, {crit:.6f}), the critical a* for "
-                        f"nu={STEEL.nu}, psi={STEEL.psi}; got {a_star_max}")
+                        f"nu={material.nu}, psi={material.psi}; got {a_star_max}")
     scan = scan_from_args(args)
 
     bed = generate_bed(tuple(si(s, MM) for s in size),
                        mean_radius=si(_value(args, "mean_radius"), UM),
                        enlargement=(lo, hi), jitter=_value(args, "jitter"),
                        layer_thickness=si(_value(args, "layer_thickness"), MM), scan=scan,
-                       seed=seed, a_star_max=a_star_max, material=STEEL)
+                       seed=seed, a_star_max=a_star_max, material=material,
+                       periodic=args.periodic, max_memory=max_memory, skip_seed=args.skip_seed)
     report(bed, args.output, f"amfe pack: {size[0]:g} x {size[1]:g} x {size[2]:g} mm, seed "
-                             f"{seed}, scan {bed.attrs['scan']}")
+                             f"{seed}, scan {bed.attrs['scan']}", record)
     return 0
 
 
-def run_scale(args):
+def run_scale(args, max_memory=None):
     """`amfe pack --scale SCALE --seed SEED`: the bed of a data-set record (amfe.model.scales)."""
     from amfe.model.scales import sample_bed_params
 
-    given = [n for n in GENERATION_OPTIONS if getattr(args, n, None) is not None]
+    given = [n for n in GENERATION_OPTIONS + MATERIAL_OPTIONS if getattr(args, n, None) is not None]
     if given:
         raise AmfeError(f"--scale {args.scale} draws every generation parameter from the "
                         "scale's distribution; it cannot be combined with "
                         + ", ".join("--" + n.replace("_", "-") for n in given))
-    seed = 0 if args.seed is None else args.seed
-    if seed < 0:
-        raise AmfeError(f"--seed must be a non-negative integer, got {seed}")
-    bed = generate_bed(**sample_bed_params(args.scale, seed))
+    seed = check_seed(0 if args.seed is None else args.seed, "--seed")
+    bed = generate_bed(**sample_bed_params(args.scale, seed), periodic=args.periodic,
+                       max_memory=max_memory)
     size = [s * 1e3 for s in bed.attrs["size"]]
     report(bed, args.output, f"amfe pack: scale {args.scale}, bed seed {seed}: {size[0]:g} x "
                              f"{size[1]:g} x {size[2]:g} mm, scan {bed.attrs['scan']}")
     return 0
 
 
-def report(bed, output, title):
-    """Write ``bed`` to ``output`` and print its summary under ``title``."""
-    bonds = find_bonds(bed.centers, bed.radii)
+def report(bed, output, title, material=None):
+    """Write ``bed`` to ``output`` and print its summary under ``title``.
+
+    material: the record of :func:`amfe.model.material.resolve_material` (default: steel's).
+    """
+    periodic = "periodic" in bed.attrs
+    bonds = find_periodic_bonds(bed.centers, bed.radii, bed.attrs["periodic"])[0] if periodic \
+        else find_bonds(bed.centers, bed.radii)
     write_bed(output, bed)
     a_star_max = bed.attrs["a_star_max"]
     box = float(np.prod(bed.attrs["size"]))
     print(title)
+    if periodic:
+        print(f"  periodic box      {' x '.join(f'{v * 1e3:.6g}' for v in bed.attrs['periodic'])} "
+              f"mm, snapped to whole lattice periods by "
+              f"{', '.join(f'{v * 1e3:+.4g}' for v in bed.attrs['periodic_snap'])} mm")
     print(f"  particles         {bed.n} (of {bed.attrs['n_lattice']} lattice sites)")
     print(f"  bonds             {len(bonds)}")
     print(f"  mean radius       {bed.radii.mean() * 1e6:.4f} um")
@@ -199,4 +224,7 @@ def report(bed, output, title):
     else:
         print("  a* min/mean/max   - (no bonds)")
     print(f"  shrunk particles  {bed.attrs['n_shrunk']} (radii reduced so that a* <= {a_star_max:g})")
+    m = material or {"E": STEEL.E, "nu": STEEL.nu, "psi": STEEL.psi, "source": SOURCE_DEFAULT}
+    print(f"  material          E {m['E'] / 1e9:g} GPa, nu {m['nu']:g}, psi {m['psi']:g} "
+          f"({m['source']})")
     print(f"  written           {output}")

@@ -1,6 +1,6 @@
 """`amfe predict BED.h5`: the surrogate's elastic constants of a bed, in milliseconds.
 
-    amfe predict bed.h5 [--model MODEL.pt] [-o OUT.json] [--check] [--fallback]
+    amfe predict bed.h5 [--model MODEL.pt] [-o OUT.json | -o -] [--check] [--fallback]
 
 Pixelates the bed exactly as the model's training data (cells, layers and
 sample spacing are stored in the checkpoint) and runs the network(s); the
@@ -8,13 +8,25 @@ default model is the Custom Net ensemble shipped in amfe/models/. With an
 ensemble, the members' spread flags beds unlike the training data;
 --fallback then runs the PETSc solve instead, --check always runs it and
 prints both with their difference. Both also work under mpirun.
+
+Every path and option is checked before the model is loaded (amfe.io.paths):
+``-o`` may not be the bed or the model, ``-o -`` writes the JSON to stdout
+and the table to stderr. A prediction that is not finite (a damaged model:
+NaN weights, or an overflow) is never reported: it is flagged, --fallback
+solves instead, and without --fallback it is an error (exit 2, no file).
 """
+import json
+import math
 import os
 import sys
 import time
 
+from amfe.cli.options import nonnegative_float, thread_count
 from amfe.errors import AmfeError
 from amfe.io.atomic import write_json
+from amfe.io.paths import STDOUT, check_output
+from amfe.io.result_meta import header, predict_block
+from amfe.model.material import resolve_material
 
 from amfe.vocab import LABEL_NAMES as SIX
 NINE = SIX + ("G_yz", "G_xz", "G_xy")
@@ -29,20 +41,31 @@ def register(sub):
     p.add_argument("--model", metavar="MODEL.pt",
                    help="checkpoint from amfe train (default: the shipped amfe/models/"
                         "custom_small.pt)")
-    p.add_argument("-o", "--output", metavar="OUT.json", help="write the result as JSON here")
+    p.add_argument("-o", "--output", metavar="OUT.json",
+                   help="write the result as JSON here (-: to stdout, the table to stderr)")
     p.add_argument("--check", action="store_true",
                    help="also run the PETSc solve; print and store both and their difference")
     p.add_argument("--fallback", action="store_true",
                    help="run the PETSc solve instead when the ensemble spread flags the bed")
-    p.add_argument("--threshold", type=float,
-                   help="flag threshold on the spread score (default: the model's, calibrated "
-                        "on its validation beds)")
-    p.add_argument("--threads", type=int, help="torch CPU threads (default: torch's)")
+    p.add_argument("--threshold", type=nonnegative_float,
+                   help="flag threshold on the spread score, a finite number >= 0 (default: the "
+                        "model's, calibrated on its validation beds)")
+    p.add_argument("--threads", type=thread_count, help="torch CPU threads (default: torch's)")
     p.set_defaults(func=run)
+
+
+def check_args(args):
+    """Refuse bad paths and option combinations before any work (AmfeError)."""
+    if args.petsc_args and not (args.check or args.fallback):
+        raise AmfeError(f"unknown option(s) {' '.join(args.petsc_args)}: single-dash options go "
+                        "to PETSc, which amfe predict runs only with --check or --fallback")
+    if args.output is not None:
+        check_output(args.output, inputs=[args.bed, args.model], allow_stdout=True)
 
 
 def run(args):
     t_start = time.perf_counter()
+    check_args(args)
     import torch
 
     from amfe.training.predict import Surrogate, as_properties, check_material
@@ -67,37 +90,41 @@ def run(args):
     res, image, t_pred = sur.predict_bed(bed)
     times.update(t_pred)
     score = float(res["score"][0])
-    spread_flag = bool(threshold is not None and sur.n_members > 1 and score > threshold)
-    fill_flag = bool(res["fill_out"][0])
-    flagged = spread_flag or fill_flag
-
-    solver = None
+    reasons = flag_reasons(res, threshold, sur.n_members)
+    comm = None
     if args.check or args.fallback:
         from mpi4py import MPI
         comm = MPI.COMM_WORLD
-        flagged = comm.bcast(flagged, root=0)   # every rank takes the same branch
-        if args.check or flagged:
-            from amfe.solvers.driver import homogenize_bed
-            from amfe.solvers.petsc import init_petsc
-            init_petsc(args.petsc_args)
-            t = time.perf_counter()
-            solver = homogenize_bed(bed.centers, bed.radii, bed.material())
-            times["solve"] = time.perf_counter() - t
-        rank = comm.rank
-    else:
-        rank = _launcher_rank()
+        reasons = comm.bcast(reasons, root=0)   # every rank takes the same branch
+    flagged = bool(reasons)
+    if "non-finite" in reasons and not args.fallback:
+        bad = [k for k, v in zip(SIX, res["mean"][0]) if not math.isfinite(v)]
+        raise AmfeError(f"the surrogate's prediction is not finite ({', '.join(bad) or 'spread'}"
+                        f"): the model {sur.path} is damaged or overflows on this bed; run with "
+                        "--fallback to solve with PETSc instead, or use amfe homogenize")
 
-    surrogate_props = as_properties(res["mean"][0])
+    solver = None
+    if comm is not None and (args.check or flagged):
+        from amfe.solvers.driver import homogenize_bed
+        from amfe.solvers.petsc import init_petsc
+        init_petsc(args.petsc_args)
+        t = time.perf_counter()
+        solver = homogenize_bed(bed.centers, bed.radii, bed.material())
+        times["solve"] = time.perf_counter() - t
+    rank = comm.rank if comm is not None else _launcher_rank()
+
+    surrogate_props = _finite_or_none(as_properties(res["mean"][0]))
     out = {
         "bed": os.fspath(args.bed),
         "properties": surrogate_props,
-        "spread": as_properties(res["spread"][0]),
-        "spread_score": score,
+        "spread": _finite_or_none(as_properties(res["spread"][0])),
+        "spread_score": score if math.isfinite(score) else None,
         "threshold": threshold,
         "fill": float(res["fill"][0]),
         "fill_range": ([sur.fill_range["lo"], sur.fill_range["hi"]] if sur.fill_range
                        else None),
         "flagged": flagged,
+        "flag_reasons": reasons,
         "source": "surrogate",
         "model": os.fspath(sur.path),
         "arch": sur.ckpt["arch"],
@@ -114,22 +141,64 @@ def run(args):
             out["surrogate"] = {"properties": surrogate_props}
         if args.check:
             out["check"] = {"solver": solver_props,
-                            "relative_difference": {k: (surrogate_props[k] - solver_props[k])
-                                                    / abs(solver_props[k]) for k in SIX}}
+                            "relative_difference": {k: _relative(surrogate_props[k],
+                                                                 solver_props[k]) for k in SIX}}
         out["solver"] = solver["solver"]
+    out = {**header("predict", bed.centers, bed.radii, resolve_material(bed.attrs)[1],
+                    input_path=args.bed), **out, "predict": predict_block(out)}
     times["total"] = time.perf_counter() - t_start
     out["seconds"] = times["total"]
     out["timings"] = times
     if rank == 0:
-        if args.output:
-            write_json(args.output, out)
-        print(summary(out, args.output))
-        sys.stdout.flush()
+        write_result(out, args.output)
     return 0
+
+
+def flag_reasons(res, threshold, n_members):
+    """Why the bed is flagged: a list of "spread", "fill", "non-finite" (empty: in distribution).
+
+    A NaN compares false with any threshold, so a non-finite prediction is a
+    reason of its own; it is never "in distribution".
+    """
+    reasons = []
+    score = float(res["score"][0])
+    if threshold is not None and n_members > 1 and score > threshold:
+        reasons.append("spread")
+    if bool(res["fill_out"][0]):
+        reasons.append("fill")
+    if bool(res["nonfinite"][0]):
+        reasons.append("non-finite")
+    return reasons
+
+
+def _relative(value, reference):
+    """(value - reference) / |reference|, None when the value is None (not finite)."""
+    return None if value is None else (value - reference) / abs(reference)
+
+
+def _finite_or_none(props):
+    """{name: value}, a non-finite value as None (JSON null: JSON has no NaN)."""
+    return {k: (v if math.isfinite(v) else None) for k, v in props.items()}
+
+
+def write_result(out, output):
+    """The JSON to ``output`` (atomically) or stdout (``-``), and the table to stdout or stderr."""
+    if output == STDOUT:
+        print(summary(out), file=sys.stderr, flush=True)
+        print(json.dumps(out, indent=2), flush=True)
+        return
+    if output:
+        try:
+            write_json(output, out)
+        except OSError as exc:   # a full disk: the old file, if any, is left as it was
+            raise AmfeError(f"cannot write -o {output}: {exc.strerror or exc}") from None
+    print(summary(out, output), flush=True)
 
 
 def _fmt(key, value):
     """A property as printed: moduli in GPa, ratios bare, 6 significant digits."""
+    if value is None:
+        return "not finite"
     return f"{value / 1e9:.6g} GPa" if key.startswith(("E", "G")) else f"{value:.6g}"
 
 
@@ -145,13 +214,15 @@ def summary(out, output=None):
         head += f" {'solver':>16s} {'difference':>10s}"
     lines.append(head)
     for k in SIX:
-        line = f"  {k:6s} {_fmt(k, surrogate[k]):>16s} {100 * out['spread'][k]:7.2f}%"
+        line = f"  {k:6s} {_fmt(k, surrogate[k]):>16s} {_percent(out['spread'][k], 7, '')}"
         if check:
             line += (f" {_fmt(k, check['solver'][k]):>16s} "
-                     f"{100 * check['relative_difference'][k]:+9.2f}%")
+                     f"{_percent(check['relative_difference'][k], 9, '+')}")
         lines.append(line)
     if out["threshold"] is None or out["members"] < 2:
         lines.append("no spread flag (a single network has no spread)")
+    elif out["spread_score"] is None:
+        lines.append(f"spread score not finite (threshold {out['threshold']:.3g})")
     else:
         lines.append(f"spread score {out['spread_score']:.3g} (threshold {out['threshold']:.3g})")
     if out["fill_range"]:
@@ -159,7 +230,13 @@ def summary(out, output=None):
         inside = lo <= out["fill"] <= hi
         lines.append(f"fill of the fullest cells {out['fill']:.3f} (training beds {lo:.3f} - "
                      f"{hi:.3f}){'' if inside else ': outside, another enlargement?'}")
-    lines.append("FLAGGED: unlike the training beds" if out["flagged"] else "in distribution")
+    reasons = out.get("flag_reasons", [])
+    if "non-finite" in reasons:
+        lines.append("FLAGGED: the surrogate's prediction is not finite (a damaged model?)")
+    elif out["flagged"]:
+        lines.append("FLAGGED: unlike the training beds")
+    else:
+        lines.append("in distribution")
     if out["source"] == "solver":
         lines.append("source: solver (PETSc, --fallback); its constants:")
         for k in NINE:
@@ -173,6 +250,13 @@ def summary(out, output=None):
     if output:
         lines.append(f"wrote {output}")
     return "\n".join(lines)
+
+
+def _percent(fraction, width, sign):
+    """A relative value as a percentage column; "-" for None (not finite)."""
+    if fraction is None:
+        return f"{'-':>{width + 1}s}"
+    return f"{100 * fraction:{sign}{width}.2f}%"
 
 
 def _launcher_rank():

@@ -8,13 +8,19 @@ train/validation split by --split-seed; every member seeded. Prints the loss
 and the validation error per property each epoch under a progress bar, writes
 the learning curve (PNG) beside the model and the checkpoint (plain tensors
 and numbers, loaded with torch.load(weights_only=True)). See training/.
+
+Every option, the model and curve paths and the data sets are checked before
+training starts, so a bad -o or --test costs nothing.
 """
 import os
 import sys
 
 from types import SimpleNamespace
 
+from amfe.cli.options import (nonnegative_float, nonnegative_int, positive_float, positive_int,
+                              thread_count)
 from amfe.errors import AmfeError
+from amfe.io.paths import check_output
 
 # amfe.training.train.TrainConfig's defaults, without importing torch to build the parser
 # (tests/test_training.py checks that they agree).
@@ -33,19 +39,19 @@ def register(sub):
     p.add_argument("-o", "--output", metavar="MODEL.pt", required=True, help="checkpoint to write")
     p.add_argument("--arch", choices=list(ARCH_NAMES), default=d.arch,
                    help="network (default custom: the paper's Custom Net)")
-    p.add_argument("--epochs", type=int, default=d.epochs, help=f"default {d.epochs}")
-    p.add_argument("--batch-size", type=int, default=d.batch_size, help=f"default {d.batch_size}")
-    p.add_argument("--lr", type=float, default=d.lr, help=f"Adam learning rate (default {d.lr:g})")
+    p.add_argument("--epochs", type=positive_int, default=d.epochs, help=f"default {d.epochs}")
+    p.add_argument("--batch-size", type=positive_int, default=d.batch_size, help=f"default {d.batch_size}")
+    p.add_argument("--lr", type=positive_float, default=d.lr, help=f"Adam learning rate (default {d.lr:g})")
     p.add_argument("--schedule", choices=SCHEDULES, default=d.schedule,
                    help="learning rate: constant (the paper's) or cosine decay to 0")
-    p.add_argument("--weight-decay", type=float, default=d.weight_decay, help="Adam weight decay")
-    p.add_argument("--seed", type=int, default=d.seed,
+    p.add_argument("--weight-decay", type=nonnegative_float, default=d.weight_decay, help="Adam weight decay")
+    p.add_argument("--seed", type=nonnegative_int, default=d.seed,
                    help="seed of the first member (member k: seed + k; default 0)")
-    p.add_argument("--members", type=int, default=d.members,
+    p.add_argument("--members", type=positive_int, default=d.members,
                    help="ensemble size (default 1); >1 calibrates the out-of-distribution flag")
-    p.add_argument("--split-seed", type=int, default=d.split_seed,
+    p.add_argument("--split-seed", type=nonnegative_int, default=d.split_seed,
                    help="seed of the train/validation split (default 0)")
-    p.add_argument("--val-fraction", type=float, default=d.val_fraction,
+    p.add_argument("--val-fraction", type=nonnegative_float, default=d.val_fraction,
                    help="validation share (default 0.2, the paper's 400 of 2000)")
     p.add_argument("--linear-moduli", action="store_true",
                    help="standardise Ex, Ey, Ez themselves instead of their logarithms")
@@ -54,24 +60,32 @@ def register(sub):
     p.add_argument("--tta", choices=("none", "flips", "d4"), default="none",
                    help="test-time augmentation: predict the mean over a bed's four mirror images "
                         "(flips) or its eight symmetric images (d4); default none")
-    p.add_argument("--flag-percentile", type=float, default=d.flag_percentile,
+    p.add_argument("--flag-percentile", type=positive_float, default=d.flag_percentile,
                    help="ensemble flag threshold: this percentile of the validation spread "
                         "score (default 95)")
     p.add_argument("--inputs", default=",".join(d.inputs), metavar="KINDS",
                    help="image kinds stacked as input channels: fill (volume fraction, the "
                         "paper's) or fill,bonds (plus the bond-stiffness image; the data set "
                         "needs /bond_images) (default fill)")
-    p.add_argument("--width", type=float, help="alexnet/vgg: channel-count multiplier (default 1)")
-    p.add_argument("--hidden", type=int, nargs="+",
-                   help="alexnet/vgg: widths of the hidden FC layers (default 4096 4096)")
+    p.add_argument("--width", type=positive_float,
+                   help="custom/alexnet/vgg/multiscale: channel-count multiplier (default 1)")
+    p.add_argument("--convs", type=positive_int,
+                   help="custom: 3x3 convolutions per block (default 1; more: a deeper net)")
+    p.add_argument("--hidden", type=positive_int, nargs="+",
+                   help="alexnet/vgg/multiscale: widths of the hidden FC layers (default 4096 "
+                        "4096; multiscale 512 256 128)")
     p.add_argument("--batch-norm", action="store_true", help="vgg: batch normalisation")
-    p.add_argument("--max-train", type=int, default=0, metavar="N",
+    p.add_argument("--max-train", type=nonnegative_int, default=0, metavar="N",
                    help="train on at most N of the training beds (error versus data size)")
     p.add_argument("--test", metavar="HELDOUT.h5",
                    help="also evaluate on this held-out data set (stored in the checkpoint)")
-    p.add_argument("--curve", metavar="PNG", help="learning-curve file (default MODEL.png)")
-    p.add_argument("--threads", type=int, help="torch CPU threads (default: torch's)")
-    p.add_argument("--workers", type=int, default=0,
+    p.add_argument("--curve", metavar="PNG",
+                   help="learning-curve file, .png, .pdf or .svg (default MODEL.png)")
+    p.add_argument("--threads", type=thread_count, help="torch CPU threads (default: torch's)")
+    p.add_argument("--device", choices=["auto", "cpu", "cuda"], default="auto",
+                   help="where to train: auto (default) is CUDA when torch sees a GPU, else the "
+                        "CPU; the checkpoint is saved for the CPU either way")
+    p.add_argument("--workers", type=nonnegative_int, default=0,
                    help="DataLoader workers when the data set is read lazily (default 0)")
     p.add_argument("--quiet", action="store_true", help="no progress bar or per-epoch lines")
     p.set_defaults(func=run)
@@ -85,10 +99,45 @@ def arch_args_of(args):
         out["hidden"] = list(args.hidden)
     if args.batch_norm:
         out["batch_norm"] = True
+    if args.convs is not None:
+        out["convs"] = args.convs
     return out
 
 
+CURVE_FORMATS = (".png", ".pdf", ".svg")
+
+
+def check_paths(args):
+    """Refuse bad output paths and unusable data sets before training; returns the curve path."""
+    if not str(args.output).endswith(".pt"):
+        raise AmfeError(f"the model file should end in .pt, got {args.output}")
+    inputs = [args.data, args.test]
+    check_output(args.output, inputs=inputs)
+    curve = args.curve or os.path.splitext(args.output)[0] + ".png"
+    if os.path.splitext(curve)[1].lower() not in CURVE_FORMATS:
+        raise AmfeError(f"--curve {curve}: the learning curve is written as "
+                        f"{', '.join(f[1:] for f in CURVE_FORMATS)}; give a file name ending so")
+    check_output(curve, inputs=inputs + [args.output], option="--curve")
+    return curve
+
+
+def check_test_set(args, inputs):
+    """AmfeError unless the --test data set can be evaluated by a model of the training data."""
+    from amfe.training.data import dataset_info
+
+    want = dataset_info(args.data, inputs)["image_shape"]
+    info = dataset_info(args.test, inputs)
+    if info["image_shape"] != want:
+        raise AmfeError(f"--test {args.test} has images of shape "
+                        f"{'x'.join(map(str, info['image_shape']))}, the training data "
+                        f"{'x'.join(map(str, want))}; give a held-out set of the same scale")
+    if info["ok"].size < 2:
+        raise AmfeError(f"--test {args.test} has {info['ok'].size} usable record(s); its errors "
+                        "and R^2 need at least 2")
+
+
 def run(args):
+    curve = check_paths(args)
     import torch
 
     from amfe.training.checkpoint import save_checkpoint
@@ -99,15 +148,16 @@ def run(args):
 
     if args.threads:
         torch.set_num_threads(args.threads)
-    if not str(args.output).endswith(".pt"):
-        raise AmfeError(f"the model file should end in .pt, got {args.output}")
     cfg = TrainConfig(arch=args.arch, arch_args=arch_args_of(args), epochs=args.epochs,
                       batch_size=args.batch_size, lr=args.lr, weight_decay=args.weight_decay,
                       schedule=args.schedule, seed=args.seed, members=args.members,
                       split_seed=args.split_seed, val_fraction=args.val_fraction,
                       log_moduli=not args.linear_moduli, augment=args.augment, tta=args.tta,
                       flag_percentile=args.flag_percentile, workers=args.workers,
-                      max_train=args.max_train, inputs=args.inputs)
+                      max_train=args.max_train, inputs=args.inputs, device=args.device)
+    cfg.check()
+    if args.test:
+        check_test_set(args, cfg.inputs)
 
     def log(line):
         if not args.quiet:
@@ -126,10 +176,17 @@ def run(args):
         lines.append(f"  held-out {args.test} ({m['n']} beds) mean relative error %: "
                      + metrics_line(m))
         lines.append("  held-out R^2: " + metrics_line(m, "r2", 1, "{:.4f}"))
-    save_checkpoint(args.output, ckpt)
-    curve = args.curve or os.path.splitext(args.output)[0] + ".png"
-    plot_learning_curves({args.arch: ckpt["history"]}, curve,
-                         f"{args.arch} on {os.path.basename(args.data)}")
+    _write(args.output, save_checkpoint, args.output, ckpt)
+    _write(curve, plot_learning_curves, {args.arch: ckpt["history"]}, curve,
+           f"{args.arch} on {os.path.basename(args.data)}")
     lines.append(f"wrote {args.output} ({os.path.getsize(args.output) / 1e6:.2f} MB) and {curve}")
     print("\n".join(lines))
     return 0
+
+
+def _write(path, write, *args):
+    """write(*args), an OSError (a full disk) as one line naming ``path``; earlier files stay."""
+    try:
+        write(*args)
+    except OSError as exc:
+        raise AmfeError(f"cannot write {path}: {exc.strerror or exc}") from None

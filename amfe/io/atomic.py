@@ -3,10 +3,163 @@
 Every file amfe writes goes through a temporary file in the target's
 directory, is flushed and fsynced, and is renamed onto its final name with
 os.replace; the directory is fsynced so the rename survives a power cut.
+
+The temporary file is ``.NAME.HOST-PID.XXXXXXXX.tmp`` (HOST: this machine's
+name, letters, digits and dashes only; PID: the writing process). A kill
+between the write and the rename leaves it behind; the next write of the same
+``NAME`` removes it when it is certainly orphaned (:func:`stale_tmp_files`).
+A full disk (ENOSPC) or an exhausted quota (EDQUOT) becomes one AmfeError
+line, "no space left on DIR: ...", with the old file kept. HDF5 files are
+best written with :func:`atomic_write_h5` (built in memory): the HDF5 library
+handles a full disk badly (a segmentation fault at exit).
 """
+import errno
 import json
 import os
+import re
+import socket
+import sys
 import tempfile
+import time
+
+from amfe.errors import AmfeError
+
+#: An orphaned temporary file of another host, or of a name without a pid
+#: (written before the pid was part of the name), is removed once its last
+#: change is older than this [s]: a live writer changes its file continually,
+#: and writes a part file or a JSON result in well under a second.
+STALE_AGE_UNKNOWN_WRITER = 60.0
+#: A temporary file whose pid is running on this host is kept unless it is
+#: older than this [s] (the pid has been reused, e.g. after a reboot).
+STALE_AGE_LIVE_PID = 24 * 3600.0
+_NO_SPACE = {errno.ENOSPC, getattr(errno, "EDQUOT", errno.ENOSPC)}
+_RANDOM = r"[a-z0-9_]{8}"   # tempfile's random part
+
+
+def host_name():
+    """This machine's name with only letters, digits and dashes (the tmp-name field)."""
+    return re.sub(r"[^A-Za-z0-9-]", "-", socket.gethostname()) or "host"
+
+
+def pid_running(pid):
+    """True if a process ``pid`` runs on this host (a zombie counts as ended)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    except (OverflowError, ValueError):
+        return False
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            return fh.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except (OSError, IndexError):
+        return True
+
+
+def is_no_space(exc):
+    """True for an error that means the disk or the quota is full (h5py's included)."""
+    if isinstance(exc, OSError) and exc.errno in _NO_SPACE:
+        return True
+    text = str(exc)
+    return any(f"errno = {e}," in text or os.strerror(e) in text for e in _NO_SPACE)
+
+
+class NoSpaceError(AmfeError):
+    """A file could not be written: the disk or the quota is full. ``path``: that file."""
+
+    def __init__(self, message, path):
+        super().__init__(message)
+        self.path = path
+
+    def __reduce__(self):   # picklable with its path (MPI broadcasts errors)
+        return (type(self), (str(self), self.path))
+
+
+def no_space_error(path, existed):
+    """The one-line NoSpaceError for a full disk while writing ``path``."""
+    directory = os.path.dirname(os.path.abspath(path))
+    kept = "the old file is kept" if existed else "nothing was written"
+    return NoSpaceError(f"no space left on {directory}: {os.path.basename(path)} could not be "
+                        f"written ({kept}); free some space and run the command again", path)
+
+
+def stale_tmp_files(path, every_target=False, now=None):
+    """[(tmp path, why)] of the orphaned temporary files of target ``path``.
+
+    Only ``.NAME.*.tmp`` files of this very NAME are considered (with
+    ``every_target``, ``path`` is a directory and every NAME in it). One is
+    stale when its name carries this host and a pid that no longer runs
+    (whatever its age), when that pid runs but the file is older than
+    STALE_AGE_LIVE_PID, or, for another host's file or a name without a pid,
+    when it is older than STALE_AGE_UNKNOWN_WRITER.
+    """
+    path = os.fspath(path)
+    if every_target:
+        directory, name = path, ".+?"
+    else:
+        directory, name = os.path.dirname(os.path.abspath(path)), re.escape(os.path.basename(path))
+    pattern = re.compile(r"^\." + name + r"\.(?:(?P<host>[A-Za-z0-9-]*)-(?P<pid>\d+)\.)?"
+                         + _RANDOM + r"\.tmp$")
+    try:
+        names = [n for n in os.listdir(directory) if n.startswith(".") and n.endswith(".tmp")]
+    except OSError:
+        return []
+    now = time.time() if now is None else now
+    out = []
+    for name in names:
+        m = pattern.match(name)
+        if m:
+            tmp = os.path.join(directory, name)
+            why = _stale_why(tmp, m.group("host"), m.group("pid"), now)
+            if why:
+                out.append((tmp, why))
+    return out
+
+
+def _stale_why(tmp, host, pid, now):
+    """Why the temporary file ``tmp`` of writer (host, pid) is orphaned, or None."""
+    try:
+        age = now - os.stat(tmp).st_mtime
+    except OSError:
+        return None
+    pid = int(pid) if pid else None
+    if pid is not None and host == host_name():
+        if pid == os.getpid():
+            return None
+        if not pid_running(pid):
+            return f"its writer, pid {pid} on this host, has ended"
+        if age > STALE_AGE_LIVE_PID:
+            return f"unchanged for {age:.0f} s (pid {pid} is another process now)"
+        return None
+    if age > STALE_AGE_UNKNOWN_WRITER:
+        writer = f"pid {pid} on host {host}" if pid is not None else "unknown"
+        return f"unchanged for {age:.0f} s, writer {writer}"
+    return None
+
+
+def remove_stale_tmp(path, report=None, every_target=False):
+    """Remove the orphaned temporary files of target ``path``; one line each on ``report``.
+
+    report: a text stream (default sys.stderr) or False for silence;
+    every_target: see :func:`stale_tmp_files`. Returns the list of (tmp path,
+    why) removed.
+    """
+    removed = []
+    for tmp, why in stale_tmp_files(path, every_target):
+        try:
+            os.remove(tmp)
+        except OSError:
+            continue
+        removed.append((tmp, why))
+        if report is not False:
+            try:   # best effort: a closed stderr must not stop the write
+                print(f"amfe: removed the stale temporary file {tmp} ({why})",
+                      file=sys.stderr if report is None else report)
+            except (OSError, ValueError):
+                pass
+    return removed
 
 
 def fsync_dir(directory):
@@ -23,19 +176,27 @@ def fsync_dir(directory):
         os.close(fd)
 
 
-def atomic_write(path, write, by_name=False):
+def atomic_write(path, write, by_name=False, check=None, clean=True):
     """Write ``path`` through a temporary file in its directory, then os.replace it.
 
     write(fh) gets the open binary file, or with ``by_name`` write(tmp_path)
-    gets the temporary file's name (for h5py). The file gets the usual umask
-    permissions (not mkstemp's 0600). On any error the temporary file is
-    removed and the error re-raised; an existing ``path`` is left as it was.
+    gets the temporary file's name (for h5py). check(tmp_path), if given, runs
+    on the finished temporary file before the rename and raises to refuse it.
+    The file gets the usual umask permissions (not mkstemp's 0600). Orphaned
+    temporary files of the same target are removed first (:func:`remove_stale_tmp`)
+    unless ``clean`` is False (a caller that sweeps the directory once instead).
+    On any error the temporary file is removed and the error re-raised, a full
+    disk as AmfeError "no space left on DIR"; an existing ``path`` is left as it was.
     """
     path = os.fspath(path)
     directory = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(dir=directory, prefix="." + os.path.basename(path) + ".",
-                               suffix=".tmp")
+    existed = os.path.exists(path)
+    if clean:
+        remove_stale_tmp(path)
+    prefix = f".{os.path.basename(path)}.{host_name()}-{os.getpid()}."
+    tmp = None
     try:
+        fd, tmp = tempfile.mkstemp(dir=directory, prefix=prefix, suffix=".tmp")
         with os.fdopen(fd, "wb") as fh:
             if by_name:
                 write(tmp)
@@ -46,17 +207,42 @@ def atomic_write(path, write, by_name=False):
         if by_name:
             with open(tmp, "rb+") as fh:
                 os.fsync(fh.fileno())
+        if check is not None:
+            check(tmp)
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(tmp, 0o666 & ~umask)
         os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.remove(tmp)
-        except FileNotFoundError:
-            pass
+    except BaseException as exc:
+        if tmp is not None:
+            try:
+                os.remove(tmp)
+            except FileNotFoundError:
+                pass
+        if not isinstance(exc, AmfeError) and isinstance(exc, Exception) and is_no_space(exc):
+            raise no_space_error(path, existed) from None
         raise
     fsync_dir(directory)
+
+
+def atomic_write_h5(path, fill, base=None, check=None):
+    """Write the HDF5 file ``path`` atomically; it is built in memory, then written as bytes.
+
+    fill(f) gets an open h5py.File held in memory (h5py's core driver without
+    a backing store); base: an HDF5 file to start from (read into memory,
+    itself never changed). HDF5 itself never writes to the disk here, so a full
+    disk is a plain write error (NoSpaceError) instead of an HDF5 library
+    state that crashes the process at exit. Memory: about twice the file.
+    check: as for :func:`atomic_write`.
+    """
+    import h5py
+
+    name, mode = (os.fspath(base), "r+") if base is not None else (f"{path}.in-memory", "w")
+    with h5py.File(name, mode, driver="core", backing_store=False) as f:
+        fill(f)
+        f.flush()
+        image = f.id.get_file_image()
+    atomic_write(path, lambda fh: fh.write(image), check=check)
 
 
 def write_json(path, data):

@@ -12,13 +12,16 @@ The attributes live on the root group, so that ``h5dump -A`` or
 beds in this way): attributes are optional, integer and float32 data are
 converted to float64.
 """
+import math
 import os
 
 import h5py
 import numpy as np
 
 from amfe.model.bed import Bed
-from amfe.model.bonds import validate_particles
+from amfe.model.bonds import check_shapes, validate_particles
+from amfe.model.memory import READ_BYTES, check_memory
+from amfe.model.torus import check_box
 from amfe.io.atomic import atomic_write
 from amfe.errors import AmfeError
 
@@ -86,7 +89,8 @@ def write_bed(path, bed: Bed):
         raise AmfeError(f"cannot write {path}: {exc.strerror or exc}") from None
 
 
-def _read_array(f, name, path):
+def _dataset(f, name, path):
+    """The h5py dataset /name of a bed file, checked to hold real numbers (not read yet)."""
     if name not in f:
         have = []
         f.visit(have.append)
@@ -98,16 +102,63 @@ def _read_array(f, name, path):
         raise AmfeError(f"{path}: /{name} must be a dataset, found a {type(obj).__name__}")
     if obj.dtype.kind not in "iuf":
         raise AmfeError(f"{path}: /{name} must hold real numbers (float64), got dtype {obj.dtype}")
-    return np.asarray(obj[()], dtype=np.float64)
+    return obj
 
 
-def read_bed(path) -> Bed:
+# The attributes amfe's generator writes, by the type they must have where present
+# (attributes of other names pass through unchecked).
+REAL_ATTRS = ("material_E", "material_nu", "material_psi", "material_density", "mean_radius",
+              "r0", "jitter", "layer_thickness", "a_star_max", "a_star_critical",
+              "scan_track_width", "scan_hatch_spacing", "scan_angle", "scan_layer_rotation",
+              "scan_skip_fraction", "scan_skip_length", "scan_offset")
+COUNT_ATTRS = ("seed", "n_lattice", "n_scanned_out", "n_shrunk", "shrink_passes")
+VECTOR_ATTRS = {"size": 3, "enlargement": 2}
+TEXT_ATTRS = ("generator", "amfe_version", "units", "scan")
+
+
+def check_attrs(attrs, path="the bed"):
+    """AmfeError naming the first of amfe's bed attributes that has the wrong type.
+
+    Reals must be finite real numbers, counts (seed, n_*) integers in
+    [0, 2**64), size three positive lengths [m], enlargement two factors,
+    and generator, amfe_version, units, scan text.
+    """
+    def bad(key, want):
+        value = attrs[key]
+        raise AmfeError(f"{path}: bed attribute {key} must be {want}, got "
+                        f"{type(value).__name__} {value!r}; fix or delete the attribute")
+
+    def real(v):
+        return (isinstance(v, (int, float)) and not isinstance(v, bool)
+                and math.isfinite(v))
+
+    for key in REAL_ATTRS:
+        if key in attrs and not real(attrs[key]):
+            bad(key, "a finite real number")
+    for key in COUNT_ATTRS:
+        v = attrs.get(key, 0)
+        if isinstance(v, bool) or not isinstance(v, int) or not 0 <= v < 2**64:
+            bad(key, "an integer in [0, 2**64)")
+    for key, n in VECTOR_ATTRS.items():
+        v = attrs.get(key, [1.0] * n)
+        if not (isinstance(v, list) and len(v) == n and all(real(x) and x > 0 for x in v)):
+            bad(key, f"{n} positive finite numbers")
+    for key in TEXT_ATTRS:
+        if key in attrs and not isinstance(attrs[key], str):
+            bad(key, "text")
+
+
+def read_bed(path, max_memory=None) -> Bed:
     """Read a bed from any HDF5 file with /particles/centers (N,3) and /particles/radii (N,) [m].
 
     Root attributes become ``Bed.attrs`` (plain Python values; arrays as
-    lists). Raises AmfeError, saying what is wrong, for a missing file, a file
-    that is not HDF5, missing or non-numeric datasets, wrong shapes, non-finite
-    values and non-positive radii.
+    lists); those amfe's generator writes must have their types
+    (:func:`check_attrs`). Raises AmfeError, saying what is wrong, for a
+    missing file, a file that is not HDF5, missing or non-numeric datasets,
+    wrong shapes, non-finite values and non-positive radii, attributes of
+    the wrong type, and a file whose arrays would take more than
+    ``max_memory`` bytes (default: half the machine's memory) to read,
+    checked from the shapes before anything is read.
     """
     path = os.fspath(path)
     if not os.path.exists(path):
@@ -122,13 +173,23 @@ def read_bed(path) -> Bed:
         raise AmfeError(f"{path} is not an HDF5 file (a bed file holds /{CENTERS} and /{RADII})")
     try:
         with h5py.File(path, "r") as f:
-            centers = _read_array(f, CENTERS, path)
-            radii = _read_array(f, RADII, path)
+            c, r = _dataset(f, CENTERS, path), _dataset(f, RADII, path)
+            try:
+                check_shapes(c.shape, r.shape)
+            except AmfeError as exc:
+                raise AmfeError(f"{path}: {exc}") from None
+            n = c.shape[0]
+            check_memory(READ_BYTES * n, max_memory, f"reading {path} ({n} particles)")
             attrs = {k: _from_attr(v) for k, v in f.attrs.items()}
+            check_attrs(attrs, path)
+            centers = np.asarray(c[()], dtype=np.float64)
+            radii = np.asarray(r[()], dtype=np.float64)
     except OSError as exc:
         raise AmfeError(f"cannot read bed file {path}: {exc}") from None
     try:
         centers, radii = validate_particles(centers, radii)
+        if "periodic" in attrs:  # a periodic bed (docs/model.md, section 9)
+            check_box(attrs["periodic"], radii)
     except AmfeError as exc:
         raise AmfeError(f"{path}: {exc}") from None
     return Bed(centers=centers, radii=radii, attrs=attrs)

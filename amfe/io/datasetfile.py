@@ -6,8 +6,9 @@ temporary name, fsync'ed and renamed into place (os.replace), so a part file
 is either complete or absent whatever moment the job is killed.
 ``DATA.h5.parts/params.json`` holds the parameters that define the records
 (scale, seed, count, rtol, amfe version): a rerun with other parameters is
-refused. When every record exists, :func:`merge_parts` writes DATA.h5 (again
-through a temporary file and os.replace) and removes the parts directory.
+refused. When every record exists, :func:`merge_parts` writes DATA.h5 through
+a temporary file, checks it, renames it into place (os.replace) and only then
+removes the parts directory.
 
 DATA.h5 layout, one row per record, rows sorted by record index 0..M-1:
 
@@ -44,17 +45,16 @@ regenerates; its bond image is ``bond_image`` of that bed on the same grid.
 """
 import datetime
 import os
-import shutil
 
 import numpy as np
 
-from amfe.io.atomic import atomic_write
+from amfe.io.atomic import atomic_write_h5
 from amfe.errors import AmfeError, _list_items
 from amfe.model.scales import PARAM_NAMES, PARAM_UNITS, get_scale, record_seed
 
 from amfe.vocab import LABEL_NAMES
 from amfe.io.datasetparts import (STATUS_FAILED, STATUS_OK, done_indices, part_path,
-                                  read_part)
+                                  part_problem, read_part, reject_part, remove_parts)
 SECONDS_NAMES = ("generate", "image", "homogenize")
 DENSITY_DEFINITION = ("mean of the image: the volume fraction of the box [0,Lx]x[0,Ly]x[0,Lz] "
                       "filled by the union of the spheres")
@@ -78,12 +78,16 @@ def _image_dataset(f, name, count, shape, data=None):
 # ---------------------------------------------------------------- merge
 
 def merge_parts(output, parts, params):
-    """Write every record 0..count-1 of ``parts`` into the HDF5 file ``output``; remove ``parts``.
+    """Merge the records 0..count-1 of ``parts`` into the HDF5 file ``output``; returns (data, attrs).
 
-    The file is written under a temporary name and renamed into place, so a
-    kill during the merge leaves the parts intact and no ``output``; a rerun
-    redoes the merge. Raises AmfeError naming missing or unreadable records
-    (an unreadable part is removed, so that a rerun recomputes it).
+    Order, so that nothing good is lost: the file is written under a
+    temporary name, checked (:func:`check_dataset`), renamed onto ``output``,
+    and only then is ``parts`` removed. A kill or a failure before the rename
+    leaves the parts intact and ``output`` as it was. A part that is not the
+    record it claims to be (:func:`amfe.io.datasetparts.part_problem`: another
+    data set's, damaged) is moved to ``OUTPUT.rejected/`` and the merge is
+    refused with an AmfeError naming it: a rerun recomputes that record. Also
+    AmfeError for missing records and for a full disk.
     """
     import h5py
 
@@ -95,74 +99,80 @@ def merge_parts(output, parts, params):
                         f"({_list_items(missing)}); run the same command again")
     shape = sc.image_shape
 
-    def write(tmp):
-        with h5py.File(tmp, "w") as f:
-            d = {
-                "images": _image_dataset(f, "images", count, shape),
-                "labels": f.create_dataset("labels", (count, 6), np.float64),
-                "C": f.create_dataset("C", (count, 6, 6), np.float64),
-                "density": f.create_dataset("density", (count,), np.float64),
-                "index": f.create_dataset("index", (count,), np.int64),
-                "seed": f.create_dataset("seed", (count,), np.int64),
-                "status": f.create_dataset("status", (count,), np.uint8),
-                "reason": f.create_dataset("reason", (count,), h5py.string_dtype()),
-                "iterations": f.create_dataset("iterations", (count, 6), np.int32),
-                "n_particles": f.create_dataset("n_particles", (count,), np.int64),
-                "n_removed": f.create_dataset("n_removed", (count,), np.int64),
-                "n_bonds": f.create_dataset("n_bonds", (count,), np.int64),
-                "volume": f.create_dataset("volume", (count,), np.float64),
-                "seconds": f.create_dataset("seconds", (count, 3), np.float64),
-                "solver": f.create_dataset("solver", (count,), h5py.string_dtype()),
-            }
-            bonds = _image_dataset(f, "bond_images", count, shape)
-            all_bonds = True   # parts written before bond images existed have none
-            pg = f.create_group("params")
-            pdata = np.empty((count, len(PARAM_NAMES)))
-            for k in range(count):
-                path = part_path(parts, k)
-                try:
-                    rec = read_part(path)
-                except AmfeError:
-                    os.remove(path)
-                    raise AmfeError(f"record file {path} was damaged and has been removed; run "
-                                    "the same command again to recompute it") from None
-                if rec["index"] != k or rec["image"].shape != shape:
-                    os.remove(path)
-                    raise AmfeError(f"record file {path} does not hold record {k} of shape "
-                                    f"{shape} (index {rec['index']}, image "
-                                    f"{rec['image'].shape}); it has been removed, run the same "
-                                    "command again")
-                for name, ds in d.items():
-                    ds[k] = rec["image" if name == "images" else name]
-                if "bond_image" in rec and rec["bond_image"].shape == shape:
-                    bonds[k] = rec["bond_image"]
-                else:
-                    all_bonds = False
-                pdata[k] = rec["params"]
-            if not all_bonds:
-                del f["bond_images"]
-            for j, name in enumerate(PARAM_NAMES):
-                ds = pg.create_dataset(name, data=pdata[:, j])
-                ds.attrs["units"] = PARAM_UNITS[name]
-            d["labels"].attrs["columns"] = list(LABEL_NAMES)
-            d["labels"].attrs["units"] = "Pa for Ex, Ey, Ez; - for the Poisson ratios"
-            d["C"].attrs["units"] = "Pa"
-            d["seconds"].attrs["columns"] = list(SECONDS_NAMES)
-            f.attrs.update({k: v for k, v in params.items()})
-            f.attrs.update({
-                "label_names": list(LABEL_NAMES),
-                "created": datetime.datetime.now(datetime.timezone.utc).isoformat(
-                    timespec="seconds"),
-                "bed_size": list(sc.size), "layer_thickness": sc.layer_thickness,
-                "image_cell": [sc.cell[0], sc.cell[1], sc.layer_thickness],
-                "image_shape": list(shape),
-                "image_spacing": sc.image_spacing,
-                "density_definition": DENSITY_DEFINITION,
-                "status_codes": "0 ok, 1 failed (see reason)",
-            })
+    def write(f):
+        d = {
+            "images": _image_dataset(f, "images", count, shape),
+            "labels": f.create_dataset("labels", (count, 6), np.float64),
+            "C": f.create_dataset("C", (count, 6, 6), np.float64),
+            "density": f.create_dataset("density", (count,), np.float64),
+            "index": f.create_dataset("index", (count,), np.int64),
+            "seed": f.create_dataset("seed", (count,), np.int64),
+            "status": f.create_dataset("status", (count,), np.uint8),
+            "reason": f.create_dataset("reason", (count,), h5py.string_dtype()),
+            "iterations": f.create_dataset("iterations", (count, 6), np.int32),
+            "n_particles": f.create_dataset("n_particles", (count,), np.int64),
+            "n_removed": f.create_dataset("n_removed", (count,), np.int64),
+            "n_bonds": f.create_dataset("n_bonds", (count,), np.int64),
+            "volume": f.create_dataset("volume", (count,), np.float64),
+            "seconds": f.create_dataset("seconds", (count, 3), np.float64),
+            "solver": f.create_dataset("solver", (count,), h5py.string_dtype()),
+        }
+        bonds = _image_dataset(f, "bond_images", count, shape)
+        all_bonds = True   # parts written before bond images existed have none
+        pg = f.create_group("params")
+        pdata = np.empty((count, len(PARAM_NAMES)))
+        for k in range(count):
+            path = part_path(parts, k)
+            try:
+                rec = read_part(path)
+                why = part_problem(path, k, params, rec)
+            except AmfeError as exc:
+                why = str(exc)
+            if why is not None:
+                dest = reject_part(path, output)
+                raise AmfeError(f"record file {path} was refused ({why}) and moved to "
+                                f"{dest}; run the same command again to recompute it")
+            for name, ds in d.items():
+                ds[k] = rec["image" if name == "images" else name]
+            if "bond_image" in rec and rec["bond_image"].shape == shape:
+                bonds[k] = rec["bond_image"]
+            else:
+                all_bonds = False
+            pdata[k] = rec["params"]
+        if not all_bonds:
+            del f["bond_images"]
+        for j, name in enumerate(PARAM_NAMES):
+            ds = pg.create_dataset(name, data=pdata[:, j])
+            ds.attrs["units"] = PARAM_UNITS[name]
+        d["labels"].attrs["columns"] = list(LABEL_NAMES)
+        d["labels"].attrs["units"] = "Pa for Ex, Ey, Ez; - for the Poisson ratios"
+        d["C"].attrs["units"] = "Pa"
+        d["seconds"].attrs["columns"] = list(SECONDS_NAMES)
+        f.attrs.update({k: v for k, v in params.items()})
+        f.attrs.update({
+            "label_names": list(LABEL_NAMES),
+            "created": datetime.datetime.now(datetime.timezone.utc).isoformat(
+                timespec="seconds"),
+            "bed_size": list(sc.size), "layer_thickness": sc.layer_thickness,
+            "image_cell": [sc.cell[0], sc.cell[1], sc.layer_thickness],
+            "image_shape": list(shape),
+            "image_spacing": sc.image_spacing,
+            "density_definition": DENSITY_DEFINITION,
+            "status_codes": "0 ok, 1 failed (see reason)",
+        })
 
-    atomic_write(output, write, by_name=True)
-    shutil.rmtree(parts, ignore_errors=True)
+    checked = {}
+
+    def check(tmp):
+        problems, data, attrs = check_dataset(tmp)
+        if problems:
+            raise AmfeError(f"the merged file fails its check ({'; '.join(problems)}); {output} "
+                            f"is left as it was and the records are kept in {parts}")
+        checked.update(data=data, attrs=attrs)
+
+    atomic_write_h5(output, write, check=check)
+    remove_parts(parts)
+    return checked["data"], checked["attrs"]
 
 
 # ---------------------------------------------------------------- check and summary

@@ -4,21 +4,24 @@
 killed run loses only the beds in flight; :mod:`amfe.io.datasetfile` merges
 the parts into the HDF5 file (docs/datasets.md).
 """
+import io
 import json
 import os
 import re
+import shutil
 
 import numpy as np
 
 from amfe.errors import AmfeError
 from amfe.io.atomic import atomic_write
-from amfe.model.scales import PARAM_NAMES
+from amfe.model.scales import PARAM_NAMES, get_scale, record_seed
 from amfe.version import __version__
 
 FORMAT = "amfe.dataset"
 FORMAT_VERSION = 1
 STATUS_OK, STATUS_FAILED = 0, 1
 PARAMS_JSON = "params.json"
+REJECTED_SUFFIX = ".rejected"
 _PART = re.compile(r"^rec_(\d{8})\.npz$")
 
 
@@ -28,34 +31,31 @@ def parts_dir(output):
 
 
 
+def rejected_dir(output):
+    """Where refused part files of data-set file ``output`` are kept: ``OUTPUT.rejected``."""
+    return os.fspath(output) + REJECTED_SUFFIX
+
+
 def part_path(parts, k):
     return os.path.join(parts, f"rec_{k:08d}.npz")
 
 
 
-def run_params(scale, seed, count, rtol):
-    """The parameters that define a data set's records (what params.json and the attrs hold)."""
-    return {"format": FORMAT, "format_version": FORMAT_VERSION, "scale": str(scale),
-            "seed": int(seed), "count": int(count), "rtol": float(rtol),
-            "amfe_version": __version__}
+def run_params(scale, seed, count, rtol, solver="gamg", bc="kubc"):
+    """The parameters that define a data set's records (what params.json and the attrs hold).
 
-
-
-def remove_stale_tmp(directory, prefix):
-    """Remove temporary files ``.PREFIX*.tmp`` left in ``directory`` by a killed run."""
-    removed = 0
-    try:
-        names = os.listdir(directory)
-    except FileNotFoundError:
-        return 0
-    for name in names:
-        if name.startswith("." + prefix) and name.endswith(".tmp"):
-            try:
-                os.remove(os.path.join(directory, name))
-                removed += 1
-            except FileNotFoundError:
-                pass
-    return removed
+    ``solver`` (the --solver asked for) and ``bc`` are recorded unless they are
+    "gamg" and "kubc", so the parameters of runs made before these choices
+    existed stay equal.
+    """
+    params = {"format": FORMAT, "format_version": FORMAT_VERSION, "scale": str(scale),
+              "seed": int(seed), "count": int(count), "rtol": float(rtol),
+              "amfe_version": __version__}
+    if solver != "gamg":
+        params["solver"] = str(solver)
+    if bc != "kubc":
+        params["bc"] = str(bc)
+    return params
 
 
 
@@ -73,8 +73,12 @@ def empty_record(k, bed_seed, image_shape):
 
 
 
-def write_part(parts, rec):
-    """Write one record as ``parts/rec_KKKKKKKK.npz``, atomically (tmp, fsync, os.replace)."""
+def write_part(parts, rec, run=None):
+    """Write one record as ``parts/rec_KKKKKKKK.npz``, atomically (tmp, fsync, os.replace).
+
+    run: the run parameters (:func:`run_params`), stored in the part as JSON
+    so that a part of another data set is recognised (:func:`part_problem`).
+    """
     arrays = {
         "index": np.int64(rec["index"]), "seed": np.int64(rec["seed"]),
         "status": np.uint8(rec["status"]), "reason": np.str_(rec["reason"]),
@@ -90,8 +94,12 @@ def write_part(parts, rec):
         "solver": np.str_(rec["solver"]),
         "params": np.asarray(rec["params"], np.float64).reshape(len(PARAM_NAMES)),
     }
+    if run is not None:
+        arrays["run"] = np.str_(json.dumps(run, sort_keys=True))
     path = part_path(parts, rec["index"])
-    atomic_write(path, lambda fh: np.savez(fh, **arrays))
+    buf = io.BytesIO()   # zipped in memory: a full disk cannot leave a half-closed zip behind
+    np.savez(buf, **arrays)
+    atomic_write(path, lambda fh: fh.write(buf.getbuffer()), clean=False)  # swept at start-up
     return path
 
 
@@ -108,6 +116,8 @@ def read_part(path):
     for key in ("density", "volume"):
         rec[key] = float(rec[key])
     rec["reason"], rec["solver"] = str(rec["reason"]), str(rec["solver"])
+    if "run" in rec:
+        rec["run"] = json.loads(str(rec["run"]))
     return rec
 
 
@@ -149,3 +159,55 @@ def write_params_json(parts, params):
 def describe_params(p):
     return (f"scale {p.get('scale')}, seed {p.get('seed')}, count {p.get('count')}, "
             f"rtol {p.get('rtol')}, amfe {p.get('amfe_version')}")
+
+
+
+def part_problem(path, k, params, rec=None):
+    """Why part file ``path`` is not record ``k`` of the run ``params`` (None if it is).
+
+    Checks, reading only the small members unless ``rec`` (the part, read)
+    is given: it can be read; its index is k; its bed seed is
+    record_seed(params seed, k); its stored run parameters (parts written
+    before they were stored have none) equal ``params``; its images have the
+    scale's shape.
+    """
+    want_seed = record_seed(int(params["seed"]), k)
+    try:
+        if rec is None:
+            with np.load(path, allow_pickle=False) as z:   # the image only for old parts
+                names = ("index", "seed", "run") if "run" in z.files else ("index", "seed", "image")
+                rec = {n: z[n] for n in names}
+        index, seed = int(rec["index"]), int(rec["seed"])
+        run = rec.get("run")
+        run = json.loads(str(run)) if isinstance(run, (str, np.ndarray)) else run
+        shape = tuple(np.shape(rec["image"])) if "image" in rec else None
+    except Exception as exc:  # noqa: BLE001 - any damage is the same problem
+        return f"it cannot be read ({type(exc).__name__}: {str(exc)[:200]})"
+    if index != k:
+        return f"it holds record {index}, not {k}"
+    if seed != want_seed:
+        return (f"its bed seed {seed} is not record_seed({params['seed']}, {k}) = {want_seed}: "
+                "a record of another data set")
+    if run is not None and run != params:
+        return f"it was made by another run ({describe_params(run)})"
+    want_shape = get_scale(params["scale"]).image_shape
+    if shape is not None and shape != tuple(want_shape):
+        return f"its image has shape {shape}, scale {params['scale']} makes {tuple(want_shape)}"
+    return None
+
+
+def reject_part(path, output):
+    """Move a refused part file into ``rejected_dir(output)``; returns its new path."""
+    rejected = rejected_dir(output)
+    os.makedirs(rejected, exist_ok=True)
+    base = os.path.basename(path)
+    dest, n = os.path.join(rejected, base), 1
+    while os.path.exists(dest):
+        dest, n = os.path.join(rejected, f"{base}.{n}"), n + 1
+    os.replace(path, dest)
+    return dest
+
+
+def remove_parts(parts):
+    """Remove a parts directory once its records are in the merged file."""
+    shutil.rmtree(parts, ignore_errors=True)

@@ -1,8 +1,10 @@
 """A homogenization result as plain data: :class:`Result` (and its :class:`Fields`).
 
 ``Result.to_dict()`` is the JSON layout of docs/model.md, section 6 (the keys
-`amfe homogenize -o` writes), plus ``schema_version``. Arrays are numpy;
-units are SI (Pa, 1/Pa, m^3, m, N).
+`amfe homogenize -o` writes): the header of :mod:`amfe.io.result_meta` first
+(schema version, input and its hash, material, box, units, counts,
+conventions), then the constants and the solver record; it follows the
+shipped JSON Schema. Arrays are numpy; units are SI (Pa, 1/Pa, m^3, m, N).
 """
 from dataclasses import dataclass, field, fields as dc_fields
 
@@ -10,45 +12,12 @@ import numpy as np
 
 from amfe.errors import AmfeError
 from amfe.io.atomic import write_json
-from amfe.io.vtu import write_load_cases
-from amfe.vocab import CASE_NAMES, CONSTANT_NAMES, CONSTANT_UNITS
+from amfe.io.fields import Fields
+from amfe.io.result_meta import HEADER_KEYS, SCHEMA_VERSION
+from amfe.io.vtp import write_fields_vtp
+from amfe.vocab import CONSTANT_NAMES, CONSTANT_UNITS
 
-#: Version of the JSON layout; bumped when a key changes meaning or goes away.
-SCHEMA_VERSION = 2
-
-
-@dataclass
-class Fields:
-    """Per-case fields of the kept (load-carrying) particles, per unit macro-strain.
-
-    particle_id (n,) int: each kept particle's index in the input bed;
-    centers (n, 3) [m], radii (n,) [m] of the kept particles;
-    bonds (M, 2) int: the bonds' two particles as rows of the kept arrays;
-    displacement (6, n, 3) [m], rotation (6, n, 3) [rad]: per case
-    (Voigt order xx, yy, zz, yz, xz, xy), per unit strain;
-    axial_force (6, M) [N], shear_force (6, M) [N, magnitude],
-    moment (6, M) [N m, magnitude]: per bond, per case.
-    """
-
-    particle_id: np.ndarray
-    centers: np.ndarray
-    radii: np.ndarray
-    bonds: np.ndarray
-    displacement: np.ndarray
-    rotation: np.ndarray
-    axial_force: np.ndarray
-    shear_force: np.ndarray
-    moment: np.ndarray
-    case_names: tuple = CASE_NAMES
-
-
-def write_fields_vtu(directory, f):
-    """One VTU per load case of :class:`Fields` ``f`` and cases.pvd in ``directory``."""
-    cases = [{"displacement": f.displacement[k], "rotation": f.rotation[k],
-              "axial_force": f.axial_force[k], "shear_force": f.shear_force[k],
-              "moment": f.moment[k]} for k in range(len(f.case_names))]
-    return write_load_cases(directory, f.centers, f.radii, f.bonds, cases,
-                            names=list(f.case_names))
+__all__ = ["Result", "Fields", "SCHEMA_VERSION"]
 
 
 @dataclass
@@ -60,7 +29,8 @@ class Result:
     [1/Pa] in Voigt order with engineering shear; volume [m^3]; n_particles
     (input), n_removed, n_bonds (kept); bc; ranks; solver: the solver record;
     fields: :class:`Fields` when asked for (``fields=True``); extra: any
-    other key of the JSON layout (n_capped, diagnostics, input, ...).
+    other key of the JSON layout (the header: input, material, box, units,
+    counts, ...; n_capped, diagnostics, vtk, ...).
 
     The constants are also attributes: ``result.Ex``.
     """
@@ -97,25 +67,34 @@ class Result:
         return sorted(set(super().__dir__()) | set(CONSTANT_NAMES))
 
     def to_dict(self):
-        """The JSON layout (plain lists and numbers), with ``schema_version``."""
-        d = {"schema_version": self.schema_version, "properties": dict(self.properties),
-             "C": np.asarray(self.C).tolist(), "S": np.asarray(self.S).tolist(),
-             "volume": float(self.volume), "n_particles": int(self.n_particles),
-             "n_removed": int(self.n_removed), "n_bonds": int(self.n_bonds), "bc": self.bc,
-             "ranks": int(self.ranks), "solver": self.solver}
-        d.update(self.extra)
+        """The JSON layout (plain lists and numbers): the header, then the results."""
+        d = {"schema_version": self.schema_version}
+        d.update((k, self.extra[k]) for k in HEADER_KEYS if k in self.extra)
+        d.update({"properties": dict(self.properties),
+                  "C": np.asarray(self.C).tolist(), "S": np.asarray(self.S).tolist(),
+                  "volume": float(self.volume), "n_particles": int(self.n_particles),
+                  "n_removed": int(self.n_removed), "n_bonds": int(self.n_bonds),
+                  "bc": self.bc, "ranks": int(self.ranks), "solver": self.solver})
+        d.update((k, v) for k, v in self.extra.items() if k not in d)
         return d
 
     def to_json(self, path):
         """Write :meth:`to_dict` to ``path`` atomically (a reader never sees half a file)."""
         write_json(path, self.to_dict())
 
-    def write_vtu(self, directory):
-        """One VTU per load case and cases.pvd in ``directory`` (needs ``fields=True``)."""
+    def write_vtp(self, directory):
+        """ParaView files: ``case_<name>.vtp`` per load case and ``cases.pvd`` in ``directory``.
+
+        Needs ``fields=True``; the layout is in :mod:`amfe.io.vtp` and
+        docs/viewing.md. Returns the paths, the ``.pvd`` last.
+        """
         if self.fields is None:
             raise AmfeError("this result holds no fields: homogenize with fields=True "
-                            "to write VTU files")
-        return write_fields_vtu(directory, self.fields)
+                            "to write ParaView files")
+        return write_fields_vtp(directory, self.fields)
+
+    #: The name of :meth:`write_vtp` before amfe wrote PolyData (``.vtp``) files.
+    write_vtu = write_vtp
 
     def __repr__(self):
         lines = [f"Result(bc={self.bc!r}, {self.n_particles} particles "

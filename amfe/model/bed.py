@@ -15,9 +15,11 @@ import numpy as np
 from amfe.version import __version__
 from amfe.model.bonds import find_bonds, validate_particles
 from amfe.errors import AmfeError
-from amfe.model.material import STEEL, Material
+from amfe.model.material import STEEL, Material, material_from_attrs
+from amfe.model.memory import check_memory, generation_bytes, lattice_counts
 from amfe.model.scanpath import ScanPath, scanned_mask
 from amfe.model.springs import critical_a_star
+from amfe.model.torus import find_periodic_bonds, periodic_hcp_lattice, snap_box, wrap
 
 SQRT3 = math.sqrt(3.0)
 
@@ -52,13 +54,12 @@ class Bed:
         return float(np.sum(4.0 / 3.0 * np.pi * self.radii**3))
 
     def material(self, default=STEEL):
-        """The particle :class:`Material` recorded in attrs (material_E, ...), else ``default``."""
-        keys = ("material_E", "material_nu", "material_psi", "material_density")
-        if not all(k in self.attrs for k in keys):
-            return default
-        return Material(E=float(self.attrs["material_E"]), nu=float(self.attrs["material_nu"]),
-                        psi=float(self.attrs["material_psi"]),
-                        density=float(self.attrs["material_density"]))
+        """The particle :class:`Material` recorded in attrs (material_E, ...), else ``default``.
+
+        E, nu and psi must be all present or all absent (AmfeError naming the
+        missing ones otherwise); material_density is optional.
+        """
+        return material_from_attrs(self.attrs, default)
 
 
 def hcp_lattice(size, r0):
@@ -125,7 +126,7 @@ def shrink_factor(L, Ri, Rj, a_star_target, iterations=64):
     return lo
 
 
-def limit_a_star(centers, radii, a_star_max, max_passes=50):
+def limit_a_star(centers, radii, a_star_max, max_passes=50, box=None):
     """Shrink radii until every bond has a* <= a_star_max.
 
     Rule (the generator's a* guarantee, docs/model.md, sections 2 and 5a): find the bonds; for
@@ -140,14 +141,16 @@ def limit_a_star(centers, radii, a_star_max, max_passes=50):
     practice), so a pass creates no new offenders and the loop ends after
     one pass plus the checking one; the cap only guards against the unforeseen.
 
-    centers (N,3) [m], radii (N,) [m]. Returns (radii (N,) new array, n_shrunk:
+    centers (N,3) [m], radii (N,) [m]; box (3,) [m]: bonds by minimum image on
+    this torus (a periodic bed, docs/model.md, section 9). Returns (radii (N,) new array, n_shrunk:
     the number of particles whose radius was reduced, passes: shrinking passes
     made). Raises AmfeError if max_passes passes do not settle.
     """
     radii = np.array(radii, dtype=float)
     shrunk = np.zeros(radii.size, dtype=bool)
     for passes in range(max_passes + 1):
-        bonds = find_bonds(centers, radii)
+        bonds = find_bonds(centers, radii) if box is None else \
+            find_periodic_bonds(centers, radii, box)[0]
         bad = np.flatnonzero(bonds.a_star > a_star_max)
         if bad.size == 0:
             return radii, int(shrunk.sum()), passes
@@ -164,6 +167,21 @@ def limit_a_star(centers, radii, a_star_max, max_passes=50):
     raise AmfeError(f"could not bring every bond to a* <= {a_star_max} in {max_passes} passes "
                     f"of radius shrinking ({bad.size} bonds still above, max a* "
                     f"{bonds.a_star[bad].max():.6f}); lower the enlargement or the jitter")
+
+
+SEED_LIMIT = 2**64
+"""Seeds lie in [0, 2**64): one word of numpy's SeedSequence, and what an HDF5
+attribute (uint64) can hold, so every bed's seed can be written with it."""
+
+
+def check_seed(seed, name="seed"):
+    """``seed`` as an int if it is an integer in [0, 2**64), else AmfeError."""
+    if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)):
+        raise AmfeError(f"{name} must be an integer in [0, 2**64), got {type(seed).__name__} "
+                        f"{seed!r}")
+    if not 0 <= int(seed) < SEED_LIMIT:
+        raise AmfeError(f"{name} must lie in [0, 2**64) = [0, {SEED_LIMIT - 1}], got {seed}")
+    return int(seed)
 
 
 def _check_number(name, value, lo=None, hi=None, lo_open=False, hi_open=False, unit=""):
@@ -185,7 +203,8 @@ def _check_number(name, value, lo=None, hi=None, lo_open=False, hi_open=False, u
 
 def generate_bed(size=(250e-6, 250e-6, 100e-6), *, mean_radius=12.5e-6,
                  enlargement=(1.05, 1.14), jitter=0.025, layer_thickness=100e-6,
-                 scan=None, seed=0, a_star_max=0.98, material=STEEL):
+                 scan=None, seed=0, a_star_max=0.98, material=STEEL, periodic=False,
+                 offset=None, max_memory=None, skip_seed=None):
     """A powder bed on a jittered, enlarged HCP lattice, cut by a scan path.
 
     size: (Lx, Ly, Lz) of the box [m] (default: the paper's figure-2 bed,
@@ -195,9 +214,24 @@ def generate_bed(size=(250e-6, 250e-6, 100e-6), *, mean_radius=12.5e-6,
     jitter: each centre moves uniformly by +/- jitter R_i per axis, 0 <= jitter
     < 0.5 (0.025: the paper's cubic box of side 2.05 R_i); layer_thickness:
     powder layer thickness for the scan path [m]; scan: :class:`ScanPath` or
-    None (fully scanned); seed: int >= 0; a_star_max: bound on every bond's
+    None (fully scanned); seed: int, 0 <= seed < 2**64 (the range of the
+    generator's seed words that a bed file's attribute can hold); a_star_max: bound on every bond's
     a* (0 < a_star_max < critical a* of the material, 0.9934 for steel);
-    material: :class:`Material` (recorded in attrs and used for the critical a*).
+    material: :class:`Material` (recorded in attrs and used for the critical a*);
+    periodic: make a bed that tiles space (docs/model.md, section 9): the box
+    is snapped to whole lattice periods (:func:`amfe.model.torus.snap_box`),
+    the sites are the infinite lattice's in [0, L), centres are wrapped into
+    the box after the jitter, bonds in step 5 are found by minimum image;
+    offset (3,) [m], periodic only: shift the whole lattice (default 0).
+    The random numbers are drawn in the same order as for a non-periodic bed.
+    max_memory: bytes the generation may take (default: half the machine's
+    memory); a larger estimate (:mod:`amfe.model.memory`) is refused before
+    anything is allocated.
+    skip_seed: opt-in; an int seed draws the skipped scan pieces from their own
+    ``default_rng(skip_seed)`` instead of the bed's generator, so beds of other
+    seeds keep the same holes while their enlargements and jitter change (the
+    label-noise study of docs/surrogate.md). None (default): today's beds, bit
+    for bit.
 
     Steps, all random numbers from one ``np.random.default_rng(seed)`` drawn
     in this order, so the same arguments give the same bed bit for bit:
@@ -224,7 +258,9 @@ def generate_bed(size=(250e-6, 250e-6, 100e-6), *, mean_radius=12.5e-6,
     :class:`ScanPath` fields, when raster), material_E, material_nu,
     material_psi, material_density, a_star_max, a_star_critical, n_lattice
     (sites before the scan path), n_scanned_out (deleted by it), n_shrunk,
-    shrink_passes.
+    shrink_passes; a periodic bed adds periodic = [Lx, Ly, Lz] (the snapped
+    box, also its size), periodic_requested, periodic_snap (L - requested),
+    periodic_periods, periodic_offset.
     """
     try:
         size = tuple(float(s) for s in size)
@@ -244,9 +280,9 @@ def generate_bed(size=(250e-6, 250e-6, 100e-6), *, mean_radius=12.5e-6,
     jitter = _check_number("jitter", jitter, lo=0.0, hi=0.5, hi_open=True, unit=" (fraction of R)")
     layer_thickness = _check_number("powder layer thickness", layer_thickness, lo=0.0,
                                     lo_open=True, unit=" m")
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise AmfeError(f"seed must be a non-negative integer, got {seed!r}")
-    seed = int(seed)
+    seed = check_seed(seed)
+    if skip_seed is not None:
+        skip_seed = check_seed(skip_seed, "skip_seed")
     if not isinstance(material, Material):
         raise AmfeError(f"material must be an amfe.model.material.Material, got {type(material).__name__}")
     crit = critical_a_star(material.nu, material.psi)
@@ -257,7 +293,19 @@ def generate_bed(size=(250e-6, 250e-6, 100e-6), *, mean_radius=12.5e-6,
         raise AmfeError(f"scan must be an amfe.model.scanpath.ScanPath or None, got {type(scan).__name__}")
 
     r0 = mean_radius / (0.5 * (lo_f + hi_f))
-    lattice = hcp_lattice(size, r0)
+    n_sites = lattice_counts(size, r0)[1]
+    check_memory(generation_bytes(size, r0), max_memory,
+                 f"generating a bed of {size[0]:.4g} x {size[1]:.4g} x {size[2]:.4g} m "
+                 f"(about {float(n_sites):.3g} lattice sites of radius {r0:.4g} m)")
+    if periodic:
+        requested, offset = size, np.zeros(3) if offset is None else np.asarray(offset, float)
+        box, counts, moved = snap_box(size, r0, hi_f * r0)
+        size = tuple(box.tolist())
+        lattice = periodic_hcp_lattice(counts, r0, offset)
+    elif offset is not None:
+        raise AmfeError("offset shifts the lattice of a periodic bed only: pass periodic=True")
+    else:
+        lattice = hcp_lattice(size, r0)
     n_lattice = lattice.shape[0]
     if n_lattice == 0:
         raise AmfeError(f"the box {tuple(s * 1e3 for s in size)} mm holds no particle: every side "
@@ -266,14 +314,18 @@ def generate_bed(size=(250e-6, 250e-6, 100e-6), *, mean_radius=12.5e-6,
     rng = np.random.default_rng(seed)
     radii = r0 * rng.uniform(lo_f, hi_f, n_lattice)
     centers = lattice + rng.uniform(-1.0, 1.0, (n_lattice, 3)) * (jitter * radii)[:, None]
+    if periodic:
+        centers = wrap(centers, box)
 
-    keep = scanned_mask(centers, size, layer_thickness, scan, rng)
+    skip_rng = rng if skip_seed is None else np.random.default_rng(int(skip_seed))
+    keep = scanned_mask(centers, size, layer_thickness, scan, skip_rng)
     if not keep.any():
         raise AmfeError("the scan path deletes every particle of the bed: widen the tracks, "
                         "narrow the hatch spacing or lower the skip fraction")
     centers, radii = centers[keep], radii[keep]
 
-    radii, n_shrunk, passes = limit_a_star(centers, radii, a_star_max)
+    radii, n_shrunk, passes = limit_a_star(centers, radii, a_star_max,
+                                           box=box if periodic else None)
 
     attrs = {
         "generator": "amfe.hcp",
@@ -290,6 +342,8 @@ def generate_bed(size=(250e-6, 250e-6, 100e-6), *, mean_radius=12.5e-6,
     }
     if scan is not None and not scan.is_full:
         attrs.update(scan.as_attrs())
+    if skip_seed is not None:
+        attrs["skip_seed"] = int(skip_seed)
     attrs.update({
         "material_E": float(material.E),
         "material_nu": float(material.nu),
@@ -302,4 +356,8 @@ def generate_bed(size=(250e-6, 250e-6, 100e-6), *, mean_radius=12.5e-6,
         "n_shrunk": n_shrunk,
         "shrink_passes": passes,
     })
+    if periodic:
+        attrs.update({"periodic": list(size), "periodic_requested": list(requested),
+                      "periodic_snap": moved.tolist(), "periodic_periods": counts.tolist(),
+                      "periodic_offset": offset.tolist()})
     return Bed(centers=centers, radii=radii, attrs=attrs)

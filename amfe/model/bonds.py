@@ -14,19 +14,55 @@ from amfe.model.material import Material
 from amfe.model.springs import A_STAR_MARGIN, critical_a_star, spring_constants
 
 
+LENGTH_RANGE = (1e-60, 1e60)
+"""Radii and coordinates must lie in this range (in the caller's length unit, SI: m):
+contact radii go through R^4 (Heron's form), which under- or overflows float64
+beyond about 1e-75 and 1e75."""
+MAX_REACH = 1e12
+"""Centres may lie at most this many mean radii from the origin: farther out,
+float64 positions no longer resolve the overlaps (1e12 R leaves 1e-4 R)."""
+
+
+def real_array(value, name):
+    """``value`` as a float64 array if it holds real numbers; AmfeError otherwise.
+
+    Refuses complex (the imaginary part would be dropped silently), bool,
+    str and object arrays, and ragged nested lists. A float64 array is
+    returned as it is (no copy).
+    """
+    try:
+        arr = np.asarray(value)
+    except (ValueError, TypeError) as exc:
+        raise AmfeError(f"{name} must be an array of real numbers: {exc}") from None
+    if arr.dtype.kind not in "iuf":
+        kind = {"c": "complex numbers (the imaginary part would be lost)", "b": "booleans",
+                "U": "strings", "S": "bytes", "O": "Python objects"}.get(arr.dtype.kind, "")
+        raise AmfeError(f"{name} must hold real numbers (float64), got dtype {arr.dtype}"
+                        + (f": {kind}" if kind else ""))
+    return np.asarray(arr, dtype=float)
+
+
+def check_shapes(centers_shape, radii_shape):
+    """AmfeError unless the shapes are (N, 3) and (N,) (checked before reading a file's data)."""
+    if len(centers_shape) != 2 or centers_shape[1] != 3:
+        raise AmfeError(f"particle centres must have shape (N, 3), got {tuple(centers_shape)}")
+    if tuple(radii_shape) != (centers_shape[0],):
+        raise AmfeError(f"radii must have shape ({centers_shape[0]},) to match the centres, "
+                        f"got {tuple(radii_shape)}")
+
+
 def validate_particles(centers, radii):
     """Return (centers (N,3), radii (N,)) as float64 arrays, or raise AmfeError.
 
-    Rejects wrong shapes, non-finite coordinates and non-finite or non-positive
-    radii, naming the offending particles.
+    Rejects arrays that are not real numbers (complex, bool, str, object),
+    wrong shapes, non-finite coordinates, non-finite or non-positive radii,
+    and lengths float64 cannot carry through the contact geometry (radii
+    outside :data:`LENGTH_RANGE`, centres farther than :data:`MAX_REACH` mean
+    radii from the origin), naming the offending particles.
     """
-    centers = np.asarray(centers, dtype=float)
-    radii = np.asarray(radii, dtype=float)
-    if centers.ndim != 2 or centers.shape[1] != 3:
-        raise AmfeError(f"particle centres must have shape (N, 3), got {centers.shape}")
-    if radii.shape != (centers.shape[0],):
-        raise AmfeError(f"radii must have shape ({centers.shape[0]},) to match the centres, "
-                        f"got {radii.shape}")
+    centers = real_array(centers, "particle centres")
+    radii = real_array(radii, "radii")
+    check_shapes(centers.shape, radii.shape)
     if centers.shape[0] == 0:
         raise AmfeError("the bed has no particles")
     bad = np.flatnonzero(~np.isfinite(centers).all(axis=1))
@@ -36,7 +72,25 @@ def validate_particles(centers, radii):
     if bad.size:
         raise AmfeError(f"{bad.size} particles have non-finite or non-positive radii: "
                         + _list_items(f"{k} (R={radii[k]!r})" for k in bad))
+    _check_lengths(centers, radii)
     return centers, radii
+
+
+def _check_lengths(centers, radii):
+    lo, hi = LENGTH_RANGE
+    bad = np.flatnonzero((radii < lo) | (radii > hi))
+    if bad.size:
+        raise AmfeError(f"{bad.size} radii lie outside [{lo:g}, {hi:g}] (lengths in m): "
+                        + _list_items(f"{k} (R={radii[k]:.3g})" for k in bad)
+                        + "; float64 cannot carry such lengths through the contact geometry. "
+                        "Check the unit of the bed's lengths")
+    reach = np.abs(centers).max(axis=1) / radii.mean()
+    bad = np.flatnonzero(reach > MAX_REACH)
+    if bad.size:
+        raise AmfeError(f"{bad.size} centres lie more than {MAX_REACH:g} mean radii from the "
+                        "origin, where float64 positions no longer resolve the overlaps: "
+                        + _list_items(f"{k} ({reach[k]:.3g} mean radii)" for k in bad)
+                        + ". Check the coordinates and their unit, or move the bed to the origin")
 
 
 def find_pairs(centers, radii):
@@ -86,8 +140,11 @@ class Bonds:
         return Bonds(**{k: v[mask] for k, v in self.__dict__.items()})
 
 
-def contact_geometry(centers, radii, i, j):
+def contact_geometry(centers, radii, i, j, offset=None):
     """Contact geometry of the bonds (i, j); raises AmfeError on degenerate pairs.
+
+    ``offset`` (M,3), optional: added to x_j (a periodic bond joins i to an
+    image of j, docs/model.md, section 9).
 
     Degenerate: coincident centres (L = 0) and a contact plane outside the
     segment between the centres (d_i <= 0 or d_j <= 0: a small sphere deep
@@ -95,7 +152,7 @@ def contact_geometry(centers, radii, i, j):
     which stays accurate for shallow overlaps where R_i^2 - d_i^2 cancels.
     """
     Ri, Rj = radii[i], radii[j]
-    branch = centers[j] - centers[i]
+    branch = centers[j] - centers[i] if offset is None else centers[j] + offset - centers[i]
     L = np.sqrt(np.einsum("ij,ij->i", branch, branch))
     tiny = L <= 1e-12 * np.maximum(Ri, Rj)
     if tiny.any():
@@ -122,6 +179,28 @@ def find_bonds(centers, radii):
     centers, radii = validate_particles(centers, radii)
     i, j = find_pairs(centers, radii)
     return contact_geometry(centers, radii, i, j)
+
+
+A_STAR_CAP_MIN = 1e-3
+"""The smallest a* cap: necks of a* = 1e-3 are the thinnest measured to solve
+accurately (docs/hard_cases.md, near-mechanisms); a cap of 1e-300 underflows
+the bending springs (~a*^4) to zero and leaves a singular frame."""
+
+
+def check_a_star_cap(a_star_cap, material):
+    """``a_star_cap`` as a float in [A_STAR_CAP_MIN, critical a* - A_STAR_MARGIN), else AmfeError."""
+    crit = critical_a_star(material.nu, material.psi)
+    limit = crit - A_STAR_MARGIN
+    try:
+        cap = float(a_star_cap)
+    except (TypeError, ValueError):
+        cap = float("nan")
+    if isinstance(a_star_cap, (bool, str)) or not (A_STAR_CAP_MIN <= cap < limit):
+        raise AmfeError(f"the a* cap must lie in [{A_STAR_CAP_MIN:g}, {limit:.10f}) "
+                        f"({A_STAR_MARGIN:g} below the critical a* {crit:.10f} for "
+                        f"nu={material.nu}, psi={material.psi}; below {A_STAR_CAP_MIN:g} the "
+                        f"bending springs vanish), got {a_star_cap!r}")
+    return cap
 
 
 def bond_springs(bonds: Bonds, material: Material, a_star_cap=None, labels=None):
@@ -158,11 +237,7 @@ def bond_springs(bonds: Bonds, material: Material, a_star_cap=None, labels=None)
         capped = np.zeros(a_star.shape, bool)
         s = a_star
     else:
-        a_star_cap = float(a_star_cap)
-        if not (0.0 < a_star_cap < limit):
-            raise AmfeError(f"the a* cap must lie in (0, {limit:.10f}) ({A_STAR_MARGIN:g} below "
-                            f"the critical a* {crit:.10f} for nu={material.nu}, psi={material.psi}), "
-                            f"got {a_star_cap}")
+        a_star_cap = check_a_star_cap(a_star_cap, material)
         deep = np.flatnonzero(a_star >= 1.0)
         if deep.size:
             raise AmfeError(

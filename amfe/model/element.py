@@ -119,20 +119,98 @@ def local_frames(normal, reference=None):
     return np.stack([e, y, z], axis=1)
 
 
+def bond_end_loads(normal, d_i, d_j, k_n, k_t, kappa_n, kappa_t, u_i, u_j):
+    """Force and moment vectors a bond puts on particle i's end, and their split.
+
+    Minus the gradient of the energy 1/2 D.Du.D + 1/2 Dr.Dth.Dr (module
+    docstring) with respect to particle i's DOFs:
+
+        f_i = Du D                   force on i, applied at the contact point
+        c   = Dth Dr                 couple of the torsion and bending springs
+        m_i = c + d_i e x f_i        moment on i about its centre
+
+    Particle j's end carries f_j = -f_i and m_j = -c + d_j e x f_i =
+    L e x f_i - m_i about its own centre (L = d_i + d_j): the element is in
+    equilibrium, so at a particle with every DOF free the loads of its bonds
+    sum to zero.
+
+    Parameters
+    ----------
+    normal : ndarray (M, 3)
+        Unit vectors e from particle i to particle j.
+    d_i, d_j : ndarray (M,)
+        Lever arms: centre of i (of j) to the contact point [length].
+    k_n, k_t : ndarray (M,)
+        Normal and shear spring stiffness [force / length].
+    kappa_n, kappa_t : ndarray (M,)
+        Torsion and bending spring stiffness [force * length].
+    u_i, u_j : ndarray (M, 6)
+        DOFs (u_x, u_y, u_z, theta_x, theta_y, theta_z) of the two ends [length, rad].
+
+    Returns
+    -------
+    dict of str -> ndarray
+        ``force_i`` (M, 3) [force]; ``moment_i`` (M, 3) [force * length], about
+        i's centre; ``axial`` (M,) [force]: f_i . e, positive in tension (the
+        bond pulls i towards j); ``shear`` (M,) [force]: magnitude of f_i
+        normal to e; ``torsion`` (M,) [force * length]: c . e, signed;
+        ``bending`` (M,) [force * length]: magnitude of c normal to e.
+    """
+    e = np.asarray(normal, dtype=float)
+    u_i, u_j = np.asarray(u_i, dtype=float), np.asarray(u_j, dtype=float)
+    d_i, d_j = np.asarray(d_i, dtype=float)[:, None], np.asarray(d_j, dtype=float)[:, None]
+    k_n, k_t, kappa_n, kappa_t = (np.asarray(v, dtype=float) for v in (k_n, k_t, kappa_n, kappa_t))
+    gap = u_j[:, :3] - u_i[:, :3] + np.cross(e, d_i * u_i[:, 3:] + d_j * u_j[:, 3:])
+    gn = np.einsum("ij,ij->i", gap, e)
+    f_shear = k_t[:, None] * (gap - gn[:, None] * e)
+    force = (k_n * gn)[:, None] * e + f_shear
+    rot = u_j[:, 3:] - u_i[:, 3:]
+    rn = np.einsum("ij,ij->i", rot, e)
+    c_bend = kappa_t[:, None] * (rot - rn[:, None] * e)
+    couple = (kappa_n * rn)[:, None] * e + c_bend
+    return {"force_i": force, "moment_i": couple + d_i * np.cross(e, force),
+            "axial": k_n * gn, "shear": np.linalg.norm(f_shear, axis=1),
+            "torsion": kappa_n * rn, "bending": np.linalg.norm(c_bend, axis=1)}
+
+
+def particle_resultants(n, i, j, normal, length, force_i, moment_i):
+    """Sum of the bond loads on every particle: zero where every DOF is free.
+
+    Parameters
+    ----------
+    n : int
+        Number of particles.
+    i, j : ndarray (M,) int
+        End particles of each bond (0 <= i, j < n).
+    normal : ndarray (M, 3)
+        Unit vectors from i to j.
+    length : ndarray (M,)
+        Centre distances L = d_i + d_j [length].
+    force_i, moment_i : ndarray (M, 3)
+        As :func:`bond_end_loads` returns them.
+
+    Returns
+    -------
+    force, moment : ndarray (n, 3)
+        Sum of the bond forces on each particle [force] and of the bond
+        moments about its centre [force * length]: the reactions where DOFs
+        are prescribed.
+    """
+    force, moment = np.zeros((n, 3)), np.zeros((n, 3))
+    np.add.at(force, i, force_i)
+    np.add.at(force, j, -np.asarray(force_i))
+    np.add.at(moment, i, moment_i)
+    np.add.at(moment, j, np.asarray(length)[:, None] * np.cross(normal, force_i) - moment_i)
+    return force, moment
+
+
 def bond_forces(normal, d_i, d_j, k_n, k_t, kappa_n, kappa_t, u_i, u_j):
     """Spring resultants of M bonds under particle DOFs u_i, u_j (M,6).
 
     Returns (axial (M,), shear (M,), moment (M,)): the normal spring force
     (positive in tension) [force], the magnitude of the shear force at the
     contact point [force], and the magnitude of the torsion+bending couple
-    [force*length].
+    [force*length] (the scalars of :func:`bond_end_loads`).
     """
-    e = np.asarray(normal, dtype=float)
-    gap = u_j[:, :3] - u_i[:, :3] + np.cross(e, d_i[:, None] * u_i[:, 3:] + d_j[:, None] * u_j[:, 3:])
-    gn = np.einsum("ij,ij->i", gap, e)
-    shear = np.linalg.norm(gap - gn[:, None] * e, axis=1)
-    rot = u_j[:, 3:] - u_i[:, 3:]
-    rn = np.einsum("ij,ij->i", rot, e)
-    rt = rot - rn[:, None] * e
-    moment = np.sqrt((kappa_n * rn) ** 2 + kappa_t**2 * np.einsum("ij,ij->i", rt, rt))
-    return k_n * gn, k_t * shear, moment
+    loads = bond_end_loads(normal, d_i, d_j, k_n, k_t, kappa_n, kappa_t, u_i, u_j)
+    return loads["axial"], loads["shear"], np.hypot(loads["torsion"], loads["bending"])

@@ -17,6 +17,7 @@ from scipy.sparse.csgraph import connected_components
 from amfe.model.bonds import Bonds, bond_springs, contact_geometry, find_pairs, validate_particles
 from amfe.errors import AmfeError
 from amfe.model.material import STEEL, Material
+from amfe.model.torus import check_box, find_periodic_pairs, spanning_images, winding_rank, wrap
 
 
 @dataclass
@@ -29,6 +30,9 @@ class Frame:
     k_n, k_t (M,) [force_scale / length_scale]; kappa_n, kappa_t (M,)
     [force_scale * length_scale]; n_input: particles in the input;
     n_capped: bonds whose a* was capped; length_scale [m]; force_scale [N].
+    A periodic frame (docs/model.md, section 9) also has box (3,) [length_scale]:
+    the periods, and shift (M,3) int: bond b joins i to the image of j at
+    x_j + shift_b * box; both are None otherwise.
     """
 
     centers: np.ndarray
@@ -44,6 +48,8 @@ class Frame:
     length_scale: float
     force_scale: float
     material: Material
+    box: np.ndarray = None
+    shift: np.ndarray = None
 
     @property
     def n_particles(self):
@@ -82,7 +88,27 @@ def largest_component(n, i, j):
     return labels == np.argmax(sizes)
 
 
-def build_frame(centers, radii, material: Material = STEEL, a_star_cap=None, nondimensional=True):
+def _check_spans_volume(x, mean_radius):
+    """AmfeError when the centres x (n,3) lie within one mean radius of a plane or a line.
+
+    The axis-aligned case is caught just before (its message names the axis);
+    this catches tilted sheets and chains (a straight chain along (1, 1, 1)),
+    whose KUBC problem is singular, before any solve. The thinnest direction
+    is the principal axis of least spread.
+    """
+    d = x - x.mean(axis=0)
+    normal = np.linalg.eigh(d.T @ d)[1][:, 0]
+    width = float(np.ptp(d @ normal)) / mean_radius
+    if width < 1.0:
+        raise AmfeError(
+            f"the load-carrying particles form a sheet or a line: their centres span only "
+            f"{width:.3g} mean radii across the direction ({normal[0]:.3f}, {normal[1]:.3f}, "
+            f"{normal[2]:.3f}), less than one radius, so they span no volume to average over; "
+            "a bed needs at least two particle layers in every direction")
+
+
+def build_frame(centers, radii, material: Material = STEEL, a_star_cap=None, nondimensional=True,
+                box=None):
     """The largest connected, non-dimensionalised frame of a bed.
 
     centers (N,3) [m], radii (N,) [m]. Raises AmfeError for invalid particles,
@@ -90,7 +116,10 @@ def build_frame(centers, radii, material: Material = STEEL, a_star_cap=None, non
     span a volume, or (unless ``a_star_cap`` is given) bonds at or past the
     critical a* (see :func:`amfe.model.bonds.bond_springs`).
     ``nondimensional=False`` keeps SI units (length_scale = force_scale = 1):
-    only for showing what the scaling buys.
+    only for showing what the scaling buys. ``box`` (3,) [m]: the bed is
+    periodic with these periods (docs/model.md, section 9): bonds by minimum
+    image, the largest component on the torus, which must wrap round it in x,
+    y and z (else it carries no macro-stress along some axis: an error).
     """
     centers, radii = validate_particles(centers, radii)
     n_input = centers.shape[0]
@@ -98,11 +127,17 @@ def build_frame(centers, radii, material: Material = STEEL, a_star_cap=None, non
     x = centers / length
     r = radii / length
 
-    i, j = find_pairs(x, r)
+    if box is None:
+        i, j = find_pairs(x, r)
+        shift = L = None
+    else:
+        L = check_box(box, radii) / length
+        x = wrap(x, L)
+        i, j, shift = find_periodic_pairs(x, r, L)
     if i.size == 0:
         raise AmfeError(f"the bed has no bonds: none of its {n_input} particles overlap "
                         "(bonded means |x_j - x_i| < R_i + R_j)")
-    contact_geometry(x, r, i, j)  # degenerate contacts are errors anywhere in the bed
+    contact_geometry(x, r, i, j, None if box is None else shift * L)  # errors anywhere in the bed
     keep = largest_component(n_input, i, j)
     kept = np.flatnonzero(keep)
     if kept.size < 4:
@@ -115,6 +150,9 @@ def build_frame(centers, radii, material: Material = STEEL, a_star_cap=None, non
     bi, bj = new_index[i[both]], new_index[j[both]]
     lo, hi = np.minimum(bi, bj), np.maximum(bi, bj)
     order = np.lexsort((hi, lo))
+    if box is not None:  # a reversed bond joins the image at -shift
+        shift = np.where((bi > bj)[:, None], -shift[both], shift[both])[order]
+        _check_winding(kept.size, lo[order], hi[order], shift)
     x, r = x[kept], r[kept]
     extent = (x.max(axis=0) - x.min(axis=0)) / r.mean()  # in mean radii
     if extent.min() < 1.0:
@@ -124,10 +162,20 @@ def build_frame(centers, radii, material: Material = STEEL, a_star_cap=None, non
             f"{extent.min():.3g} mean radii along {axis}, less than one radius, so they span "
             "no volume to average over; a bed needs at least two particle layers in every "
             "direction")
-    bonds = contact_geometry(x, r, lo[order], hi[order])
+    _check_spans_volume(x, r.mean())
+    bonds = contact_geometry(x, r, lo[order], hi[order], None if box is None else shift * L)
     E = 1.0 if nondimensional else material.E
     unit = Material(E=E, nu=material.nu, psi=material.psi, density=material.density)
     k_n, k_t, kappa_n, kappa_t, n_capped = bond_springs(bonds, unit, a_star_cap, labels=kept)
     return Frame(centers=x, radii=r, kept=kept, bonds=bonds, k_n=k_n, k_t=k_t,
                  kappa_n=kappa_n, kappa_t=kappa_t, n_input=n_input, n_capped=n_capped,
-                 length_scale=length, force_scale=material.E / E * length**2, material=material)
+                 length_scale=length, force_scale=material.E / E * length**2, material=material,
+                 box=L, shift=shift)
+
+
+def _check_winding(n, i, j, shift):
+    rank = winding_rank(spanning_images(n, i, j, shift)[1])
+    if rank < 3:
+        raise AmfeError(f"the load-carrying cluster of the periodic bed wraps round the torus in "
+                        f"only {rank} of 3 independent directions: it does not percolate, so it "
+                        "carries no macro-stress along the others; use a denser bed")

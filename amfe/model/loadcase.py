@@ -21,7 +21,12 @@ class Group:
     null_modes: (m, n, 6) rigid modes the constraints leave free (the
     operator is then singular and CG works in their orthogonal complement;
     the right-hand sides are consistent because K annihilates them);
-    guesses: optional list of (n,6) initial guesses, one per case.
+    guesses: optional list of (n,6) initial guesses, one per case;
+    forces: optional list of (n,6) applied nodal forces and couples, one per
+    case, added to the right-hand side (entries on ``fixed`` DOFs are
+    ignored: a prescribed DOF takes its reaction instead). SUBC's boundary
+    loads and the periodic condition's crossing-bond loads are forces
+    (docs/model.md, section 9).
     """
 
     fixed: np.ndarray
@@ -29,6 +34,7 @@ class Group:
     names: list
     null_modes: np.ndarray = field(default=None)
     guesses: list = field(default=None)
+    forces: list = field(default=None)
 
 
 def rigid_body_modes(points, center=None):

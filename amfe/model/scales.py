@@ -80,6 +80,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from amfe.errors import AmfeError
+from amfe.model.bed import check_seed
 from amfe.model.scanpath import ScanPath
 
 PARAM_STREAM = 0x5CA1E  # second word of the parameter stream's SeedSequence
@@ -158,9 +159,7 @@ def get_scale(scale):
 
 
 def _check_seed(name, seed):
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise AmfeError(f"{name} must be a non-negative integer, got {seed!r}")
-    return int(seed)
+    return check_seed(seed, name)
 
 
 def record_seed(dataset_seed, k):

@@ -1,0 +1,62 @@
+"""Option value types for the subcommands' parsers: a bad value is refused while parsing.
+
+Each is an argparse ``type``: it returns the converted value or raises
+argparse.ArgumentTypeError, which argparse reports as one line under the
+subcommand's usage (exit 2) before any work starts. ``float("nan")`` and
+``float("inf")`` parse as floats, so every float type here also checks
+finiteness: a NaN threshold would otherwise never compare true.
+"""
+import argparse
+import math
+
+MAX_THREADS = 1024   # more threads than this is a typo (torch would try to start them)
+
+
+def _number(text, kind):
+    """``kind(text)`` (int or float, a float finite), else ArgumentTypeError."""
+    try:
+        value = kind(text)
+    except (TypeError, ValueError):
+        raise argparse.ArgumentTypeError(
+            f"expected {'an integer' if kind is int else 'a number'}, got {text!r}") from None
+    if kind is float and not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"must be a finite number, got {text}")
+    return value
+
+
+def _checked(kind, low, above=False, high=None):
+    """An argparse type: a number of ``kind`` >= low (> low with ``above``), <= high if given."""
+    noun = "a whole number" if kind is int else "a finite number"
+    words = f"{noun} {'>' if above else '>='} {low:g}"
+
+    def parse(text):
+        value = _number(text, kind)
+        if value < low or (above and value == low):
+            raise argparse.ArgumentTypeError(f"must be {words}, got {text}")
+        if high is not None and value > high:
+            raise argparse.ArgumentTypeError(f"must be at most {high:g}, got {text}")
+        return value
+    parse.__name__ = f"{kind.__name__} {words}"
+    return parse
+
+
+positive_int = _checked(int, 1)                   # sizes, counts
+nonnegative_int = _checked(int, 0)                # worker counts, limits where 0 means none
+thread_count = _checked(int, 1, high=MAX_THREADS)
+nonnegative_float = _checked(float, 0.0)          # thresholds, weight decay
+positive_float = _checked(float, 0.0, above=True)  # learning rates, widths
+
+
+def finite_float(text):
+    """A finite float (not nan, inf)."""
+    return _number(text, float)
+
+
+def add_solver_args(p):
+    """--solver and --rtol, as homogenize and dataset take them (amfe.solvers.choice)."""
+    p.add_argument("--solver", choices=["auto", "gamg", "cholesky"], default="auto",
+                   help="auto (default): Cholesky on one rank where its predicted fill is low, "
+                        "else CG + GAMG; the constants stay within 1e-5 of a tight reference")
+    p.add_argument("--rtol", type=float, default=None,
+                   help="GAMG's relative tolerance (default 1e-8 with --solver gamg, 1e-7 "
+                        "when auto picks GAMG)")

@@ -1,0 +1,109 @@
+"""One data-set record: a bed regenerated from its seed, its images, and its label.
+
+:func:`make_record` is what every group of ranks of ``amfe dataset``
+(:mod:`amfe.dataset.driver`) computes for record k; the record layout is
+:mod:`amfe.io.datasetparts`'s.
+"""
+import json
+import os
+import time
+import traceback
+
+import numpy as np
+
+from amfe.dataset.upgrade import record_bond_image
+from amfe.errors import AmfeError
+from amfe.io.datasetparts import STATUS_FAILED, STATUS_OK, empty_record
+from amfe.model.bed import generate_bed
+from amfe.model.scales import PARAM_NAMES, get_scale, param_record, record_seed, sample_bed_params
+from amfe.solvers.ksp import DEFAULT_RTOL
+from amfe.vocab import LABEL_NAMES
+
+
+def _reason(exc):
+    """A failed record's reason: the AmfeError's message, else "Type: message (at file:line)"."""
+    if isinstance(exc, AmfeError):
+        msg = str(exc) or "AmfeError"
+    else:
+        msg = f"{type(exc).__name__}: {exc}"
+        tb = traceback.extract_tb(exc.__traceback__)
+        if tb:
+            msg += f" (at {os.path.basename(tb[-1].filename)}:{tb[-1].lineno} in {tb[-1].name})"
+    return msg[:1000]
+
+
+def _agree(group, err):
+    """The first error any rank of the group saw (None if none), the same on every rank."""
+    if group.size == 1:
+        return err
+    for e in group.allgather(err):
+        if e is not None:
+            return e
+    return None
+
+
+def make_record(k, dataset_seed, scale, group, rtol=DEFAULT_RTOL, pixelate=None, solver="gamg",
+                bc="kubc"):
+    """Record k (a dict, see amfe.io.datasetfile), computed collectively on ``group``.
+
+    Every rank of ``group`` calls it with the same arguments; the record is
+    complete on the group's rank 0 (the others hold no image). Never raises
+    for a bad bed or a failed solve: the record says status failed and why.
+    """
+    from amfe.solvers.driver import homogenize_bed
+
+    sc = get_scale(scale)
+    bed_seed = record_seed(dataset_seed, k)
+    rec = empty_record(k, bed_seed, sc.image_shape)
+    err = None
+    t0 = time.perf_counter()
+    try:
+        params = sample_bed_params(sc, bed_seed)
+        rec["params"] = np.array([param_record(params)[n] for n in PARAM_NAMES])
+        bed = generate_bed(**params)
+        rec["n_particles"] = bed.n
+        t1 = time.perf_counter()
+        rec["seconds"][0] = t1 - t0
+        if group.rank == 0:
+            image = np.asarray(pixelate(bed, cell=sc.cell, layer_thickness=sc.layer_thickness,
+                                        box=((0.0, 0.0, 0.0), sc.size),
+                                        spacing=sc.image_spacing), np.float32)
+            if image.shape != sc.image_shape:
+                raise AmfeError(f"pixelate gave an image of shape {image.shape}, expected "
+                                f"{sc.image_shape}")
+            rec["image"] = image
+            rec["bond_image"] = record_bond_image(bed, sc)
+            rec["density"] = float(image.mean(dtype=np.float64))
+            rec["seconds"][1] = time.perf_counter() - t1
+    except Exception as exc:  # noqa: BLE001 - recorded, not fatal
+        err = _reason(exc)
+    err = _agree(group, err)
+    if err is None:
+        t2 = time.perf_counter()
+        try:
+            res = homogenize_bed(bed.centers, bed.radii, bed.material(), comm=group, rtol=rtol,
+                                 solver=solver, bc=bc)
+        except Exception as exc:  # noqa: BLE001
+            err = _reason(exc)
+        rec["seconds"][2] = time.perf_counter() - t2
+        err = _agree(group, err)
+    if err is not None:
+        rec["status"], rec["reason"] = STATUS_FAILED, err
+        return rec
+    props = res["properties"]
+    rec.update(status=STATUS_OK, reason="",
+               labels=np.array([props[n] for n in LABEL_NAMES]),
+               C=np.array(res["C"]), iterations=np.array(res["solver"]["iterations"], np.int32),
+               n_removed=int(res["n_removed"]), n_bonds=int(res["n_bonds"]),
+               volume=float(res["volume"]),
+               solver=json.dumps(res["solver"], default=float))
+    return rec
+
+
+def load_pixelate():
+    try:
+        from amfe.dataset.images import pixelate
+    except ImportError as exc:
+        raise AmfeError(f"amfe.dataset.images.pixelate is not available ({exc}); the images of a "
+                        "data set need it") from None
+    return pixelate

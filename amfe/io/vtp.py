@@ -1,0 +1,281 @@
+"""ParaView files of the load cases: ``case_<name>.vtp`` each and ``cases.pvd`` (docs/viewing.md).
+
+Why PolyData, not an UnstructuredGrid (``.vtu``): ParaView 5.11's Tube filter
+refuses an UnstructuredGrid ("requires vtkPolyData") and works on these files
+directly, as do Glyph and Warp By Vector (tried in ParaView, docs/viewing.md).
+
+Layout of ``case_<name>.vtp`` (SI; the unit ends each array's name)
+------------------------------------------------------------------
+Points: the kept (load-carrying) particles' centres [m] in input order. Cells:
+one 2-point line per bond, running from particle i to particle j (on a
+periodic frame, not the bonds across a face: they would span the box). No vertex
+cells: every kept particle has a bond, and vertex cells would make every bond
+array carry fake values on them (zeros that spoil colour ranges).
+
+Point data (:data:`POINT_ARRAYS`): ``particle_id``, ``radius_m``, ``boundary``,
+``displacement_m`` (the active vectors: Warp By Vector picks it), ``rotation_rad``.
+Cell data (:data:`CELL_ARRAYS`): ``i``, ``j`` (input ids), ``a_star``,
+``force_i_N``, ``moment_i_Nm``, ``axial_force_N``, ``shear_force_N``,
+``torsion_Nm``, ``bending_moment_Nm``.
+Field data: ``case_name``, ``case_label`` (e.g. "yz: gamma_yz = 1"),
+``macro_strain`` (9, row-major), ``macro_strain_voigt`` (6, engineering shear)
+or, for SUBC's unit stresses, ``macro_stress_Pa`` (9), ``bonds_not_drawn``,
+``warp_factor``, ``units`` and ``descriptions`` (one "array: ..." line per
+array), ``end_convention``, ``bc``, ``amfe_version`` and what the caller adds.
+
+The collection ``cases.pvd`` lists the files with timestep = case index.
+ParaView ignores its ``name`` attribute and shows "Time: k": the file names,
+the ``case_label`` field and the shipped view script's annotation say which
+case is which.
+
+Atomicity: everything is checked before a file is touched. An old
+``cases.pvd`` is removed first, each case is written atomically
+(:func:`amfe.io.atomic.atomic_write`), ``cases.pvd`` last, and case files of
+an earlier, different set are removed. So ``cases.pvd`` exists if and only if
+the set beside it is complete.
+"""
+import os
+import re
+import xml.etree.ElementTree as ET
+from xml.sax.saxutils import quoteattr
+
+import numpy as np
+
+from amfe.errors import AmfeError
+from amfe.io.atomic import atomic_write, fsync_dir
+from amfe.io.vtkxml import polydata_xml, read_polydata
+from amfe.version import __version__
+
+PVD_NAME = "cases.pvd"
+WARP_SHARE = 0.05
+"""Largest displacement drawn, as a share of the largest side of the points' box."""
+
+POINT_ARRAYS = {
+    "particle_id": ("1", "index of the particle in the input bed file"),
+    "radius_m": ("m", "particle radius"),
+    "boundary": ("1", "1: translations prescribed in this load case (boundary particle)"),
+    "displacement_m": ("m", "particle displacement per unit macro-strain"),
+    "rotation_rad": ("rad", "particle rotation (axial vector) per unit macro-strain"),
+}
+CELL_ARRAYS = {
+    "i": ("1", "input id of the bond's first particle (the line runs i -> j)"),
+    "j": ("1", "input id of the bond's second particle"),
+    "a_star": ("1", "contact radius over effective radius, a / R_eff (geometric)"),
+    "force_i_N": ("N", "force of the bond on particle i (on j: the opposite)"),
+    "moment_i_Nm": ("N m", "moment of the bond on particle i about i's centre"),
+    "axial_force_N": ("N", "normal spring force, positive in tension"),
+    "shear_force_N": ("N", "magnitude of the shear force at the contact point"),
+    "torsion_Nm": ("N m", "torsion couple on i about e = (x_j - x_i) / L, signed"),
+    "bending_moment_Nm": ("N m", "magnitude of the bending couple"),
+}
+END_CONVENTION = ("force_i_N and moment_i_Nm act on particle i (cell array i); particle j "
+                  "gets -force_i_N and L e x force_i_N - moment_i_Nm about its own centre, "
+                  "with e = (x_j - x_i) / L and L = |x_j - x_i|")
+_SAFE_NAME = re.compile(r"^[A-Za-z0-9_\-]+$")
+_OURS = re.compile(r"^case_[A-Za-z0-9_\-]+\.vtp$|^case_\d+_[A-Za-z0-9_\-]+\.vtu$")
+_VOIGT = (("eps_xx", 0, 0), ("eps_yy", 1, 1), ("eps_zz", 2, 2), ("gamma_yz", 1, 2),
+          ("gamma_xz", 0, 2), ("gamma_xy", 0, 1))
+
+
+def case_filename(name):
+    """File name of the load case called ``name``: ``case_<name>.vtp``."""
+    return f"case_{name}.vtp"
+
+
+def warp_factor(points, displacement, share=WARP_SHARE):
+    """Scale that draws the largest displacement as ``share`` of the box's largest side.
+
+    Parameters
+    ----------
+    points : ndarray (N, 3) [m]
+    displacement : ndarray (N, 3) [m]
+    share : float
+
+    Returns
+    -------
+    float
+        The factor; 1.0 when nothing moves or the points span nothing.
+    """
+    if len(points) == 0:
+        return 1.0
+    side = float(np.ptp(points, axis=0).max())
+    umax = float(np.sqrt(np.einsum("ij,ij->i", displacement, displacement).max()))
+    return share * side / umax if umax > 0 and side > 0 else 1.0
+
+
+def voigt_of(eps):
+    """Engineering Voigt vector (6,) of a strain tensor (3, 3)."""
+    return np.array([(1.0 if i == j else 2.0) * eps[i, j] for _, i, j in _VOIGT])
+
+
+def case_label(name, eps=None, sigma=None):
+    """``"yz: gamma_yz = 1"``: the case's name and its non-zero Voigt strains.
+
+    With ``sigma`` [Pa] instead of ``eps``, its stresses: ``"yz: sigma_yz = 2.1e+11 Pa"``.
+    """
+    if eps is None:
+        comps = [f"sigma_{sym[-2:]} = {sigma[i, j]:.3g} Pa" for sym, i, j in _VOIGT
+                 if sigma[i, j] != 0]
+    else:
+        comps = [f"{sym} = {v:g}" for (sym, _, _), v in zip(_VOIGT, voigt_of(eps)) if v != 0]
+    return f"{name}: " + (", ".join(comps) if comps else "no load")
+
+
+def write_fields_vtp(directory, fields, field_data=None):
+    """Write one ``case_<name>.vtp`` per load case of ``fields`` and ``cases.pvd``.
+
+    Parameters
+    ----------
+    directory : str or path-like
+        Created (with parents) if missing.
+    fields : amfe.io.fields.Fields
+        SI arrays; every value must be finite.
+    field_data : dict, optional
+        More field data for every file: str, list of str, or numbers.
+
+    Returns
+    -------
+    list of str
+        The case files' paths in case order, then the ``.pvd``'s.
+
+    Raises
+    ------
+    AmfeError
+        Bad names, shapes or non-finite values (nothing is touched then), or
+        a failed write (then no ``cases.pvd`` is left).
+    """
+    names = _check(fields)
+    arrays = {**POINT_ARRAYS, **CELL_ARRAYS}
+    stress = fields.macro_strain is None
+    # A periodic frame's bonds across a face would span the box: left out.
+    drawn = np.ones(len(fields.bonds), bool) if fields.shift is None else \
+        ~np.any(np.asarray(fields.shift) != 0, axis=1)
+    common = {"units": [f"{k}: {u}" for k, (u, _) in arrays.items()],
+              "descriptions": [f"{k}: {d}" for k, (_, d) in arrays.items()],
+              "end_convention": END_CONVENTION, "bc": fields.bc, "amfe_version": __version__,
+              "per_unit_strain": "displacements, rotations and loads are per unit "
+                                 + ("macro-stress of E (the particles' modulus)" if stress
+                                    else "macro-strain"),
+              "bonds_not_drawn": np.array([int((~drawn).sum())])}
+    common.update(field_data or {})
+    pid = np.asarray(fields.particle_id, dtype=np.int64)
+    bonds = np.asarray(fields.bonds, dtype=np.int64)[drawn]
+    static_cells = {"i": pid[bonds[:, 0]], "j": pid[bonds[:, 1]],
+                    "a_star": np.asarray(fields.a_star, dtype=float)[drawn]}
+
+    def blob(k):
+        disp = np.asarray(fields.displacement[k], dtype=float)
+        if stress:
+            sig = np.asarray(fields.macro_stress[k], dtype=float)
+            load = {"case_label": case_label(names[k], sigma=sig),
+                    "macro_stress_Pa": sig.reshape(9)}
+        else:
+            eps = np.asarray(fields.macro_strain[k], dtype=float)
+            load = {"case_label": case_label(names[k], eps), "macro_strain": eps.reshape(9),
+                    "macro_strain_voigt": voigt_of(eps)}
+        fd = {"case_name": names[k], **load,
+              "warp_factor": np.array([warp_factor(fields.centers, disp)]), **common}
+        pd = {"particle_id": pid, "radius_m": np.asarray(fields.radii, dtype=float),
+              "boundary": np.asarray(fields.boundary[k]).astype(np.uint8),
+              "displacement_m": disp, "rotation_rad": np.asarray(fields.rotation[k], float)}
+        cd = {"force_i_N": fields.force[k], "moment_i_Nm": fields.moment[k],
+              "axial_force_N": fields.axial_force[k], "shear_force_N": fields.shear_force[k],
+              "torsion_Nm": fields.torsion[k], "bending_moment_Nm": fields.bending_moment[k]}
+        cd = {**static_cells, **{key: np.asarray(v)[drawn] for key, v in cd.items()}}
+        return polydata_xml(fields.centers, bonds, pd, cd, fd, vectors="displacement_m")
+
+    return _write_set(os.fspath(directory), blob, names)
+
+
+def _check(f):
+    """Validate ``f`` before anything is written; returns the case names."""
+    names = list(f.case_names)
+    if not names or len(set(names)) != len(names) or \
+            not all(isinstance(s, str) and _SAFE_NAME.match(s) for s in names):
+        raise AmfeError(f"case names must be distinct, non-empty strings of letters, digits, "
+                        f"'_' and '-'; got {names}")
+    n, m, k = len(f.particle_id), len(f.bonds), len(names)
+    load = "macro_strain" if f.macro_strain is not None else "macro_stress"
+    shapes = {"centers": (n, 3), "radii": (n,), "bonds": (m, 2), "a_star": (m,),
+              "boundary": (k, n), load: (k, 3, 3), "displacement": (k, n, 3),
+              "rotation": (k, n, 3), "force": (k, m, 3), "moment": (k, m, 3),
+              "axial_force": (k, m), "shear_force": (k, m), "torsion": (k, m),
+              "bending_moment": (k, m)}
+    if f.shift is not None:
+        shapes["shift"] = (m, 3)
+    for key, shape in shapes.items():
+        arr = np.asarray(getattr(f, key))
+        if arr.shape != shape:
+            raise AmfeError(f"fields.{key} has shape {arr.shape}, {shape} expected "
+                            f"({n} particles, {m} bonds, {k} cases)")
+        if arr.dtype.kind == "f" and not np.all(np.isfinite(arr)):
+            raise AmfeError(f"fields.{key} has non-finite values; nothing was written")
+    pid = np.asarray(f.particle_id)
+    if pid.dtype.kind not in "iu" or (n and pid.min() < 0) or np.unique(pid).size != n:
+        raise AmfeError("fields.particle_id must hold distinct non-negative integers")
+    bonds = np.asarray(f.bonds)
+    if m and (bonds.min() < 0 or bonds.max() >= n or np.any(bonds[:, 0] == bonds[:, 1])):
+        raise AmfeError(f"fields.bonds must join two different particles of 0..{n - 1}")
+    return names
+
+
+def _write_set(directory, blob, names):
+    try:
+        os.makedirs(directory, exist_ok=True)
+    except OSError as exc:
+        raise AmfeError(f"cannot create the output directory {directory}: {exc}") from None
+    pvd = os.path.join(directory, PVD_NAME)
+    final = [os.path.join(directory, case_filename(nm)) for nm in names]
+    try:
+        if os.path.lexists(pvd):                 # no stale collection outlives a failed write
+            os.remove(pvd)
+        for k, path in enumerate(final):
+            data = blob(k)
+            atomic_write(path, lambda fh: fh.write(data))
+        text = _pvd_text([os.path.basename(p) for p in final], names).encode()
+        atomic_write(pvd, lambda fh: fh.write(text))
+    except OSError as exc:
+        raise AmfeError(f"writing the load-case files in {directory} failed ({exc}); no "
+                        f"{PVD_NAME} was left, so no partial set looks complete") from None
+    keep = {os.path.basename(p) for p in final}
+    for entry in os.listdir(directory):          # an earlier, different set: orphans
+        if _OURS.match(entry) and entry not in keep:
+            try:
+                os.remove(os.path.join(directory, entry))
+            except OSError:
+                pass
+    fsync_dir(directory)
+    return final + [pvd]
+
+
+def _pvd_text(files, names):
+    lines = ['<?xml version="1.0"?>',
+             "<!-- amfe load cases: timestep k = load case k; ParaView shows 'Time: k', the "
+             "field data case_label names the case. SI units, per unit macro-strain -->",
+             '<VTKFile type="Collection" version="0.1" byte_order="LittleEndian">',
+             "  <Collection>"]
+    for k, (f, nm) in enumerate(zip(files, names)):
+        lines.append(f'    <DataSet timestep="{k}" group="" part="0" file={quoteattr(f)} '
+                     f'name={quoteattr(nm)}/>')
+    lines += ["  </Collection>", "</VTKFile>", ""]
+    return "\n".join(lines)
+
+
+def read_collection(path):
+    """The cases of a ``.pvd``: ``[(name, absolute path of its file), ...]`` in order.
+
+    Raises AmfeError for a file that is not a readable collection.
+    """
+    path = os.fspath(path)
+    try:
+        root = ET.parse(path).getroot()
+    except (OSError, ET.ParseError) as exc:
+        raise AmfeError(f"cannot read the collection {path}: {exc}") from None
+    base = os.path.dirname(os.path.abspath(path))
+    return [(ds.get("name") or f"t{ds.get('timestep')}", os.path.join(base, ds.get("file", "")))
+            for ds in root.iter("DataSet")]
+
+
+def read_case(path):
+    """One case file as numpy arrays (see :func:`amfe.io.vtkxml.read_polydata`)."""
+    return read_polydata(os.fspath(path))

@@ -1,0 +1,43 @@
+#!/usr/bin/env bash
+# The surrogate's data sets (docs/datasets.md, "The large data set"): 1 000 new held-out
+# `small` beds (data-set seed 4), then the training set (seed 3, 20 000 beds by default).
+# Survives a kill: run the same command again and it resumes where it stopped.
+#
+#   bash run/make_surrogate_data.sh [DIR] [TRAIN_COUNT]      (default DIR: ../data)
+#
+# After a kill the data-set lock is stale (amfe refuses to break it: docs/datasets.md,
+# "One writer per file"). This script waits for the killed run's ranks to end and then
+# removes a lock that amfe reports stale, once per start, saying so.
+set -uo pipefail
+root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+dir="${1:-$root/../data}"
+train="${2:-20000}"
+ranks="${AMFE_RANKS:-$(nproc)}"
+bash "$root/run/setup.sh" >/dev/null || exit 1
+source "$root/run/env.sh"
+mkdir -p "$dir"
+
+make() {  # make OUTPUT COUNT SEED
+    local out="$1" count="$2" seed="$3" log status
+    for attempt in 1 2; do
+        log="$(mktemp)"
+        mpirun -n "$ranks" "$root/.venv/bin/amfe" dataset -o "$out" --count "$count" \
+            --seed "$seed" --scale small --solver auto 2> >(tee "$log" >&2)
+        status=$?
+        sleep 1    # let tee write the last lines
+        if [ $status -eq 0 ]; then rm -f "$log"; return 0; fi
+        if [ $attempt -eq 1 ] && grep -q "stale lock" "$log"; then
+            sleep 10   # the ranks of a killed mpirun can outlive it by seconds
+            echo "make_surrogate_data: removing the stale lock $out.lock (its run has ended)" >&2
+            rm -f "$out.lock"
+        else
+            rm -f "$log"; return $status
+        fi
+        rm -f "$log"
+    done
+}
+
+t0=$(date +%s)
+make "$dir/heldout_seed4_1000.h5" 1000 4 || exit $?
+make "$dir/train_seed3_${train}.h5" "$train" 3 || exit $?
+echo "make_surrogate_data: done in $(( $(date +%s) - t0 )) s on $(nproc) cores ($(uname -n))"
