@@ -15,6 +15,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
 from amfe.io.atomic import atomic_write  # noqa: E402
+from amfe.training.plots import plain_log_axis, spread_labels  # noqa: E402  (no torch)
 
 import report_measure as M  # noqa: E402
 
@@ -37,16 +38,25 @@ def _save(fig, path):
     return path
 
 
-def _loglog(ax, xlabel, ylabel, title):
-    """Log-log axes with labels, grid and legend."""
+def _loglog(ax, xlabel, ylabel, title, handles=None, legend_title=None):
+    """Log-log axes with labels, grid and legend (``handles``: extra legend keys)."""
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
     ax.set_title(title)
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=7)
+    ax.legend(handles=ax.get_legend_handles_labels()[0] + (handles or []), fontsize=7,
+              title=legend_title, title_fontsize=7)
 
+
+def _key(label, **style):
+    """A legend entry with no data: what a marker or line style means."""
+    from matplotlib.lines import Line2D
+    return Line2D([], [], label=label, **style)
+
+
+RTOL_LABELS = "numbers at the points: solver rtol"
 
 def _s(x):
     """Seconds for a table: 3 significant digits, minutes/hours when long."""
@@ -74,15 +84,16 @@ def section_accuracy(acc, out, md):
             ax.plot(t, e, "s", ms=9, label=m)
         else:
             ax.plot(t, e, "o-", label=m)
-            for r in rs:
-                ax.annotate(f"{r['rtol']:.0e}", (r["seconds"], max(r["error"], FLOOR)),
-                            fontsize=6, xytext=(3, 3), textcoords="offset points")
     front = M.pareto_front(acc["runs"])
     ax.plot([r["seconds"] for r in front], [max(r["error"], FLOOR) for r in front], "k--",
             lw=0.8, label="Pareto front")
     _loglog(ax, "preconditioner/factor set-up + six solves [s]",
             "max relative error of the nine constants [-]",
-            f"{acc['n_particles']} particles, {acc['n_bonds']} bonds (labels: rtol)")
+            f"{acc['n_particles']} particles, {acc['n_bonds']} bonds", legend_title=RTOL_LABELS)
+    color = {ln.get_label(): ln.get_color() for ln in ax.lines}
+    it = [r for r in acc["runs"] if r["rtol"] is not None]   # labels last: axes limits fixed
+    spread_labels(ax, [(r["seconds"], max(r["error"], FLOOR)) for r in it],
+                  [f"{r['rtol']:.0e}" for r in it], [color[r["method"]] for r in it], fontsize=6)
     paths = [_save(fig, os.path.join(out, "report_pareto.png"))]
 
     md += ["## 1. Solver accuracy against cost", "",
@@ -179,7 +190,8 @@ def section_scaling(rows, out, md):
     a1.set_yscale("log")
     a1.set_xlabel("particles")
     a1.set_ylabel("time [s]")
-    a1.set_title(f"phases ({ranks[0]} rank: lines; total of {ranks[-1]} ranks: dashed)")
+    a1.set_title(f"phases on {ranks[0]} rank; total on "
+                 + " and ".join(map(str, ranks)) + " ranks")
     a1.grid(True, which="both", alpha=0.3)
     a1.legend(fontsize=7)
     a2.set_xscale("log")
@@ -239,10 +251,11 @@ def section_rve(rve, out, md):
         seeds = [r for r in rve["rows"]]
         a1.plot([r["side_mm"] for r in seeds], [r["properties"][k] / last for r in seeds], ".",
                 color=a1.lines[-1].get_color(), alpha=0.4)
+    a1.plot([], [], ".", color="grey", alpha=0.6, label="single seeds (colour: the constant)")
     a1.axhspan(0.99, 1.01, color="grey", alpha=0.2, label="+/- 1 % of the largest bed")
     a1.set_xlabel("base side [mm]")
     a1.set_ylabel("constant / its value on the largest bed [-]")
-    a1.set_title("constants against bed size (dots: single seeds)")
+    a1.set_title("constants against bed size: mean over seeds")
     a1.grid(True, alpha=0.3)
     a1.legend(fontsize=7)
     a2.loglog([t["n_particles"] for t in table], [t["seconds"] for t in table], "o-")
@@ -280,7 +293,8 @@ def section_rve(rve, out, md):
                   "the largest bed is the reference, not the infinite bed).")
     else:
         md.append("**No size below the largest is within 1 % of it:** the constants still "
-                  "drift at the sizes measured (KUBC stiffens small beds, docs/model.md, section 5a).")
+                  "drift at the sizes measured (KUBC stiffens small beds, "
+                  "[docs/model.md](model.md), section 5a).")
     ex = M.rve_extrapolate(table)
     rve["extrapolation"] = ex
     if ex:
@@ -314,17 +328,18 @@ def section_surrogate(sur, out, md):
     s = sur["solver"]
     loose = [r for r in s if r["mean_error"] > 0]  # rtol 1e-8 is the labels' own solve: 0
     ax.plot([r["seconds"] for r in loose], [100 * r["mean_error"] for r in loose], "ks-",
-            label="PETSc CG + GAMG (labels: rtol)")
-    for r in loose:
-        ax.annotate(f"{r['rtol']:.0e}", (r["seconds"], 100 * r["mean_error"]),
-                    fontsize=7, xytext=(3, 3), textcoords="offset points")
+            label="PETSc CG + GAMG")
     for r in s:
         if r["mean_error"] == 0:
             ax.axvline(r["seconds"], color="k", ls=":", lw=1,
                        label=f"solver at rtol {r['rtol']:.0e} (how the labels were made)")
-    _loglog(ax, "time per bed on one core [s] (open circles: network + its images)",
-            "mean relative error over the six labels [%]",
-            f"held-out beds ({sur['n_test']} for the networks)")
+    keys = [_key("network alone (filled)", ls="none", marker="o", color="grey"),
+            _key("network + making its images", ls="none", marker="o", mfc="none", color="grey")]
+    _loglog(ax, "time per bed on one core [s]", "mean relative error over the six labels",
+            f"held-out beds ({sur['n_test']} for the networks)", keys, RTOL_LABELS)
+    plain_log_axis(ax.yaxis, " %")
+    spread_labels(ax, [(r["seconds"], 100 * r["mean_error"]) for r in loose],
+                  [f"{r['rtol']:.0e}" for r in loose], fontsize=7)
     paths = [_save(fig, os.path.join(out, "report_surrogate.png"))]
     md += ["## 4. Surrogate against solver", "",
            f"Held-out beds: `{sur['test']}` ({sur['n_test']} beds, a data-set seed no network "
