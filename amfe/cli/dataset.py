@@ -4,6 +4,7 @@
                              [--ranks-per-bed k] [--max-failed-share F]
     amfe dataset --check DATA.h5
     amfe dataset --add-bond-images DATA.h5
+    amfe dataset --prefix-of DATA.h5 -o FIRST.h5 [--count N]
 
 Record k holds the bed with seed record_seed(S, k) of the scale's
 distribution (amfe.model.scales), its image (amfe.dataset.images), the six labels and C
@@ -52,6 +53,10 @@ def register(sub):
     p.add_argument("--add-bond-images", metavar="DATA.h5",
                    help="add the bond-stiffness images (amfe.dataset.bondimage) to a data set made "
                         "before they existed; regenerates each bed from its seed, no solve")
+    p.add_argument("--prefix-of", metavar="DATA.h5",
+                   help="write the first --count records (default: all finished in a row) of a "
+                        "data set still being made (or killed) to -o, as that data set with "
+                        "--count would be; the run is not disturbed")
     p.set_defaults(func=run)
 
 
@@ -64,6 +69,8 @@ def run(args):
         if args.output or args.count is not None:
             raise AmfeError("--add-bond-images FILE upgrades a file; it takes no -o or --count")
         return _add_bond_images(args.add_bond_images, not args.no_progress)
+    if args.prefix_of:
+        return _prefix(args.prefix_of, args.output, args.count)
     if not args.output or args.count is None:
         raise AmfeError("give -o DATA.h5 and --count M (or --check DATA.h5)")
     from amfe.dataset.driver import run_dataset
@@ -104,6 +111,18 @@ def _add_bond_images(path, progress):
         return 0
     n = add_bond_images(path, progress=progress)
     print(f"amfe dataset: added /bond_images of {n} records to {path}")
+    return 0
+
+
+def _prefix(source, output, count):
+    from amfe.dataset.prefix import write_prefix
+
+    if not output:
+        raise AmfeError("--prefix-of DATA.h5 needs -o FIRST.h5, the file to write")
+    if _world_rank() != 0:
+        return 0
+    n = write_prefix(source, output, count)
+    print(f"amfe dataset: wrote records 0..{n - 1} of {source} to {output}")
     return 0
 
 

@@ -77,8 +77,14 @@ def _image_dataset(f, name, count, shape, data=None):
 
 # ---------------------------------------------------------------- merge
 
-def merge_parts(output, parts, params):
+def merge_parts(output, parts, params, first=None):
     """Merge the records 0..count-1 of ``parts`` into the HDF5 file ``output``; returns (data, attrs).
+
+    ``first``: merge only records 0..first-1, into a data set of ``first``
+    records, and keep the parts (a prefix of a running data set: what
+    ``amfe dataset --count first`` with the same seed would make; attribute
+    prefix_of names the source). ``params`` stay those of the run that wrote
+    the parts, against which every part is checked.
 
     Order, so that nothing good is lost: the file is written under a
     temporary name, checked (:func:`check_dataset`), renamed onto ``output``,
@@ -91,7 +97,7 @@ def merge_parts(output, parts, params):
     """
     import h5py
 
-    count = int(params["count"])
+    count = int(params["count"]) if first is None else int(first)
     sc = get_scale(params["scale"])
     missing = sorted(set(range(count)) - set(done_indices(parts, count)))
     if missing:
@@ -149,6 +155,8 @@ def merge_parts(output, parts, params):
         d["C"].attrs["units"] = "Pa"
         d["seconds"].attrs["columns"] = list(SECONDS_NAMES)
         f.attrs.update({k: v for k, v in params.items()})
+        if first is not None:
+            f.attrs.update({"count": count, "prefix_of": f"{parts} (count {params['count']})"})
         f.attrs.update({
             "label_names": list(LABEL_NAMES),
             "created": datetime.datetime.now(datetime.timezone.utc).isoformat(
@@ -171,7 +179,8 @@ def merge_parts(output, parts, params):
         checked.update(data=data, attrs=attrs)
 
     atomic_write_h5(output, write, check=check)
-    remove_parts(parts)
+    if first is None:
+        remove_parts(parts)
     return checked["data"], checked["attrs"]
 
 

@@ -1,0 +1,80 @@
+"""`amfe dataset --prefix-of`: the first records of a data set still being made.
+
+Record k is a pure function of (seed, k), so the first N records of a larger
+run must equal, bit for bit, what `amfe dataset --count N` makes directly; and
+the run's part files must be left exactly as they were.
+"""
+import os
+
+import numpy as np
+import pytest
+
+from amfe.cli import main
+from amfe.dataset.prefix import write_prefix
+from amfe.errors import AmfeError
+from amfe.io.datasetparts import part_path, parts_dir, run_params, write_params_json, write_part
+from amfe.model.scales import PARAM_NAMES
+from amfe.solvers.choice import GAMG_RTOL_AUTO
+
+from test_dataset import ROW_KEYS, read_rows
+from test_dataset_faults import tree
+
+SEED, BIG, FIRST = 11, 7, 3
+ARGS = ["--seed", str(SEED), "--scale", "tiny", "--no-progress", "--max-failed-share", "1"]
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    """A direct run of FIRST records, and a run of BIG records turned back into its parts."""
+    d = tmp_path_factory.mktemp("prefix")
+    direct, big = d / "direct.h5", d / "big.h5"
+    assert main(["dataset", "-o", str(direct), "--count", str(FIRST), *ARGS]) == 0
+    assert main(["dataset", "-o", str(big), "--count", str(BIG), *ARGS]) == 0
+    rows = read_rows(big)
+    running = d / "running.h5"       # as if still being made: parts, no merged file
+    parts = parts_dir(running)
+    os.makedirs(parts)
+    params = run_params("tiny", SEED, BIG, GAMG_RTOL_AUTO, "auto")
+    write_params_json(parts, params)
+    for k in range(BIG):
+        if k == FIRST + 1:           # a gap: records after it are not a prefix
+            continue
+        rec = {key: rows[key][k] for key in ROW_KEYS}
+        rec.update(image=rec.pop("images"), bond_image=rec.pop("bond_images"),
+                   seconds=np.zeros(3), solver="",
+                   params=np.array([rows["params"][n][k] for n in PARAM_NAMES]))
+        write_part(parts, rec, params)
+    return direct, big, running
+
+
+def test_prefix_equals_the_direct_run_and_leaves_the_parts(runs, tmp_path, capsys):
+    direct, big, running = runs
+    before = tree(parts_dir(running))
+    out = tmp_path / "first.h5"
+    assert main(["dataset", "--prefix-of", str(running), "-o", str(out),
+                 "--count", str(FIRST)]) == 0
+    assert f"records 0..{FIRST - 1}" in capsys.readouterr().out
+    a, b = read_rows(out), read_rows(direct)
+    for key in ROW_KEYS:
+        assert np.array_equal(a[key], b[key], equal_nan=a[key].dtype.kind == "f"), key
+    assert a["attrs"]["count"] == FIRST and a["attrs"]["seed"] == SEED
+    assert "count 7" in a["attrs"]["prefix_of"]
+    assert tree(parts_dir(running)) == before                     # the run is not disturbed
+    # default count: every record finished in a row (0..FIRST; FIRST + 1 is missing)
+    assert write_prefix(running, tmp_path / "all.h5") == FIRST + 1
+
+
+def test_prefix_refuses_what_it_cannot_give(runs, tmp_path, capsys):
+    direct, big, running = runs
+    with pytest.raises(AmfeError, match=r"only records 0..3 .* in a row \(4\)"):
+        write_prefix(running, tmp_path / "x.h5", FIRST + 2)
+    with pytest.raises(AmfeError, match="is finished .*--max-train"):
+        write_prefix(big, tmp_path / "x.h5")
+    with pytest.raises(AmfeError, match="no data set being made"):
+        write_prefix(tmp_path / "nothing.h5", tmp_path / "x.h5")
+    assert main(["dataset", "--prefix-of", str(running)]) == 2
+    assert "needs -o FIRST.h5" in capsys.readouterr().err
+    os.remove(part_path(parts_dir(running), 0))     # last: the fixture's parts change here
+    with pytest.raises(AmfeError, match="record 0 .* is not finished"):
+        write_prefix(running, tmp_path / "x.h5")
+    assert not (tmp_path / "x.h5").exists()
