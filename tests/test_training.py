@@ -1,5 +1,6 @@
 """The CNN surrogate: data set, networks, training, checkpoints, amfe train / predict."""
 import json
+import time
 import os
 import re
 
@@ -408,11 +409,19 @@ def test_predict_cli_images_the_bonds_of_the_bed(tmp_path):
     assert proc.returncode == 0, proc.stderr
     bed_path = _tiny_bed(tmp_path / "bed.h5")
     out = tmp_path / "p.json"
+    t0 = time.perf_counter()
     proc = run_cli(["predict", str(bed_path), "--model", str(model), "-o", str(out),
                     "--threads", "1"])
+    wall = time.perf_counter() - t0
     assert proc.returncode == 0, proc.stderr
     res = json.loads(out.read_text())
     assert res["inputs"] == ["fill", "bonds"] and "bonds" in res["timings"]
+    # the call's time split: start-up (from the process's own start) + in-process work fit
+    # inside the wall time seen from outside, and start-up includes importing torch
+    t = res["timings"]
+    parts = sum(t[k] for k in ("start_up", "load_model", "read_bed", "pixelate", "bonds", "predict"))
+    assert 0.05 < t["start_up"] and parts <= wall + 0.05, (t, wall)
+    assert "start-up" in proc.stderr + proc.stdout
     # the same prediction from the two images made independently here
     from amfe.io.bedfile import read_bed
     from amfe.dataset.bondimage import bond_image
