@@ -1,7 +1,7 @@
 """Held-out errors of surrogate checkpoints, overall and by kind of bed (issue 13).
 
     python run/eval_surrogate.py MODEL.pt [MODEL.pt ...] --test HELDOUT.h5 [--test ...]
-                                 [--json OUT.json] [--names a,b,...]
+                                 [--json OUT.json] [--names a,b,...] [--curve PNG]
 
 Per checkpoint and held-out file: the mean relative error |pred - true| / |true|
 in % of each of the six constants over all ok beds, then over the beds with
@@ -9,6 +9,11 @@ and without skipped scan pieces, sparsely scanned beds (scanned fraction < 0.6)
 and whole beds (no skips, scanned fraction >= 0.9); the gate (every constant
 under 4 %) and the goal (moduli under 2 %, Poisson ratios under 3 %) are
 marked. One torch thread, the whole file in one batch. Prints markdown tables.
+
+--curve: the models are one recipe trained on nested training sets; fit the
+error of each constant on the first --test file as a N^-p (least squares in
+log-log over the sizes given), print the fit and the extrapolated N at which
+each constant reaches the gate and the goal, and draw the curve as a PNG.
 """
 import argparse
 import json
@@ -73,12 +78,58 @@ def table(results, test):
     return "\n".join(lines)
 
 
+def size_curve(sizes, results, test):
+    """{constant: (a, p, N at the gate, N at the goal)} of mre = a N^-p over ``sizes``."""
+    from amfe.vocab import LABEL_NAMES
+    n = np.log(np.asarray(sizes, float))
+    out = {}
+    for j, name in enumerate(LABEL_NAMES):
+        y = np.log([r[test]["all beds"]["mre"][j] for r in results])
+        slope, icpt = np.polyfit(n, y, 1)
+        p, a = -slope, np.exp(icpt)
+        at = (lambda e: float((a / e) ** (1 / p)) if p > 0 else float("inf"))
+        out[name] = (float(a), float(p), at(GATE), at(GOAL[j]))
+    return out
+
+
+def curve_report(sizes, results, test, png):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from amfe.vocab import LABEL_NAMES
+    fit = size_curve(sizes, results, test)
+    lines = ["| constant | " + " | ".join(f"{n} beds" for n in sizes)
+             + " | fit a N^-p: p | N for 4 % | N for the goal |",
+             "|---|" + "---|" * (len(sizes) + 3)]
+    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    grid = np.geomspace(min(sizes), max(max(sizes) * 50, 1e5), 50)
+    for j, name in enumerate(LABEL_NAMES):
+        e = [100 * r[test]["all beds"]["mre"][j] for r in results]
+        a, p, n_gate, n_goal = fit[name]
+        lines.append(f"| {name} | " + " | ".join(f"{x:.2f}" for x in e)
+                     + f" | {p:.2f} | {n_gate:,.0f} | {n_goal:,.0f} |")
+        line, = ax.loglog(sizes, e, "o", label=name)
+        ax.loglog(grid, 100 * a * grid ** -p, "--", color=line.get_color(), lw=0.8)
+    ax.axhline(4, color="k", lw=0.8)
+    ax.text(grid[-1], 4, "gate 4 %", ha="right", va="bottom", fontsize=8)
+    ax.axhline(2, color="grey", lw=0.8, ls=":")
+    ax.text(grid[-1], 2, "goal, moduli 2 %", ha="right", va="bottom", fontsize=8)
+    ax.set_xlabel("training beds")
+    ax.set_ylabel(f"held-out mean relative error, %  ({os.path.basename(test)})")
+    ax.yaxis.set_major_formatter(matplotlib.ticker.FormatStrFormatter("%g"))
+    ax.legend(ncol=2, fontsize=8)
+    fig.tight_layout()
+    fig.savefig(png, dpi=120)
+    return "\n".join(lines)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("models", nargs="+", metavar="MODEL.pt")
     ap.add_argument("--test", action="append", required=True, metavar="HELDOUT.h5")
     ap.add_argument("--names", help="comma list of row names (default: file names)")
     ap.add_argument("--json", metavar="OUT.json", help="also write the numbers as JSON")
+    ap.add_argument("--curve", metavar="PNG", help="error against training-set size (see above)")
     args = ap.parse_args(argv)
     import torch
     torch.set_num_threads(1)
@@ -91,6 +142,10 @@ def main(argv=None):
         results[name] = {t: evaluate(model, t, cache) for t in args.test}
     for t in args.test:
         print(table(results, t), end="\n\n")
+    if args.curve:
+        from amfe.training.checkpoint import load_checkpoint
+        sizes = [load_checkpoint(m)["dataset"]["n_train"] for m in args.models]
+        print(curve_report(sizes, [results[n] for n in names], args.test[0], args.curve))
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(results, fh, indent=1)
