@@ -29,7 +29,8 @@ HEIGHT_MM = 0.3
 RVE_SCAN = dict(track_width=0.1e-3, hatch_spacing=0.14e-3, angle=30.0, layer_rotation=90.0,
                 offset=0.0)
 #: wall seconds of the three conditions on one 0.6 mm bed (generation included), 2 ranks of
-#: the report's 2-core machine as measured on 2026-12-01 with other jobs running (load 5-8)
+#: the report's 2-core machine as measured on 2026-12-01 with other jobs running (load 5-8;
+#: the same beds took up to 1.5x longer an hour later)
 SECONDS_AT_06 = {"full": 28.0, "scan": 31.0}
 #: t ~ base^COST_EXPONENT: particles ~ base^2, and SUBC's iterations grow with the base
 #: (measured 0.6 -> 1.2 -> 1.8 mm: 28, 107-114, 306 s on fully scanned beds)
@@ -39,16 +40,19 @@ COST_EXPONENT = 2.2
 def rve_plan(quick, tiny=False):
     """[(bed kind, base mm, seed)] of section 3: three seeds up to 0.6 mm, one above.
 
-    Both bed kinds get the same bases and seeds. --quick keeps 0.6 and 1.2 mm
-    (the convergence check's pair); --tiny only two small beds per kind.
+    The three conditions share every bed's base and seed. Scan-pattern beds stop
+    at 1.2 mm in the full plan (SUBC's iterations grow fastest on them; 1.8 mm
+    would add about 6 min), fully scanned ones go on to 1.8 mm. --quick keeps
+    0.6 and 1.2 mm (the convergence check's pair); --tiny two small beds per kind.
     """
     if tiny:
-        sizes, small, seeds = (0.2, 0.3), 0.3, (0,)
+        sizes, small, seeds = {"full": (0.2, 0.3), "scan": (0.2, 0.3)}, 0.3, (0,)
     elif quick:
-        sizes, small, seeds = (0.3, 0.6, 1.2), 0.3, (0, 1)
+        sizes, small, seeds = {"full": (0.3, 0.6, 1.2), "scan": (0.3, 0.6, 1.2)}, 0.3, (0, 1)
     else:
-        sizes, small, seeds = (0.3, 0.6, 0.9, 1.2, 1.8), 0.6, (0, 1, 2)
-    return [(kind, b, s) for kind in BEDS for b in sizes
+        sizes, small, seeds = ({"full": (0.3, 0.6, 0.9, 1.2, 1.8), "scan": (0.3, 0.6, 0.9, 1.2)},
+                               0.6, (0, 1, 2))
+    return [(kind, b, s) for kind in BEDS for b in sizes[kind]
             for s in (seeds if b <= small + 1e-9 else seeds[:1])]
 
 
@@ -150,8 +154,9 @@ def fit_limits(entries, bcs, min_side=0.6):
 
     entries: :func:`rve_table` rows of one bed kind. With a single condition
     this is that condition's own limit. Returns {c_inf {k}, a {bc: {k}}, misfit
-    (largest |fit / mean - 1| over the bases, conditions and constants), sides}
-    or None with fewer than three bases (or a condition missing).
+    (largest |fit / mean - 1| over the bases, conditions and constants),
+    misfit_moduli (the same over the six moduli), sides} or None with fewer
+    than three bases (or a condition missing).
     """
     use = [t for t in entries if t["side_mm"] in fit_sides(entries, min_side)]
     if len(use) < 3 or not all(bc in t["mean"] for t in use for bc in bcs):
@@ -161,7 +166,7 @@ def fit_limits(entries, bcs, min_side=0.6):
     A[:, 0] = 1.0
     for j in range(len(bcs)):
         A[j * len(use):(j + 1) * len(use), 1 + j] = inv
-    out = {"c_inf": {}, "a": {bc: {} for bc in bcs}, "misfit": 0.0,
+    out = {"c_inf": {}, "a": {bc: {} for bc in bcs}, "misfit": 0.0, "misfit_moduli": 0.0,
            "sides": [t["side_mm"] for t in use]}
     for k in CONSTANTS:
         y = np.concatenate([[t["mean"][bc][k] for t in use] for bc in bcs])
@@ -169,12 +174,17 @@ def fit_limits(entries, bcs, min_side=0.6):
         out["c_inf"][k] = float(coef[0])
         for j, bc in enumerate(bcs):
             out["a"][bc][k] = float(coef[1 + j])
-        out["misfit"] = max(out["misfit"], float(np.max(np.abs(A @ coef / y - 1.0))))
+        miss = float(np.max(np.abs(A @ coef / y - 1.0)))
+        out["misfit"] = max(out["misfit"], miss)
+        if k in MODULI:
+            out["misfit_moduli"] = max(out["misfit_moduli"], miss)
     return out
 
 
 #: a shared-limit fit that misses the means by more than this is rejected
 SHARED_TOL = 0.005
+#: a condition's own 1/L fit that misses its means by more than this is not extrapolated
+FIT_TOL = 0.01
 
 
 def common_limit(entries, min_side=0.6):
@@ -183,15 +193,16 @@ def common_limit(entries, min_side=0.6):
     The shared fit (:func:`fit_limits` over the three conditions) when it
     describes the means to :data:`SHARED_TOL`; otherwise the conditions do not
     approach one limit at these sizes, and the material's own constants are
-    taken from the periodic condition (no boundary layer): its own 1/L fit,
-    or its mean on the largest base when there are fewer than three bases.
+    taken from the periodic condition (no boundary layer): its own 1/L fit
+    when that describes its means to :data:`FIT_TOL`, else (no fit, or a bad
+    one) its mean on the largest base.
     Returns {limit {k}, source, shared, own {bc: fit or None}}.
     """
     shared = fit_limits(entries, BCS, min_side)
     own = {bc: fit_limits(entries, (bc,), min_side) for bc in BCS}
     if shared is not None and shared["misfit"] <= SHARED_TOL:
         limit, source = shared["c_inf"], "shared"
-    elif own["periodic"] is not None:
+    elif own["periodic"] is not None and own["periodic"]["misfit"] <= FIT_TOL:
         limit, source = own["periodic"]["c_inf"], "periodic fit"
     else:
         limit, source = dict(max(entries, key=lambda t: t["side_mm"])["mean"]["periodic"]), \
@@ -278,12 +289,14 @@ def analyse(rve):
         lim = rve["limits"][kind]
         for bc in BCS:
             own = lim["own"][bc]
+            good = own is not None and own["misfit_moduli"] <= FIT_TOL
             rve["summary"][f"{kind} {bc}"] = {
                 **{f"{keys}_{tol}": within_from(ent, bc, lim["limit"], tol,
                                                 MODULI if keys == "moduli" else CONSTANTS)
                    for keys in ("moduli", "all") for tol in (0.05, 0.01)},
-                "own_offset": own and rel_change(own["c_inf"], lim["limit"], MODULI),
-                "own_1": own and fit_within(own, bc, 0.01)}
+                "own_misfit": own and own["misfit_moduli"],
+                "own_offset": rel_change(own["c_inf"], lim["limit"], MODULI) if good else None,
+                "own_1": fit_within(own, bc, 0.01, MODULI) if good else None}
     rve["bracket"] = {"moduli": bracket(rows, MODULI), "ratios": bracket(rows, RATIOS)}
     rve["convergence"] = {k: convergence(rows, k) for k in kinds}
     return kinds

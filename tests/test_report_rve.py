@@ -30,14 +30,14 @@ def entries(rows, kind="full"):
     return [t for t in R.rve_table(rows) if t["bed"] == kind]
 
 
-def test_plan_same_bases_and_seeds_for_both_bed_kinds():
+def test_plan_seeds_and_budget():
     for quick, tiny in ((False, False), (True, False), (False, True)):
         plan = R.rve_plan(quick, tiny)
         full = sorted((b, s) for k, b, s in plan if k == "full")
-        assert full == sorted((b, s) for k, b, s in plan if k == "scan")
+        scan = sorted((b, s) for k, b, s in plan if k == "scan")
+        assert set(scan) <= set(full)                    # same bases and seeds where both
         seeds = {b: sum(1 for bb, _ in full if bb == b) for b, _ in full}
-        small, big = min(seeds), max(seeds)
-        assert seeds[small] >= seeds[big]                # more seeds where the bed is small
+        assert seeds[min(seeds)] >= seeds[max(seeds)]    # more seeds where the bed is small
     full = R.rve_plan(False)
     assert sum(1 for k, b, _ in full if k == "full" and b == 0.3) == 3
     assert {0.6, 1.2} <= {b for _, b, _ in R.rve_plan(True)}   # the convergence pair
@@ -45,7 +45,7 @@ def test_plan_same_bases_and_seeds_for_both_bed_kinds():
     one = R.plan_seconds([("full", 0.6, 0)])
     assert one == pytest.approx(R.SECONDS_AT_06["full"])
     assert R.plan_seconds([("full", 1.2, 0)]) == pytest.approx(one * 2 ** R.COST_EXPONENT)
-    assert R.plan_seconds(full) <= 22 * 60
+    assert R.plan_seconds(full) <= 20 * 60
 
 
 def test_table_means_spread_and_snap():
