@@ -57,7 +57,8 @@ def rve_plan(quick, tiny=False):
 
 
 def plan_seconds(plan):
-    """Estimated wall seconds of ``plan`` on 2 ranks (:data:`SECONDS_AT_06`, :data:`COST_EXPONENT`)."""
+    """Estimated wall seconds of ``plan`` on 2 ranks (:data:`SECONDS_AT_06`,
+    :data:`COST_EXPONENT`)."""
     return float(sum(SECONDS_AT_06[k] * (b / 0.6) ** COST_EXPONENT for k, b, _ in plan))
 
 
@@ -114,11 +115,12 @@ def rel_change(props, ref, keys=CONSTANTS):
 def rve_table(rows):
     """Per (bed kind, base): the seeds' mean constants of each condition, their spread, cost.
 
-    Entry: bed, side_mm, seeds, n_particles and n_periodic (means: the ordinary and the
-    periodic bed), mean
-    {bc: {constant: value}}, spread {bc: largest relative standard deviation over
-    the nine constants, nan for one seed}, seconds (mean over seeds of the three
-    conditions together), iterations {bc: mean CG iterations per case}, snap (largest |box / base - 1| of the periodic beds).
+    Entry: bed, side_mm, seeds, n_particles and n_periodic (means: the ordinary
+    and the periodic bed), mean {bc: {constant: value}}, spread {bc: largest
+    relative standard deviation over the nine constants, nan for one seed},
+    seconds (mean over seeds of the three conditions together), iterations
+    {bc: mean CG iterations per case}, snap (largest |box / base - 1| of the
+    periodic beds).
     """
     table = []
     for kind in BEDS:
@@ -136,7 +138,8 @@ def rve_table(rows):
                 "n_particles": float(np.mean([r["n_particles"] for r in by["kubc"] or by["subc"]])),
                 "n_periodic": float(np.mean([r["n_particles"] for r in by["periodic"]])),
                 "seconds": float(sum(r["seconds"] for r in rs) / len(seeds)),
-                "iterations": {bc: float(np.mean([r["iterations"] for r in by[bc]])) for bc in mean},
+                "iterations": {bc: float(np.mean([r["iterations"] for r in by[bc]]))
+                               for bc in mean},
                 "snap": max((abs(b / side - 1.0) for r in by["periodic"] for b in r["box_mm"]),
                             default=0.0)})
     return table

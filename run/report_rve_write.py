@@ -48,8 +48,9 @@ def section_rve(rve, out, md):
     from report_write import _plt, _s, _save
     kinds = analyse(rve)
     rows, table, limits = rve["rows"], rve["table"], rve["limits"]
-    path = _save(_plot(_plt(), rows, table, limits, rve.get("height_mm", 0.3)), f"{out}/report_rve.png")
-    sc, h = rve["scan"], rve.get("height_mm", 0.3)
+    h = rve.get("height_mm", 0.3)
+    path = _save(_plot(_plt(), rows, table, limits, h), f"{out}/report_rve.png")
+    sc = rve["scan"]
     many = max(t["seeds"] for t in table)
     md += ["## 3. Representative volume", "",
            "KUBC (prescribed affine displacements on the boundary layer, the upper bound), "
@@ -77,11 +78,11 @@ def section_rve(rve, out, md):
                "|---|---|---|---|---|---|---|---|---|---|---|"]
         for t in (t for t in table if t["bed"] == kind):
             m = t["mean"]
+            spread = np.nanmax(list(t["spread"].values())) if t["seeds"] > 1 else None
             md.append(f"| {t['side_mm']:g} | {t['seeds']} | {t['n_particles']:.0f} | "
                       + " | ".join(f"{m[bc]['Ex'] / 1e9:.1f}" for bc in BCS) + " | "
                       + " | ".join(_pct(rel_change(m[bc], lim)) for bc in BCS)
-                      + f" | {_pct(np.nanmax(list(t['spread'].values())) if t['seeds'] > 1 else None)}"
-                      f" | {_s(t['seconds'])} |")
+                      + f" | {_pct(spread)} | {_s(t['seconds'])} |")
         md.append("")
     md += _limit_text(rve, kinds) + _bracket_text(rve, kinds) + _convergence_text(rve, kinds)
     return [path]
@@ -196,7 +197,8 @@ def _bracket_text(rve, kinds):
         line = (f"- {BEDS[kind]}: moduli - SUBC <= KUBC in {m['subc_kubc']} of {m['cases']}; "
                 f"SUBC <= periodic <= KUBC in {m['held']} of {m['cases']}")
         if m["below_subc"]:
-            line += f"; periodic below both in {m['below_subc']} (by up to {_pct(m['worst_below'])})"
+            line += (f"; periodic below both in {m['below_subc']} (by up to "
+                     f"{_pct(m['worst_below'])})")
         if m["above_kubc"]:
             line += f"; above both in {m['above_kubc']} (by up to {_pct(m['worst_above'])})"
         md.append(line + f". Poisson ratios - SUBC <= KUBC in {r['subc_kubc']} of {r['cases']}, "
