@@ -15,8 +15,10 @@ Sections (every number is measured by this run, on this machine):
    the paper's full bed (3 x 3 x 0.3 mm): time per phase and iterations,
    fitted exponent, cost of a solve in fine-level matrix-vector products,
    1 and ``--ranks`` ranks (each run is an ``mpirun`` of this script);
-3. representative volume: the constants of one scan pattern against the
-   base size, with their cost;
+3. representative volume: KUBC, SUBC and periodic side by side on fully
+   scanned beds and one scan pattern against the base size, the common
+   limit, the base within 1 % and 5 % of it, the bracket, the convergence of
+   periodic beds (run/report_rve.py, run/report_rve_write.py);
 4. surrogate against solver on the held-out data set (``--test``) with the
    networks found in ``--models`` (run/train_surrogate.py's checkpoints) or
    the shipped model; skipped, and said so, when neither is there;
@@ -37,6 +39,7 @@ sys.path.insert(0, ROOT)
 sys.path.insert(0, os.path.join(ROOT, "run"))
 
 import report_measure as M  # noqa: E402
+import report_rve as R  # noqa: E402
 
 def parse(argv):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -114,11 +117,13 @@ def main(argv=None):
                                      log)
             data["scaling"] = rows
         if 3 in sections:
-            log("[3] representative volume")
-            rows = M.run_worker("rve", M.rve_plan(quick, args.tiny), args.ranks,
-                                os.path.join(tmp, "rve.json"), log)
-            table, rve = M.rve_summary(rows)
-            data["rve"] = {"rows": rows, "table": table, "rve_side_mm": rve, "scan": M.RVE_SCAN}
+            plan = R.rve_plan(quick, args.tiny)
+            log(f"[3] representative volume: {len(plan)} beds x 3 conditions, about "
+                f"{R.plan_seconds(plan) / 60:.1f} min on 2 ranks of a loaded 2-core machine "
+                "(report_rve.plan_seconds)")
+            rows = M.run_worker("rve", plan, args.ranks, os.path.join(tmp, "rve.json"), log)
+            data["rve"] = {"rows": rows, "scan": R.RVE_SCAN, "height_mm": R.HEIGHT_MM,
+                           "plan_seconds": R.plan_seconds(plan)}
         if 4 in sections:
             log("[4] surrogate against solver")
             if os.path.exists(args.test) and M.find_models(args.models):

@@ -201,20 +201,6 @@ def scaling_sizes(quick, tiny=False):
     return [0.18, 0.35, 0.7] if quick else [0.18, 0.35, 0.7, 1.4, 2.1, 3.0]
 
 
-RVE_SCAN = dict(track_width=0.1e-3, hatch_spacing=0.14e-3, angle=30.0, layer_rotation=90.0,
-                offset=0.0)
-
-
-def rve_plan(quick, tiny=False):
-    """[(base mm, seed)] of section 3: several seeds where the bed is small."""
-    if tiny:
-        return [(0.3, 0), (0.45, 0)]
-    if quick:
-        return [(b, s) for b in (0.3, 0.45, 0.6) for s in (0, 1)]
-    sizes = [0.3, 0.45, 0.6, 0.9, 1.2, 1.8, 2.4, 3.0, 3.6, 4.2]
-    return [(b, s) for b in sizes for s in ((0, 1, 2) if b <= 1.2 else (0,))]
-
-
 def _matvec_seconds(PETSc, bed, comm, repeats=20):
     """Seconds of one fine-level MatMult of the assembled AIJ stiffness (bs 6) on ``comm``."""
     from amfe.model.frame import build_frame
@@ -238,45 +224,46 @@ def _matvec_seconds(PETSc, bed, comm, repeats=20):
 
 
 def worker(kind, items, path):
-    """Run under mpirun: one homogenization per item on COMM_WORLD; rank 0 writes JSON lines."""
+    """Run under mpirun: the rows of section 2 (``scaling``) or 3 (``rve``) on COMM_WORLD;
+    rank 0 writes them as JSON."""
     from amfe.solvers.petsc import init_petsc
     PETSc = init_petsc([])
     from amfe.io.atomic import atomic_write
-    from amfe.model.bed import generate_bed
-    from amfe.model.scanpath import ScanPath
     comm = PETSc.COMM_WORLD
-    rows = []
-    for item in items:
-        comm.barrier()
-        t0 = time.perf_counter()
-        if kind == "scaling":
-            side = item
-            bed = generate_bed(size=(side * 1e-3, side * 1e-3, 0.3e-3), seed=0)
-        else:
-            side, seed = item
-            bed = generate_bed(size=(side * 1e-3, side * 1e-3, 0.3e-3), seed=seed,
-                               scan=ScanPath(**RVE_SCAN))
-        t_gen = time.perf_counter() - t0
-        r = _solve(bed, comm)
-        s = r["solver"]
-        row = {"side_mm": side, "ranks": comm.getSize(), "n_particles": r["n_particles"],
-               "n_bonds": r["n_bonds"], "properties": r["properties"],
-               "generate": t_gen, "bonds": s["frame_seconds"], "assemble": s["assembly_seconds"],
-               "setup": s["setup_seconds"], "solves": s["solve_seconds"],
-               "averages": s["average_seconds"], "total": t_gen + r["wall"],
-               "iterations": float(np.mean(s["iterations"]))}
-        if kind == "scaling":
-            row["matvec"] = _matvec_seconds(PETSc, bed, comm)
-            row["matvecs_per_solve"] = s["solve_seconds"] / 6 / row["matvec"]
-        else:
-            row["seed"] = item[1]
-        rows.append(row)
+
+    def log(msg):
         if comm.getRank() == 0:
-            print(f"    {kind} {side:5.2f} mm, {row['ranks']} rank(s): {row['n_particles']:7d} "
-                  f"particles, {row['total']:7.2f} s, {row['iterations']:.1f} its", flush=True)
+            print(msg, flush=True)
+    if kind == "rve":
+        import report_rve
+        rows = report_rve.worker(items, comm, log)
+    else:
+        rows = [_scaling_row(PETSc, comm, side, log) for side in items]
     if comm.getRank() == 0:
         import json
         atomic_write(path, lambda fh: fh.write(json.dumps(rows).encode()))
+
+
+def _scaling_row(PETSc, comm, side, log):
+    """Section 2: one fully scanned bed, base ``side`` mm, 0.3 mm high: phases and matvecs."""
+    from amfe.model.bed import generate_bed
+    comm.barrier()
+    t0 = time.perf_counter()
+    bed = generate_bed(size=(side * 1e-3, side * 1e-3, 0.3e-3), seed=0)
+    t_gen = time.perf_counter() - t0
+    r = _solve(bed, comm)
+    s = r["solver"]
+    row = {"side_mm": side, "ranks": comm.getSize(), "n_particles": r["n_particles"],
+           "n_bonds": r["n_bonds"], "properties": r["properties"],
+           "generate": t_gen, "bonds": s["frame_seconds"], "assemble": s["assembly_seconds"],
+           "setup": s["setup_seconds"], "solves": s["solve_seconds"],
+           "averages": s["average_seconds"], "total": t_gen + r["wall"],
+           "iterations": float(np.mean(s["iterations"]))}
+    row["matvec"] = _matvec_seconds(PETSc, bed, comm)
+    row["matvecs_per_solve"] = s["solve_seconds"] / 6 / row["matvec"]
+    log(f"    scaling {side:5.2f} mm, {row['ranks']} rank(s): {row['n_particles']:7d} "
+        f"particles, {row['total']:7.2f} s, {row['iterations']:.1f} its")
+    return row
 
 
 def run_worker(kind, items, ranks, path, log=print):
@@ -302,61 +289,6 @@ def run_worker(kind, items, ranks, path, log=print):
 def fit_exponent(n, t):
     """Least-squares slope of log t against log n (t ~ n^p): p."""
     return float(np.polyfit(np.log(np.asarray(n, float)), np.log(np.asarray(t, float)), 1)[0])
-
-
-def rve_summary(rows, tol=0.01):
-    """Per base size: mean constants over seeds, spread, cost; the RVE size at ``tol``.
-
-    The change of a size is the max relative difference of its mean constants
-    from the largest size's; the RVE size is the smallest base from which on
-    every larger size changes by less than ``tol``.
-    """
-    sides = sorted({r["side_mm"] for r in rows})
-    table = []
-    for b in sides:
-        rs = [r for r in rows if r["side_mm"] == b]
-        mean = {k: float(np.mean([r["properties"][k] for r in rs])) for k in CONSTANTS}
-        spread = max(float(np.std([r["properties"][k] for r in rs]) / abs(mean[k]))
-                     for k in CONSTANTS) if len(rs) > 1 else float("nan")
-        table.append({"side_mm": b, "seeds": len(rs), "mean": mean, "spread": spread,
-                      "n_particles": float(np.mean([r["n_particles"] for r in rs])),
-                      "seconds": float(np.mean([r["total"] for r in rs]))})
-    last = table[-1]["mean"]
-    for row in table:
-        row["change"] = max_rel_error(row["mean"], last)
-    rve = None
-    for k in range(len(table) - 1, -1, -1):
-        if table[k]["change"] < tol and all(t["change"] < tol for t in table[k:]):
-            rve = table[k]["side_mm"]
-        else:
-            break
-    return table, (rve if rve is not None and rve < table[-1]["side_mm"] else None)
-
-
-def rve_extrapolate(table, min_side=1.0, tol=0.01):
-    """Fit c(L) = c_inf + a / L per constant over the bases L >= ``min_side`` mm.
-
-    A boundary layer of fixed thickness (KUBC stiffens the particles next to
-    the faces) changes the constants by a share proportional to 1/L. Returns
-    {c_inf, a (per constant), side_at_tol: the base [mm] from which every
-    fitted constant is within ``tol`` of its c_inf, worst_residual: the
-    largest relative misfit of the fit on the sizes used, sides: those sizes};
-    None with fewer than three sizes.
-    """
-    rows = [t for t in table if t["side_mm"] >= min_side]
-    if len(rows) < 3:
-        return None
-    inv = np.array([1.0 / t["side_mm"] for t in rows])
-    A = np.stack([np.ones_like(inv), inv], axis=1)
-    c_inf, a, worst, side = {}, {}, 0.0, 0.0
-    for k in CONSTANTS:
-        y = np.array([t["mean"][k] for t in rows])
-        (c0, c1), *_ = np.linalg.lstsq(A, y, rcond=None)
-        c_inf[k], a[k] = float(c0), float(c1)
-        worst = max(worst, float(np.max(np.abs(A @ [c0, c1] - y) / np.abs(y))))
-        side = max(side, abs(c1) / (tol * abs(c0)))
-    return {"c_inf": c_inf, "a": a, "side_at_tol": float(side), "worst_residual": worst,
-            "sides": [t["side_mm"] for t in rows], "tol": tol}
 
 
 # ------------------------------------------------------------ 4. surrogate vs solver

@@ -240,82 +240,6 @@ def _rank_invariance(rows):
     return max(diffs) if diffs else None
 
 
-def section_rve(rve, out, md):
-    plt = _plt()
-    table = rve["table"]
-    fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4.3))
-    b = [t["side_mm"] for t in table]
-    for k in ("Ex", "Ey", "Ez", "nu_xy", "G_xy"):
-        last = table[-1]["mean"][k]
-        a1.plot(b, [t["mean"][k] / last for t in table], "o-", label=k)
-        seeds = [r for r in rve["rows"]]
-        a1.plot([r["side_mm"] for r in seeds], [r["properties"][k] / last for r in seeds], ".",
-                color=a1.lines[-1].get_color(), alpha=0.4)
-    a1.plot([], [], ".", color="grey", alpha=0.6, label="single seeds (colour: the constant)")
-    a1.axhspan(0.99, 1.01, color="grey", alpha=0.2, label="+/- 1 % of the largest bed")
-    a1.set_xlabel("base side [mm]")
-    a1.set_ylabel("constant / its value on the largest bed [-]")
-    a1.set_title("constants against bed size: mean over seeds")
-    a1.grid(True, alpha=0.3)
-    a1.legend(fontsize=7)
-    a2.loglog([t["n_particles"] for t in table], [t["seconds"] for t in table], "o-")
-    for t in table:
-        a2.annotate(f"{t['side_mm']:g} mm", (t["n_particles"], t["seconds"]), fontsize=7,
-                    xytext=(3, -8), textcoords="offset points")
-    a2.set_xlabel("particles")
-    a2.set_ylabel("time per bed, generation to constants [s]")
-    a2.set_title("cost")
-    a2.grid(True, which="both", alpha=0.3)
-    paths = [_save(fig, os.path.join(out, "report_rve.png"))]
-    sc = rve["scan"]
-    ranks = rve["rows"][0]["ranks"]
-    md += ["## 3. Representative volume", "",
-           f"One scan pattern (tracks {1e3 * sc['track_width']:g} mm wide every "
-           f"{1e3 * sc['hatch_spacing']:g} mm, first layer at {sc['angle']:g} deg, "
-           f"{sc['layer_rotation']:g} deg rotation per layer), 0.3 mm high, square bases of "
-           "growing side; several lattice seeds where the bed is small. Change: the largest "
-           "relative difference of the nine mean constants from those of the largest bed. "
-           f"Times on {ranks} rank(s).", "", "![representative volume](report_rve.png)", "",
-           "| base [mm] | seeds | particles | Ex [GPa] | Ey [GPa] | Ez [GPa] | nu_xy | G_xy [GPa] "
-           "| seed spread | change vs largest | time per bed |",
-           "|---|---|---|---|---|---|---|---|---|---|---|"]
-    for t in table:
-        m = t["mean"]
-        md.append(f"| {t['side_mm']:g} | {t['seeds']} | {t['n_particles']:.0f} | "
-                  f"{m['Ex'] / 1e9:.1f} | {m['Ey'] / 1e9:.1f} | {m['Ez'] / 1e9:.1f} | "
-                  f"{m['nu_xy']:.4f} | {m['G_xy'] / 1e9:.1f} | "
-                  + ("-" if np.isnan(t["spread"]) else f"{100 * t['spread']:.2f} %")
-                  + f" | {100 * t['change']:.2f} % | {_s(t['seconds'])} |")
-    md.append("")
-    if rve["rve_side_mm"] is not None:
-        md.append(f"**From a base of {rve['rve_side_mm']:g} mm on, the constants change by less "
-                  "than 1 %** against the largest bed measured (a statement about these sizes: "
-                  "the largest bed is the reference, not the infinite bed).")
-    else:
-        md.append("**No size below the largest is within 1 % of it:** the constants still "
-                  "drift at the sizes measured (KUBC stiffens small beds, "
-                  "[docs/model.md](model.md), section 5a).")
-    ex = M.rve_extrapolate(table)
-    rve["extrapolation"] = ex
-    if ex:
-        worst = max(M.CONSTANTS, key=lambda k: abs(ex["a"][k] / ex["c_inf"][k]))
-        md.append(f"Fitting c(L) = c_inf + a / L to each constant over the bases "
-                  f"{', '.join(f'{b:g}' for b in ex['sides'])} mm (a boundary layer of fixed "
-                  f"thickness; largest misfit {100 * ex['worst_residual']:.2f} %) gives the "
-                  f"unbounded bed's constants (Ex {ex['c_inf']['Ex'] / 1e9:.1f}, Ey "
-                  f"{ex['c_inf']['Ey'] / 1e9:.1f}, Ez {ex['c_inf']['Ez'] / 1e9:.1f} GPa, nu_xy "
-                  f"{ex['c_inf']['nu_xy']:.4f}) and **every constant within 1 % of its limit "
-                  f"from a base of about {ex['side_at_tol']:.1f} mm** (set by {worst}); the "
-                  "measured sizes are the data behind that estimate, the size itself an "
-                  "extrapolation.")
-    within5 = [t["side_mm"] for k, t in enumerate(table)
-               if all(u["change"] < 0.05 for u in table[k:])]
-    if within5 and within5[0] < table[-1]["side_mm"]:
-        md.append(f"Within 5 % of the largest bed from a base of {within5[0]:g} mm on.")
-    md.append("")
-    return paths
-
-
 def section_surrogate(sur, out, md):
     plt = _plt()
     fig, ax = plt.subplots(figsize=(7, 4.8))
@@ -441,6 +365,7 @@ def write_report(data, out, sections):
         data["scaling_fit"] = {str(k): v for k, v in fits.items()}
         data["rank_invariance"] = same
     if "rve" in data:
+        from report_rve_write import section_rve
         paths += section_rve(data["rve"], out, md)
     if data.get("surrogate"):
         paths += section_surrogate(data["surrogate"], out, md)

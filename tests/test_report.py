@@ -60,12 +60,25 @@ def test_scaling_rank_invariant_and_phases(report):
         assert 3 <= r["iterations"] <= 15 and r["matvecs_per_solve"] > r["iterations"]
 
 
-def test_rve_summary_logic():
-    rows = [{"side_mm": b, "n_particles": 100 * b, "total": b, "properties":
-             dict.fromkeys(M.CONSTANTS, v)} for b, v in ((1, 1.3), (2, 1.005), (3, 1.0))]
-    table, rve = M.rve_summary(rows)
-    assert [round(t["change"], 3) for t in table] == [0.3, 0.005, 0.0]
-    assert rve == 2
+def test_rve_three_conditions_side_by_side(report):
+    """Section 3: every bed under KUBC, SUBC and periodic; the energy ordering on the same bed."""
+    from amfe.model.torus import hcp_periods
+    out, data = report
+    rows = data["rve"]["rows"]
+    items = {(r["bed"], r["side_mm"], r["seed"]) for r in rows}
+    assert {k for k, _, _ in items} == {"full", "scan"}
+    for item in items:
+        by = {r["bc"]: r for r in rows if (r["bed"], r["side_mm"], r["seed"]) == item}
+        assert set(by) == {"kubc", "subc", "periodic"}
+        assert by["kubc"]["n_particles"] == by["subc"]["n_particles"]      # the same bed
+        half = 0.5e3 * hcp_periods(12.5e-6 / 1.095)[:2]                    # mm
+        assert all(abs(b - item[1]) <= h + 1e-9 for b, h in zip(by["periodic"]["box_mm"], half))
+        if item[0] == "full":      # every hull vertex prescribed: C_subc <= C_kubc in energy
+            assert all(by["subc"]["properties"][k] <= by["kubc"]["properties"][k] * (1 + 1e-9)
+                       for k in ("Ex", "Ey", "Ez", "G_yz", "G_xz", "G_xy"))
+    md = (out / "report.md").read_text()
+    assert md.count("| base [mm] | seeds | particles | Ex KUBC [GPa]") == 2
+    assert "| fully scanned | periodic |" in md and "**The bracket.**" in md
 
 
 def test_pareto_front_and_fit():
@@ -73,15 +86,6 @@ def test_pareto_front_and_fit():
             {"seconds": 3, "error": 1e-2}, {"seconds": 4, "error": 1e-6}]
     assert [r["seconds"] for r in M.pareto_front(runs)] == [1, 2, 4]
     assert M.fit_exponent([1e3, 1e4, 1e5], [2.0, 20.0, 200.0]) == pytest.approx(1.0)
-
-
-def test_rve_extrapolation_recovers_boundary_layer():
-    table = [{"side_mm": b, "mean": {k: 2.0 + 0.1 / b for k in M.CONSTANTS}}
-             for b in (1.0, 2.0, 3.0, 4.0)]
-    ex = M.rve_extrapolate(table)
-    assert ex["c_inf"]["Ex"] == pytest.approx(2.0) and ex["a"]["G_xy"] == pytest.approx(0.1)
-    assert ex["side_at_tol"] == pytest.approx(5.0) and ex["worst_residual"] < 1e-12
-    assert M.rve_extrapolate(table[:2]) is None
 
 
 @pytest.mark.parametrize("args", [["--sections", "1,9"], ["--out", os.devnull]])
