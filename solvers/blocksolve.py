@@ -43,8 +43,18 @@ iterations, which the block path makes cheap: end to end never slower in
 four alternated pairs on 46 800 particles, and as fast on `small` beds."""
 
 
-def with_block_defaults(PETSc, ksp_options):
-    """``ksp_options`` plus the :data:`BLOCK_DEFAULTS` set neither there nor in the database."""
+def with_block_defaults(PETSc, ksp_options, prescribed=True):
+    """``ksp_options`` plus the :data:`BLOCK_DEFAULTS` set neither there nor in the database.
+
+    prescribed: whether the group prescribes a boundary (KUBC). Free frames
+    (SUBC's pinned particle, periodic fluctuations; loads as forces) keep
+    smoothed aggregation: unsmoothed, their iterations triple and grow with
+    the bed (SUBC 45 -> 84 from 0.6 to 1.2 mm, against 15-16 smoothed; periodic
+    28 against 11), and the block path with smoothed aggregation is 1.7-1.9x
+    faster end to end on 1.2 mm beds (docs/benchmarks.md).
+    """
+    if not prescribed:
+        return dict(ksp_options or {})
     given = ksp_options or {}
     db = PETSc.Options()
     return {**{k: v for k, v in BLOCK_DEFAULTS.items() if k not in given and not db.hasName(k)},
