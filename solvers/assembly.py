@@ -5,78 +5,99 @@ element blocks of bonds touching them; it then sets its rows in one call from
 a block-CSR structure, so the matrix is preallocated exactly and no entry
 crosses ranks. (PETSc 3.18's GAMG needs AIJ with block size 6: BAIJ fails in
 MatCreateGraph.)
+
+Memory traffic, not arithmetic, is what assembly costs (on this project's
+virtual machines a page touched for the first time costs 3-5 s/GB;
+docs/benchmarks.md, "Six right-hand sides at once"): the element blocks are
+made :data:`CHUNK` bonds at a time straight into their rows, and each rank's
+rows come split into the two parts MPIAIJ stores, so that no (bonds, 6, 6)
+and no per-entry temporary is ever made.
 """
 import numpy as np
 import scipy.sparse as sp
 
 from amfe.model.element import element_blocks
 
+CHUNK = 1 << 16
+"""Bonds per call of element_blocks (three 19 MB blocks and its temporaries)."""
+
 
 def local_block_rows(frame, r0, r1):
-    """Block-CSR of rows [r0, r1) of the global stiffness: (indptr, cols, blocks).
+    """Block CSR of rows [r0, r1) of the global stiffness: (indptr, cols, blocks).
 
-    indptr (nloc+1,), cols (nnzb,) global particle indices sorted per row,
-    blocks (nnzb,6,6). Units: those of ``frame`` (non-dimensional).
+    The rows come twice: first with the blocks whose columns lie in [r0, r1)
+    (the rank's own particles: MPIAIJ's diagonal part), then with the others
+    (its off-diagonal part), each sorted by (row, column). So indptr
+    (2 nloc + 1,) is the block CSR of the stacked (2 nloc, n) block matrix
+    [own columns; other columns] and ``indptr[nloc]`` where the second part
+    starts; cols (nnzb,) global particle indices; blocks (nnzb, 6, 6).
+    Units: those of ``frame`` (non-dimensional).
     """
     b = frame.bonds
     nloc = r1 - r0
-    touch = ((b.i >= r0) & (b.i < r1)) | ((b.j >= r0) & (b.j < r1))
-    idx = np.flatnonzero(touch)
+    in_i, in_j = (b.i >= r0) & (b.i < r1), (b.j >= r0) & (b.j < r1)
+    idx = np.flatnonzero(in_i | in_j)
     bi, bj = b.i[idx], b.j[idx]
-    Kii, Kij, Kjj = element_blocks(b.normal[idx], b.d_i[idx], b.d_j[idx], frame.k_n[idx],
-                                   frame.k_t[idx], frame.kappa_n[idx], frame.kappa_t[idx])
-    own_i = np.flatnonzero((bi >= r0) & (bi < r1))
-    own_j = np.flatnonzero((bj >= r0) & (bj < r1))
-
-    def summed(rows, K):
-        """sum of the blocks K[k] into row rows[k] - r0, as a sparse product (no add.at)."""
-        inc = sp.csr_matrix((np.ones(rows.size), (rows - r0, np.arange(rows.size))),
-                            shape=(nloc, rows.size))
-        return inc @ K.reshape(-1, 36)
-
-    # Diagonal blocks: sum of K_ii over bonds at i and K_jj over bonds at j.
-    diag = (summed(bi[own_i], Kii[own_i]) + summed(bj[own_j], Kjj[own_j])).reshape(nloc, 6, 6)
-
+    own_i, own_j = np.flatnonzero(in_i[idx]), np.flatnonzero(in_j[idx])
+    del in_i, in_j
     rows = np.concatenate([np.arange(nloc), bi[own_i] - r0, bj[own_j] - r0])
     cols = np.concatenate([np.arange(r0, r1), bj[own_i], bi[own_j]])
+    rows += nloc * ((cols < r0) | (cols >= r1))  # the row of the stacked matrix
     order = np.lexsort((cols, rows))
-    # Scatter each source straight into its sorted slot: the blocks (36 doubles
-    # each, ~0.4 GB for 116k particles) are copied once, not concatenated and
-    # then permuted.
-    slot = np.empty_like(order)
+    slot = np.empty_like(order)  # where each source block goes: diagonal, K_ij, K_ij^T
     slot[order] = np.arange(order.size)
-    n_i = own_i.size
-    blocks = np.empty((order.size, 6, 6))
-    blocks[slot[:nloc]] = diag
-    blocks[slot[nloc:nloc + n_i]] = Kij[own_i]
-    blocks[slot[nloc + n_i:]] = np.transpose(Kij[own_j], (0, 2, 1))
-    indptr = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=nloc))])
-    return indptr, cols[order], blocks
+    cols = cols[order]
+    del order
+    indptr = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=2 * nloc))])
+    del rows
+    blocks = np.empty((cols.size, 6, 6))
+    diag = np.zeros((nloc, 36))
+    slots = (slot[nloc:nloc + own_i.size], slot[nloc + own_i.size:])
+    for s in range(0, idx.size, CHUNK):
+        c = idx[s:s + CHUNK]
+        Kii, Kij, Kjj = element_blocks(b.normal[c], b.d_i[c], b.d_j[c], frame.k_n[c],
+                                       frame.k_t[c], frame.kappa_n[c], frame.kappa_t[c])
+        for own, ends, K, to, flip in ((own_i, bi, Kii, slots[0], False),
+                                       (own_j, bj, Kjj, slots[1], True)):
+            lo, hi = np.searchsorted(own, [s, s + c.size])
+            k = own[lo:hi] - s
+            if k.size == 0:
+                continue
+            # K_ii (K_jj) summed into the diagonal blocks by an incidence product
+            row = ends[s + k] - r0
+            first = int(row.min())
+            inc = sp.csr_matrix((np.ones(k.size), (row - first, k)),
+                                shape=(int(row.max()) + 1 - first, c.size))
+            diag[first:first + inc.shape[0]] += inc @ K.reshape(-1, 36)
+            blocks[to[lo:hi]] = np.transpose(Kij[k], (0, 2, 1)) if flip else Kij[k]
+    blocks[slot[:nloc]] = diag.reshape(nloc, 6, 6)
+    return indptr, cols, blocks
 
 
 def aij_from_blocks(PETSc, comm, n, r0, r1, indptr, cols, blocks):
     """Rows [6 r0, 6 r1) of a (6n, 6n) AIJ matrix with block size 6, from block CSR.
 
-    The matrix is made on the caller's arrays (MatCreate*AIJWithArrays: no
-    copy, no per-row insertion; 1.9 s -> 0.03 s for 116k particles), split
-    into the diagonal and off-diagonal parts that MPIAIJ stores; the arrays
-    are kept alive as attributes of the matrix.
+    indptr, cols, blocks: as :func:`local_block_rows` gives them (the two
+    parts). The matrix is made on arrays expanded from each part
+    (MatCreate*AIJWithArrays: no copy, no per-row insertion; 1.9 s -> 0.03 s
+    for 116k particles): MPIAIJ's diagonal part with local column numbers,
+    its off-diagonal part with global ones. The arrays are kept alive as
+    attributes of the matrix.
     """
     nloc = r1 - r0
-    csr = sp.bsr_matrix((blocks, cols, indptr), shape=(6 * nloc, 6 * n)).tocsr()
-    csr.sort_indices()
     it = PETSc.IntType
     size = ((6 * nloc, 6 * n), (6 * nloc, 6 * n))
+    mid = int(indptr[nloc])
+
+    def scalar_csr(ptr, bcols, bvals, ncols):
+        csr = sp.bsr_matrix((bvals, bcols, ptr), shape=(6 * nloc, 6 * ncols)).tocsr()
+        return (np.asarray(csr.indptr, dtype=it), np.asarray(csr.indices, dtype=it), csr.data)
+
+    local = scalar_csr(indptr[:nloc + 1], cols[:mid] - r0, blocks[:mid], nloc)
     if comm.getSize() == 1:
-        arrays = (csr.indptr.astype(it), csr.indices.astype(it), csr.data)
+        arrays = local
     else:
-        rows = np.repeat(np.arange(6 * nloc), np.diff(csr.indptr))
-        own = (csr.indices >= 6 * r0) & (csr.indices < 6 * r1)
-        dptr = np.concatenate([[0], np.cumsum(np.bincount(rows[own], minlength=6 * nloc))])
-        optr = np.concatenate([[0], np.cumsum(np.bincount(rows[~own], minlength=6 * nloc))])
-        # diagonal part: local column numbers; off-diagonal part: global ones
-        arrays = ((dptr.astype(it), (csr.indices[own] - 6 * r0).astype(it), csr.data[own]),
-                  (optr.astype(it), csr.indices[~own].astype(it), csr.data[~own]))
+        arrays = (local, scalar_csr(indptr[nloc:] - mid, cols[mid:], blocks[mid:], n))
     A = PETSc.Mat().createAIJWithArrays(size=size, csr=arrays, comm=comm)
     A.setAttr("amfe_csr_arrays", arrays)
     A.setBlockSize(6)
@@ -89,15 +110,18 @@ def aij_from_blocks(PETSc, comm, n, r0, r1, indptr, cols, blocks):
 def sbaij_operator(PETSc, comm, n, r0, r1, indptr, cols, blocks, fixed):
     """The constrained operator as SBAIJ (upper 6x6 blocks), straight from block CSR.
 
+    indptr, cols, blocks: as :func:`local_block_rows` gives them (the two parts).
+
     fixed (n,6) bool: prescribed DOFs; their rows and columns are zeroed except
     the diagonal entry, which keeps its value (as MatZeroRowsColumns followed
     by restoring the diagonal does to the AIJ matrix; MPISBAIJ has no
     MatZeroRowsColumns in PETSc 3.18, and converting AIJ costs seconds).
     """
     nloc = r1 - r0
-    rows = np.repeat(np.arange(r0, r1), np.diff(indptr))
-    up = cols >= rows
-    rows, ucols, ublocks = rows[up], cols[up], blocks[up].copy()
+    rows = np.repeat(np.tile(np.arange(r0, r1), 2), np.diff(indptr))  # the two parts
+    up = np.flatnonzero(cols >= rows)
+    up = up[np.argsort(rows[up], kind="stable")]  # by row: own columns, then the others
+    rows, ucols, ublocks = rows[up], cols[up], blocks[up]
     on_diag = np.flatnonzero(rows == ucols)
     keep = np.diagonal(ublocks[on_diag], axis1=1, axis2=2).copy()
     ublocks *= ~fixed[rows][:, :, None]

@@ -104,13 +104,22 @@ def solve_load_cases(PETSc, frame, comm, groups, *, rtol, max_it=None, ksp_optio
     ranges = row_ranges(frame.n_particles, size)
     r0, r1 = int(ranges[rank]), int(ranges[rank + 1])
     center = box_center(frame.centers) if center is None else center
-    t0 = time.perf_counter()
-    block_rows = local_block_rows(frame, r0, r1)
-    block_seconds = time.perf_counter() - t0
+    rows, block_seconds = [], 0.0
+
+    def block_rows(last):
+        """[this rank's block rows], made when missing; the last group's operator empties it."""
+        nonlocal block_seconds
+        if not rows:
+            t0 = time.perf_counter()
+            rows.append(local_block_rows(frame, r0, r1))
+            block_seconds += time.perf_counter() - t0
+        return rows, rows.clear if last else None
+
     cases, setups, group_of_case, notes, us = [], [], [], [], []
     for g, group in enumerate(groups):
+        last = g == len(groups) - 1
         try:
-            c, rec = _solve_group(PETSc, frame, comm, r0, r1, block_rows, group, center,
+            c, rec = _solve_group(PETSc, frame, comm, r0, r1, block_rows(last), group, center,
                                   ksp_options, **opts)
         except PETSc.Error as exc:
             # e.g. an option PETSc cannot use (-pc_type unknown); PETSc printed the details
@@ -127,7 +136,7 @@ def solve_load_cases(PETSc, frame, comm, groups, *, rtol, max_it=None, ksp_optio
             notes.append(f"cases {', '.join(group.names)}: {str(exc).split(':')[0]} met an "
                          "indefinite preconditioner; set up again with "
                          "-pc_gamg_esteig_ksp_max_it 50 -mg_levels_esteig_ksp_max_it 50")
-            c, rec = _solve_group(PETSc, frame, comm, r0, r1, block_rows, group, center,
+            c, rec = _solve_group(PETSc, frame, comm, r0, r1, block_rows(last), group, center,
                                   {**(ksp_options or {}), **ROBUST_ESTEIG}, **opts)
         for case in c:
             us.append(case.u)
@@ -143,11 +152,14 @@ def solve_load_cases(PETSc, frame, comm, groups, *, rtol, max_it=None, ksp_optio
                              block_seconds=block_seconds, notes=notes)
 
 
-def _solve_group(PETSc, frame, comm, r0, r1, block_rows, group, center, ksp_options, *,
+def _solve_group(PETSc, frame, comm, r0, r1, rows, group, center, ksp_options, *,
                  rtol, max_it, diagnose, log, accept_unconverged):
-    op = ConstrainedOperator(PETSc, frame, comm, r0, r1, block_rows, group, rtol=rtol,
+    """rows: ([block rows], release or None): with release, the operator drops the
+    block rows (about a third of the matrix's memory) once its matrices are made."""
+    held, release = rows
+    op = ConstrainedOperator(PETSc, frame, comm, r0, r1, held[0], group, rtol=rtol,
                              max_it=max_it, ksp_options=ksp_options, diagnose=diagnose,
-                             accept_unconverged=accept_unconverged)
+                             accept_unconverged=accept_unconverged, release=release)
     try:
         rec = op.record
         if log:

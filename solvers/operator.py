@@ -79,10 +79,13 @@ class ConstrainedOperator:
 
     Build it once (the assembly and the preconditioner set-up), call
     :meth:`solve` for each case, then :meth:`destroy`. Collective on ``comm``.
+    block_rows: :func:`amfe.solvers.assembly.local_block_rows`; release: a
+    callable that drops the caller's reference to them, called once the
+    matrices are made (None: the caller keeps them).
     """
 
     def __init__(self, PETSc, frame, comm, r0, r1, block_rows, group, *, rtol, max_it=None,
-                 ksp_options=None, diagnose=False, accept_unconverged=False):
+                 ksp_options=None, diagnose=False, accept_unconverged=False, release=None):
         self.PETSc, self.comm, self.r0, self.r1 = PETSc, comm, r0, r1
         self.frame, self.group, self.diagnose = frame, group, diagnose
         self.accept_unconverged = accept_unconverged
@@ -134,6 +137,9 @@ class ConstrainedOperator:
             ksp_options = with_block_defaults(PETSc, ksp_options, group.forces is None)
         A_op = A if aij_only or block else sbaij_operator(PETSc, comm, n, r0, r1, *block_rows,
                                                           fixed=group.fixed)
+        if release is not None:  # the caller's last reference: GAMG's set-up reuses the memory
+            release()
+        del block_rows
         self.nullspace = None
         if group.null_modes is not None:
             self.nullspace = orthonormal_nullspace(PETSc, A, group.null_modes[:, r0:r1])

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from amfe.version import __version__
-from amfe.model.bonds import find_bonds, validate_particles
+from amfe.model.bonds import bonded_among, contact_geometry, find_bonds, validate_particles
 from amfe.errors import AmfeError
 from amfe.model.material import STEEL, Material, material_from_attrs
 from amfe.model.memory import check_memory, generation_bytes, lattice_counts
@@ -148,9 +148,15 @@ def limit_a_star(centers, radii, a_star_max, max_passes=50, box=None):
     """
     radii = np.array(radii, dtype=float)
     shrunk = np.zeros(radii.size, dtype=bool)
+    bonds = None
     for passes in range(max_passes + 1):
-        bonds = find_bonds(centers, radii) if box is None else \
-            find_periodic_bonds(centers, radii, box)[0]
+        if box is not None:
+            bonds = find_periodic_bonds(centers, radii, box)[0]
+        elif bonds is None:
+            bonds = find_bonds(centers, radii)
+        else:  # shrinking only removes bonds: the last pass's pairs hold every one left
+            bonds = contact_geometry(centers, radii, *bonded_among(centers, radii, bonds.i,
+                                                                   bonds.j))
         bad = np.flatnonzero(bonds.a_star > a_star_max)
         if bad.size == 0:
             return radii, int(shrunk.sum()), passes
