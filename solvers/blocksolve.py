@@ -47,17 +47,18 @@ iterations; end to end 0.77x on a `small` bed, 0.86x on 46 800 particles
 and 0.82x on the paper's bed (idle machine, same run)."""
 
 
-def with_block_defaults(PETSc, ksp_options, prescribed=True):
+def with_block_defaults(PETSc, ksp_options, hung_on_pin=False):
     """``ksp_options`` plus the :data:`BLOCK_DEFAULTS` set neither there nor in the database.
 
-    prescribed: whether the group prescribes a boundary (KUBC). Free frames
-    (SUBC's pinned particle, periodic fluctuations; loads as forces) keep
-    smoothed aggregation: unsmoothed, their iterations triple and grow with
-    the bed (SUBC 45 -> 84 from 0.6 to 1.2 mm, against 15-16 smoothed; periodic
-    28 against 11), and the block path with smoothed aggregation is 1.7-1.9x
-    faster end to end on 1.2 mm beds (docs/benchmarks.md).
+    hung_on_pin: the frame is held at one particle only (SUBC: no prescribed
+    boundary, loads as forces). It keeps smoothed aggregation and PETSc's
+    Chebyshev degree: with the defaults its iterations grow with the bed
+    (45 -> 84 from 0.6 to 1.2 mm, 113-123 with degree 1, against 15-16
+    smoothed at both sizes), 1.7x slower end to end at 1.2 mm. Periodic
+    frames (a null space of translations) do better with the defaults
+    (docs/benchmarks.md, "Six right-hand sides at once").
     """
-    if not prescribed:
+    if hung_on_pin:
         return dict(ksp_options or {})
     given = ksp_options or {}
     db = PETSc.Options()

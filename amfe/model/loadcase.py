@@ -26,7 +26,9 @@ class Group:
     case, added to the right-hand side (entries on ``fixed`` DOFs are
     ignored: a prescribed DOF takes its reaction instead). SUBC's boundary
     loads and the periodic condition's crossing-bond loads are forces
-    (docs/model.md, section 9).
+    (docs/model.md, section 9); hung_on_pin: nothing is prescribed but one
+    particle's six DOFs (SUBC), so the frame's stiffness reaches the load
+    only through that pin (the solver picks its multigrid for it).
     """
 
     fixed: np.ndarray
@@ -35,6 +37,7 @@ class Group:
     null_modes: np.ndarray = field(default=None)
     guesses: list = field(default=None)
     forces: list = field(default=None)
+    hung_on_pin: bool = False
 
 
 def rigid_body_modes(points, center=None):

@@ -195,7 +195,8 @@ def subc_groups(frame):
     forces = np.zeros((6, n, 6))
     forces[:, index, :3] = np.einsum("cij,bj->cbi", unit_stresses(), a)
     zero = [np.zeros((n, 6)) for _ in range(6)]
-    return [Group(fixed=fixed, values=zero, names=list(CASE_NAMES), forces=list(forces))]
+    return [Group(fixed=fixed, values=zero, names=list(CASE_NAMES), forces=list(forces),
+                  hung_on_pin=True)]
 
 
 def subc_average(frame, groups, u, moments=None, diagnose=False):
