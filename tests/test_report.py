@@ -57,7 +57,9 @@ def test_scaling_rank_invariant_and_phases(report):
         phases = sum(r[p] for p in ("generate", "bonds", "assemble", "setup", "solves",
                                     "averages"))
         assert phases <= r["total"] * 1.001 and phases > 0.5 * r["total"]
-        assert 3 <= r["iterations"] <= 15 and r["matvecs_per_solve"] > r["iterations"]
+        # the block path's GAMG (unsmoothed aggregation, Chebyshev degree 1: cheaper
+        # V-cycles, more of them) takes 14-24 iterations at rtol 1e-8 on these beds
+        assert 3 <= r["iterations"] <= 25 and r["matvecs_per_solve"] > r["iterations"]
 
 
 def test_rve_three_conditions_side_by_side(report):
