@@ -115,8 +115,14 @@ def curve_report(sizes, results, test, png):
     ax.axhline(2, color="grey", lw=0.8, ls=":")
     ax.text(grid[-1], 2, "goal, moduli 2 %", ha="right", va="bottom", fontsize=8)
     ax.set_xlabel("training beds")
-    ax.set_ylabel(f"held-out mean relative error, %  ({os.path.basename(test)})")
-    ax.yaxis.set_major_formatter(matplotlib.ticker.FormatStrFormatter("%g"))
+    ax.set_ylabel("held-out mean relative error, %")
+    ax.set_title(f"one recipe on nested training sets; held-out {os.path.basename(test)}",
+                 fontsize=9)
+    for axis in (ax.xaxis, ax.yaxis):
+        axis.set_major_formatter(matplotlib.ticker.FuncFormatter(lambda v, _: f"{v:,.0f}"
+                                                                 if v >= 1 else f"{v:g}"))
+    ax.yaxis.set_minor_formatter(matplotlib.ticker.FuncFormatter(
+        lambda v, _: f"{v:g}" if round(v) in (3, 6) else ""))
     ax.legend(ncol=2, fontsize=8)
     fig.tight_layout()
     fig.savefig(png, dpi=120)
