@@ -47,22 +47,37 @@ iterations; end to end 0.77x on a `small` bed, 0.86x on 46 800 particles
 and 0.82x on the paper's bed (idle machine, same run)."""
 
 
-def with_block_defaults(PETSc, ksp_options, hung_on_pin=False):
+def galerkin_algorithm(n_ranks):
+    """PETSc's algorithm for GAMG's Galerkin products P^T A P on a frame hung on a pin.
+
+    Smoothed aggregation's prolongators are denser, and PETSc's default
+    ("scalable", a sparse accumulator per row) spends most of SUBC's set-up in
+    them. Forming R = P^T first ("rap", serial matrices) or a dense row
+    accumulator ("nonscalable", parallel ones; an array the length of the
+    coarse grid) halve it: 12 480 particles, 1.6-1.9 -> 0.7-0.95 s on one
+    rank, 1.17 -> 0.70 s on two, the same iterations and constants
+    (docs/benchmarks.md, "SUBC's set-up"). The unsmoothed defaults gain nothing.
+    """
+    return "rap" if n_ranks == 1 else "nonscalable"
+
+
+def with_block_defaults(PETSc, ksp_options, hung_on_pin=False, n_ranks=1):
     """``ksp_options`` plus the :data:`BLOCK_DEFAULTS` set neither there nor in the database.
 
     hung_on_pin: the frame is held at one particle only (SUBC: no prescribed
     boundary, loads as forces). It keeps smoothed aggregation and PETSc's
     Chebyshev degree: with the defaults its iterations grow with the bed
     (45 -> 84 from 0.6 to 1.2 mm, 113-123 with degree 1, against 15-16
-    smoothed at both sizes), 1.7x slower end to end at 1.2 mm. Periodic
+    smoothed at both sizes), 1.7x slower end to end at 1.2 mm. Its Galerkin
+    products take :func:`galerkin_algorithm` (n_ranks: the communicator's size). Periodic
     frames (a null space of translations) do better with the defaults
     (docs/benchmarks.md, "Six right-hand sides at once").
     """
-    if hung_on_pin:
-        return dict(ksp_options or {})
     given = ksp_options or {}
+    defaults = ({"matptap_via": galerkin_algorithm(n_ranks)} if hung_on_pin
+                else BLOCK_DEFAULTS)
     db = PETSc.Options()
-    return {**{k: v for k, v in BLOCK_DEFAULTS.items() if k not in given and not db.hasName(k)},
+    return {**{k: v for k, v in defaults.items() if k not in given and not db.hasName(k)},
             **given}
 
 

@@ -83,6 +83,24 @@ def test_petsc_subc_matches_the_direct_solve():
     assert res["volume"] == pytest.approx(hull_of(bed.centers).volume, rel=1e-12)
 
 
+def test_subc_galerkin_algorithm_is_chosen_per_rank_count_and_changes_nothing():
+    """SUBC's smoothed aggregation forms P^T A P by "rap" (serial) or "nonscalable"
+    (parallel), unless the user names one; PETSc's default gives the same C."""
+    from amfe.solvers.blocksolve import with_block_defaults
+    from amfe.solvers.petsc import init_petsc
+    PETSc = init_petsc()
+    assert with_block_defaults(PETSc, {}, True, 1) == {"matptap_via": "rap"}
+    assert with_block_defaults(PETSc, {}, True, 3) == {"matptap_via": "nonscalable"}
+    assert with_block_defaults(PETSc, {"matptap_via": "scalable"}, True, 2) == {
+        "matptap_via": "scalable"}
+    assert "matptap_via" not in with_block_defaults(PETSc, {}, False, 1)
+    bed = generate_bed((150e-6, 150e-6, 100e-6), seed=5)
+    C = [np.array(homogenize_bed(bed.centers, bed.radii, bc="subc", rtol=1e-12,
+                                 ksp_options=opts)["C"])
+         for opts in (None, {"matptap_via": "scalable"})]
+    assert np.abs(C[0] - C[1]).max() < 1e-9 * np.abs(C[1]).max()
+
+
 # --------------------------------------------------------------------------- #
 # analytic lattices
 # --------------------------------------------------------------------------- #
