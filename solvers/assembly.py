@@ -13,6 +13,8 @@ made :data:`CHUNK` bonds at a time straight into their rows, and each rank's
 rows come split into the two parts MPIAIJ stores, so that no (bonds, 6, 6)
 and no per-entry temporary is ever made.
 """
+from contextlib import contextmanager
+
 import numpy as np
 import scipy.sparse as sp
 
@@ -20,6 +22,30 @@ from amfe.model.element import element_blocks
 
 CHUNK = 1 << 16
 """Bonds per call of element_blocks (three 19 MB blocks and its temporaries)."""
+
+
+@contextmanager
+def small_pages():
+    """numpy's new arrays on ordinary 4 KiB pages inside the block.
+
+    numpy asks Linux for transparent huge pages on every large array
+    (madvise). Where the kernel must first compact memory to find 2 MiB pages,
+    as on this project's virtual machines, touching such an array the first
+    time costs 1.4-4.3 s/GB against 0.7-0.9 s/GB on small pages; once huge
+    pages are at hand they are cheaper (0.16 s/GB) and the solves' gathers
+    profit from them. The block rows (:func:`local_block_rows`, 0.53 GB a
+    rank on the paper's bed, written once and freed before GAMG's set-up)
+    take small pages: assembly 8-9.5 -> 6-7 s. The AIJ arrays, which every
+    product streams through, keep huge pages: on small pages the six solves
+    took 1.9 s longer (docs/benchmarks.md, "Huge pages").
+    """
+    setter = getattr(np.core.multiarray, "_set_madvise_hugepage", None)
+    previous = setter(False) if setter is not None else None
+    try:
+        yield
+    finally:
+        if setter is not None:
+            setter(previous)
 
 
 def local_block_rows(frame, r0, r1):

@@ -12,7 +12,7 @@ import numpy as np
 
 from amfe.errors import AmfeError
 from amfe.model.averages import box_center
-from amfe.solvers.assembly import local_block_rows
+from amfe.solvers.assembly import local_block_rows, small_pages
 from amfe.solvers.ksp import IndefinitePreconditioner
 from amfe.solvers.operator import ConstrainedOperator
 from amfe.solvers.partition import row_ranges
@@ -111,7 +111,8 @@ def solve_load_cases(PETSc, frame, comm, groups, *, rtol, max_it=None, ksp_optio
         nonlocal block_seconds
         if not rows:
             t0 = time.perf_counter()
-            rows.append(local_block_rows(frame, r0, r1))
+            with small_pages():
+                rows.append(local_block_rows(frame, r0, r1))
             block_seconds += time.perf_counter() - t0
         return rows, rows.clear if last else None
 

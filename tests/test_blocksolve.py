@@ -288,3 +288,19 @@ def test_constants_of_both_paths_agree_on_1_2_3_ranks(tmp_path):
         Cs.append(np.array(out["C"]))
     for C in Cs[1:]:
         assert np.abs(C - Cs[0]).max() < 1e-8 * np.abs(Cs[0]).max()
+
+
+def test_small_pages_restores_numpy_huge_page_setting():
+    from amfe.solvers.assembly import small_pages
+    setter = np.core.multiarray._set_madvise_hugepage
+    before = setter(True)
+    try:
+        with small_pages():
+            assert setter(False) is False  # off inside the block
+        assert setter(True) is True       # back on after it
+        with pytest.raises(RuntimeError):
+            with small_pages():
+                raise RuntimeError("inside")
+        assert setter(True) is True       # also after an error
+    finally:
+        setter(before)
