@@ -10,7 +10,8 @@ The contract is the label's accuracy, not the method: every constant within
   factor's fill grows much faster with the bed than GAMG's work does.
 - ``gamg``: CG + GAMG. Its constants carry about 3-30x rtol of error, worst on
   small sparse beds; ``auto`` runs it at :data:`GAMG_RTOL_AUTO` (1e-7: at most
-  2.6e-7 on the beds auto sends to it), ``--solver gamg`` at the 1e-8 default.
+  5.0e-6 on the beds auto sends to it with the block path, 7.3e-6 over all 60),
+  ``--solver gamg`` at the 1e-8 default.
 
 :func:`choose_solver` decides per bed from the predicted fill of a
 factorisation (:func:`solve_features`, a few milliseconds), never from the
@@ -32,9 +33,12 @@ CONTRACT = 1e-5
 GAMG_RTOL_AUTO = 1e-7
 """rtol of CG + GAMG when ``auto`` picks it (1e-6 reached 9.2e-6 on one of 20 beds: unsafe)."""
 
-FILL_RATIO_MAX = 48.0
+FILL_RATIO_MAX = 34.0
 """Cholesky when the predicted fill (:func:`solve_features`) is at most this. Fitted on 60
-`small` beds (fill 7.7-57.7): the total cost is flat within 2 % for thresholds 45-50."""
+`small` beds (fill 7.7-57.7; run/probes/solver_choice.py, docs/benchmarks.md) against the
+block GAMG path of issue 17: the total cost is flat within 1 % for thresholds 30-38 and 8 %
+below the first fit's 48, which predated that path (Cholesky then won on 49 of 60 beds,
+now on 29)."""
 
 MAX_DIRECT_PARTICLES = 20_000
 """Never factorise beyond this many kept particles: a fully scanned 15 540-particle bed

@@ -67,7 +67,7 @@ def test_every_method_meets_the_contract_on_small_beds(seed):
 
 def test_a_sparse_bed_is_factorised_and_the_json_says_why(tmp_path):
     bed_path = tmp_path / "bed.h5"
-    proc = run_cli(["pack", "-o", str(bed_path), "--scale", "small", "--seed", "2834126987"])
+    proc = run_cli(["pack", "-o", str(bed_path), "--scale", "small", "--seed", "1428955016"])
     assert proc.returncode == 0, proc.stderr
     out = tmp_path / "r.json"
     proc = run_cli(["homogenize", str(bed_path), "-o", str(out), "--quiet"])
