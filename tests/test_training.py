@@ -503,3 +503,29 @@ def test_a_gpu_trained_checkpoint_predicts_on_the_cpu(synth, tmp_path):
     loaded = Surrogate.load(path)
     assert all(p.device.type == "cpu" for p in loaded.nets[0].parameters())
     assert np.isfinite(loaded.member_outputs(images)).all()
+
+
+def test_members_trained_apart_merge_into_the_ensemble(ensemble, synth, tmp_path):
+    """Seeds 3 and 4 trained alone, merged, predict exactly as ``--seed 3 --members 2``."""
+    from amfe.training.checkpoint import load_checkpoint, save_checkpoint
+    from amfe.training.merge import merge_members
+    from amfe.training.predict import Surrogate
+    parts = []
+    for seed in (4, 3):  # any order: members are sorted by seed
+        cfg = TrainConfig(arch="custom", epochs=2, batch_size=16, members=1, seed=seed)
+        path = tmp_path / f"s{seed}.pt"
+        save_checkpoint(path, train_model(synth, cfg, progress=False, log=lambda line: None))
+        parts.append(load_checkpoint(path))
+    merged = merge_members(parts, synth)
+    assert merged["member_seeds"] == ensemble["member_seeds"] == [3, 4]
+    images, _ = read_rows(synth)
+    a = Surrogate(merged, "merged").predict(images)
+    b = Surrogate(ensemble, "ensemble").predict(images)
+    np.testing.assert_array_equal(a["mean"], b["mean"])
+    assert merged["spread"] == ensemble["spread"]
+    assert merged["metrics"]["validation"] == ensemble["metrics"]["validation"]
+    with pytest.raises(AmfeError, match="repeat a member seed"):
+        merge_members([parts[0], parts[0]], synth)
+    other = dict(parts[1], training=dict(parts[1]["training"], epochs=3))
+    with pytest.raises(AmfeError, match="another recipe"):
+        merge_members([parts[0], other], synth)

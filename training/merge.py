@@ -1,0 +1,83 @@
+"""One ensemble from members trained separately (for example at the same time on two cores).
+
+Member k of ``amfe train --seed S --members M`` is the network that ``amfe
+train --seed S+k`` trains alone on the same data set: the split (split
+seed), the normaliser (the training labels) and the recipe are the same,
+and a member's weights, batch order and augmentation depend on its own seed
+only. :func:`merge_members` checks that the checkpoints agree on all of
+that, concatenates their members in seed order, and redoes what depends on
+the whole ensemble: the out-of-distribution flag's calibration and the
+validation metrics (``metrics["test"]`` is dropped; evaluate the merged
+model again).
+"""
+import numpy as np
+
+from amfe.errors import AmfeError
+
+from amfe.training.data import dataset_hash, dataset_info, read_rows
+from amfe.training.train import calibrate_spread
+from amfe.training.metrics import property_metrics
+
+# Checkpoint entries that must be equal in every part (training: all but the seed and timing).
+SAME = ("arch", "arch_args", "normalizer", "image_shape", "inputs", "pixelation", "material",
+        "tta")
+SAME_DATA = ("sha256", "n_train", "n_validation", "validation_rows")
+FREE_TRAINING = ("seed", "members", "seconds", "flag_percentile")
+
+
+def merge_members(ckpts, data_path, flag_percentile=95.0, names=None):
+    """The checkpoint dict of one ensemble made of the members of ``ckpts`` (list of dicts).
+
+    data_path: the training data set (its validation beds calibrate the flag).
+    names: one label per checkpoint for error messages. AmfeError when the
+    parts were not trained on the same data and split with the same recipe,
+    or repeat a seed.
+    """
+    names = names or [f"checkpoint {k + 1}" for k in range(len(ckpts))]
+    if len(ckpts) < 2:
+        raise AmfeError("merging needs at least two checkpoints")
+    first = ckpts[0]
+    for ck, name in zip(ckpts[1:], names[1:]):
+        for key in SAME:
+            if ck.get(key) != first.get(key):
+                raise AmfeError(f"{name} differs from {names[0]} in {key}: not members of one "
+                                "ensemble")
+        for key in SAME_DATA:
+            if ck["dataset"].get(key) != first["dataset"].get(key):
+                raise AmfeError(f"{name} was trained on other data or another split than "
+                                f"{names[0]} (dataset {key} differs)")
+        for key in set(first["training"]) | set(ck["training"]):
+            if key not in FREE_TRAINING and ck["training"].get(key) != first["training"].get(key):
+                raise AmfeError(f"{name} was trained with another recipe than {names[0]} "
+                                f"({key}: {ck['training'].get(key)!r} against "
+                                f"{first['training'].get(key)!r})")
+    parts = sorted(((seed, state, hist) for ck in ckpts
+                    for seed, state, hist in zip(ck["member_seeds"], ck["members"],
+                                                 ck["history"])), key=lambda p: p[0])
+    seeds = [p[0] for p in parts]
+    if len(set(seeds)) != len(seeds):
+        raise AmfeError(f"the checkpoints repeat a member seed ({seeds}): train each part "
+                        "with its own --seed")
+    out = dict(first, members=[p[1] for p in parts], member_seeds=seeds,
+               history=[p[2] for p in parts], metrics={})
+    out.pop("created", None)   # save_checkpoint stamps the merge
+    out["training"] = dict(first["training"], seed=seeds[0], members=len(seeds),
+                           flag_percentile=float(flag_percentile),
+                           seconds=float(sum(ck["training"].get("seconds", 0.0)
+                                             for ck in ckpts)))
+    inputs = tuple(first["inputs"])
+    if dataset_hash(data_path, dataset_info(data_path, inputs)["ok"], inputs) != \
+            first["dataset"]["sha256"]:
+        raise AmfeError(f"{data_path} is not the data set the members were trained on "
+                        "(its sha256 differs from the checkpoints')")
+    rows = np.asarray(first["dataset"]["validation_rows"], dtype=np.int64)
+    if rows.size:
+        from amfe.training.predict import Surrogate
+        images, labels = read_rows(data_path, rows, inputs)
+        out["spread"] = None
+        sur = Surrogate(out, "the merged model")
+        out["spread"] = calibrate_spread(sur.member_outputs(images), flag_percentile)
+        res = Surrogate(out, "the merged model").predict(images)
+        out["metrics"]["validation"] = property_metrics(res["mean"], labels)
+        out["metrics"]["validation"]["flagged_fraction"] = float(np.mean(res["flagged"]))
+    return out
