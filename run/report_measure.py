@@ -297,21 +297,24 @@ def find_models(models_dir):
     """{name: (checkpoint dict, description)} of the networks found in ``models_dir``.
 
     NAME.pt for lenet5, alexnet, vgg, ensemble and bonds (run/train_surrogate.py's
-    names; bonds is the shipped one, which also reads the bond image);
-    "Custom Net" is member 0 of the ensemble. Falls back to the shipped model
-    (amfe/models/custom_small.pt).
+    names; bonds is round 1's shipped one, which also reads the bond image);
+    "Custom Net" is member 0 of the ensemble; "shipped" is the model amfe
+    predict uses by default (amfe/models/multiscale_small.pt, docs/model_card.md).
     """
     from amfe.training.checkpoint import load_checkpoint
     found = {}
     names = {"lenet5": "LeNet-5", "alexnet": "AlexNet", "vgg": "VGG", "ensemble": "Custom Net x5",
-             "bonds": "Custom Net x5 + bond image (shipped)"}
+             "bonds": "Custom Net x5 + bond image (round 1)"}
     for n, desc in names.items():
         p = os.path.join(models_dir or "", f"{n}.pt")
         if models_dir and os.path.exists(p):
             found[n] = (load_checkpoint(p), desc)
-    shipped = os.path.join(ROOT, "amfe", "models", "custom_small.pt")
-    if "bonds" not in found and os.path.exists(shipped):
-        found["bonds"] = (load_checkpoint(shipped), "Custom Net x5 + bond image (shipped)")
+    from amfe.training.predict import default_model_path
+    shipped = default_model_path()
+    if shipped.is_file():
+        ck = load_checkpoint(shipped)
+        found["shipped"] = (ck, f"{ck['arch']} x{len(ck['members'])} + "
+                                f"{' + '.join(ck['inputs'])} images (shipped)")
     if "ensemble" in found:
         ck = found["ensemble"][0]
         k0 = dict(ck, members=[ck["members"][0]], member_seeds=[ck["member_seeds"][0]],

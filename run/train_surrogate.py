@@ -12,8 +12,9 @@ stopped (delete WORK/NAME.pt to redo one run). The runs:
 
 - bonds: Custom Net, 5 members (seeds 0-4), amfe's recipe (below) for
   --bond-epochs epochs, on the volume-fraction and the bond-stiffness images
-  (``--inputs fill,bonds``, amfe.dataset.bondimage): the shipped model, copied to
-  amfe/models/custom_small.pt;
+  (``--inputs fill,bonds``, amfe.dataset.bondimage): round 1's shipped model
+  (amfe/models/custom_small.pt until round 2, which ships the multi-scale
+  net of docs/model_card.md; this pipeline no longer copies into amfe/models);
 - custom_bonds: one such network, --epochs epochs (what the bond image is
   worth against the same network on the volume fraction alone);
 - ensemble: Custom Net, 5 members (seeds 0-4), amfe's recipe on the volume
@@ -48,7 +49,6 @@ import argparse
 import json
 import os
 import shlex
-import shutil
 import subprocess
 import sys
 import time
@@ -61,7 +61,9 @@ sys.path.insert(0, os.path.join(ROOT, "run"))
 
 from amfe.vocab import LABEL_NAMES  # noqa: E402
 
-SHIPPED = os.path.join(ROOT, "amfe", "models", "custom_small.pt")
+def round1_model(args):
+    """Round 1's shipped model as this pipeline trains it (WORK/bonds.pt)."""
+    return os.path.join(args.work, "bonds.pt")
 DOCS = os.path.join(ROOT, "docs")
 LARGE_ERROR = 0.05       # a bed's prediction is a "large error" if any property is off by more
 
@@ -352,12 +354,16 @@ def write_docs(args, runs, results, ckpts, ood, ood_fill, bench, elapsed, floor,
     plot_learning_curves({"Custom Net, paper's recipe": ckpts["paper"]["history"]},
                          os.path.join(DOCS, "surrogate_paper_recipe.png"),
                          "Custom Net, the paper's recipe (80 epochs, constant lr, no augmentation)")
-    size_mb = os.path.getsize(SHIPPED) / 1e6
+    size_mb = os.path.getsize(round1_model(args)) / 1e6
     ms = results["bonds"]["metrics"]
     met = _targets_met(ms)
     L = []
     w = L.append
     w("# The CNN surrogate: comparison and model card")
+    w("")
+    w("**The shipped model is now two multi-scale nets (round 2): [model_card.md](model_card.md); "
+      "issue 13's measurements are in [surrogate_scaling.md](surrogate_scaling.md).** This page "
+      "is round 1's comparison of the paper's networks and round 1's model card.")
     w("")
     train_min = sum(float(ck["training"]["seconds"]) for ck in ckpts.values()) / 60
     w("Written by `python run/train_surrogate.py` "
@@ -501,7 +507,8 @@ def write_docs(args, runs, results, ckpts, ood, ood_fill, bench, elapsed, floor,
     w("")
     w("![the paper's recipe](surrogate_paper_recipe.png)")
     w("")
-    w("## Model card: amfe/models/custom_small.pt")
+    w("## Round 1's model card (amfe/models/custom_small.pt until round 2; the shipped model "
+      "is now [model_card.md](model_card.md))")
     w("")
     w(f"- Custom Net (training/nets.py, same padding) on 6 x 20 x 20 inputs: the 3 layers of "
       "the volume-fraction image, then the 3 of the bond-stiffness image; "
@@ -526,7 +533,6 @@ def write_docs(args, runs, results, ckpts, ood, ood_fill, bench, elapsed, floor,
     w("")
     w("```bash")
     w(shlex.join(command(args, "bonds", runs["bonds"][1])))
-    w(f"cp {args.work}/bonds.pt amfe/models/custom_small.pt")
     w("```")
     w("")
     tr = shp["training"]
@@ -610,7 +616,7 @@ def main(argv=None):
                     help="epochs of the shipped bond-image ensemble (default 600)")
     ap.add_argument("--full-size", action="store_true",
                     help="AlexNet and VGG at full width (4096-wide FC layers)")
-    ap.add_argument("--no-docs", action="store_true", help="do not write docs/ or ship the model")
+    ap.add_argument("--no-docs", action="store_true", help="do not write docs/")
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
     os.makedirs(args.work, exist_ok=True)
@@ -623,10 +629,6 @@ def main(argv=None):
     run_trainings(args, runs, log)
     log("[2/5] held-out evaluation")
     results, ckpts = evaluate(args, runs, log)
-    if not args.no_docs:
-        os.makedirs(os.path.dirname(SHIPPED), exist_ok=True)
-        shutil.copyfile(os.path.join(args.work, "bonds.pt"), SHIPPED)
-        log(f"shipped {SHIPPED} ({os.path.getsize(SHIPPED) / 1e6:.2f} MB)")
     log("[3/5] ensemble flag on held-out and out-of-distribution beds")
     ood = ood_report(args, ckpts["bonds"], log)
     ood_fill = ood_report(args, ckpts["ensemble"], log)
@@ -634,8 +636,7 @@ def main(argv=None):
     floor = noise_floor(args.work, log=log)
     groups = error_groups(args, ckpts["bonds"])
     from bench_surrogate import run_all
-    bench = run_all(SHIPPED if not args.no_docs else os.path.join(args.work, "bonds.pt"),
-                    args.test, log=lambda s: log("  " + s))
+    bench = run_all(round1_model(args), args.test, log=lambda s: log("  " + s))
     elapsed = time.perf_counter() - t0
     summary = {"results": results, "ood": ood, "ood_fill_only": ood_fill, "noise_floor": floor, "error_groups": groups,
                "bench": dict(bench, batched={f"{t} threads, batch {n}": v

@@ -35,13 +35,13 @@ from amfe.training.checkpoint import build_members, check_image_shape, load_chec
 from amfe.training.device import device_of
 from amfe.training.data import DEFAULT_INPUTS, Normalizer, check_inputs, flip_images, transpose_labels
 
-DEFAULT_MODEL_NAME = "custom_small.pt"
+DEFAULT_MODEL_NAME = "multiscale_small.pt"
 TRAIN_HINT = ("train it with `python run/train_surrogate.py` (see docs/surrogate.md) or pass "
               "--model MODEL.pt from `amfe train`")
 
 
 def default_model_path():
-    """The model shipped in the package: amfe/models/custom_small.pt."""
+    """The model shipped in the package: amfe/models/multiscale_small.pt (docs/model_card.md)."""
     import amfe.version
     return Path(amfe.version.__file__).resolve().parent / "models" / DEFAULT_MODEL_NAME
 

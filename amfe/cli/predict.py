@@ -40,7 +40,7 @@ def register(sub):
     p.add_argument("bed", metavar="BED.h5", help="bed HDF5 file (/particles/centers, /radii)")
     p.add_argument("--model", metavar="MODEL.pt",
                    help="checkpoint from amfe train (default: the shipped amfe/models/"
-                        "custom_small.pt)")
+                        "multiscale_small.pt)")
     p.add_argument("-o", "--output", metavar="OUT.json",
                    help="write the result as JSON here (-: to stdout, the table to stderr)")
     p.add_argument("--check", action="store_true",
