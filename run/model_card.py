@@ -33,6 +33,8 @@ def train_commands(ck):
               "--split-seed", str(tr["split_seed"]), "--threads", "1"]
     common += [a for k, v in ck["arch_args"].items() if k == "width"
                for a in ("--width", f"{v:g}")]
+    common += ["--linear-moduli"] if not tr.get("log_moduli", True) else []
+    common += ["--log-poisson", ",".join(tr["log_poisson"])] if tr.get("log_poisson") else []
     parts = [f"/work/data/exp/member{s}.pt" for s in ck["member_seeds"]]
     lines = [shlex.join([".venv/bin/amfe", "train", data, *common, "--seed", str(s), "-o", p])
              for s, p in zip(ck["member_seeds"], parts)]

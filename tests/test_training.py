@@ -262,7 +262,7 @@ def test_ensemble_spread_zero_when_members_identical(ensemble, synth):
 def test_default_model_missing_says_how_to_train(monkeypatch, tmp_path):
     import amfe.training.predict as tp
     monkeypatch.setattr(tp, "default_model_path", lambda: tmp_path / "none.pt")
-    with pytest.raises(AmfeError, match="train_surrogate"):
+    with pytest.raises(AmfeError, match="model_card"):
         tp.Surrogate.load(None)
 
 
@@ -529,3 +529,21 @@ def test_members_trained_apart_merge_into_the_ensemble(ensemble, synth, tmp_path
     other = dict(parts[1], training=dict(parts[1]["training"], epochs=3))
     with pytest.raises(AmfeError, match="another recipe"):
         merge_members([parts[0], other], synth)
+
+
+def test_poisson_ratios_in_log_space_are_opt_in_and_checked(synth):
+    assert TrainConfig().log_poisson == ()
+    cfg = TrainConfig(arch="custom", epochs=1, batch_size=16, log_poisson="nu_xy")
+    cfg.check()
+    assert cfg.log_poisson == ("nu_xy",)
+    with pytest.raises(AmfeError, match="distinct Poisson ratios"):
+        TrainConfig(log_poisson=("Ex",)).check()
+    ck = train_model(synth, cfg, progress=False, log=lambda line: None)
+    assert ck["normalizer"]["log"] == [True, True, True, False, False, True]
+    images, labels = read_rows(synth)
+    norm = Normalizer.fit(labels, log=(True,) * 3 + (False, False, True))
+    np.testing.assert_allclose(norm.decode(norm.encode(labels)), labels, rtol=1e-5)  # float32
+    bad = labels.copy()
+    bad[0, 4] = -0.01
+    with pytest.raises(AmfeError, match="nu_xz"):
+        Normalizer.fit(bad, log=(True,) * 3 + (False, True, True))

@@ -251,8 +251,12 @@ class Normalizer:
     def fit(cls, labels, log=(True, True, True, False, False, False)):
         labels = np.asarray(labels, np.float64)
         log = np.asarray(log, bool)
-        if np.any(log & np.any(labels <= 0, axis=0)):
-            raise AmfeError("log normalisation of a label with non-positive values")
+        bad = log & np.any(labels <= 0, axis=0)
+        if np.any(bad):
+            names = ", ".join(f"{LABEL_NAMES[k]} (min {labels[:, k].min():.3g})"
+                              for k in np.flatnonzero(bad))
+            raise AmfeError(f"log normalisation of a label with non-positive values: {names}; "
+                            "train it in linear space")
         f = np.where(log, np.log(np.where(log, labels, 1.0)), labels)
         std = f.std(axis=0)
         return cls(f.mean(axis=0), np.where(std > 0, std, 1.0), log)

@@ -36,8 +36,8 @@ from amfe.training.device import device_of
 from amfe.training.data import DEFAULT_INPUTS, Normalizer, check_inputs, flip_images, transpose_labels
 
 DEFAULT_MODEL_NAME = "multiscale_small.pt"
-TRAIN_HINT = ("train it with `python run/train_surrogate.py` (see docs/surrogate.md) or pass "
-              "--model MODEL.pt from `amfe train`")
+TRAIN_HINT = ("train it with the commands of docs/model_card.md (`amfe train` per member, "
+              "then `run/merge_members.py`) or pass --model MODEL.pt from `amfe train`")
 
 
 def default_model_path():

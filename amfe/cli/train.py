@@ -55,6 +55,9 @@ def register(sub):
                    help="validation share (default 0.2, the paper's 400 of 2000)")
     p.add_argument("--linear-moduli", action="store_true",
                    help="standardise Ex, Ey, Ez themselves instead of their logarithms")
+    p.add_argument("--log-poisson", metavar="NAMES", default="",
+                   help="comma list of Poisson ratios (nu_yz, nu_xz, nu_xy) to standardise as "
+                        "logarithms too; every training label must be positive (default none)")
     p.add_argument("--augment", choices=AUGMENTATIONS, default=d.augment,
                    help="label-preserving symmetries: flips (mirror x, y) or d4 (also swap x, y)")
     p.add_argument("--tta", choices=("none", "flips", "d4"), default="none",
@@ -152,7 +155,8 @@ def run(args):
                       batch_size=args.batch_size, lr=args.lr, weight_decay=args.weight_decay,
                       schedule=args.schedule, seed=args.seed, members=args.members,
                       split_seed=args.split_seed, val_fraction=args.val_fraction,
-                      log_moduli=not args.linear_moduli, augment=args.augment, tta=args.tta,
+                      log_moduli=not args.linear_moduli, log_poisson=args.log_poisson,
+                      augment=args.augment, tta=args.tta,
                       flag_percentile=args.flag_percentile, workers=args.workers,
                       max_train=args.max_train, inputs=args.inputs, device=args.device)
     cfg.check()
