@@ -38,8 +38,9 @@ def train_commands(ck):
     parts = [f"/work/data/exp/member{s}.pt" for s in ck["member_seeds"]]
     lines = [shlex.join([".venv/bin/amfe", "train", data, *common, "--seed", str(s), "-o", p])
              for s, p in zip(ck["member_seeds"], parts)]
+    test = ["--test", ck["metrics"]["test"]["path"]] if "test" in ck["metrics"] else []
     lines.append(shlex.join([".venv/bin/python", "run/merge_members.py", *parts, "--data", data,
-                             "-o", MODEL]))
+                             *test, "-o", MODEL]))
     return lines
 
 
@@ -102,7 +103,8 @@ def main(argv=None):
       f"data set\"), {ds['n_train']} training and {ds['n_validation']} validation beds "
       f"(split seed {tr['split_seed']}); sha256 of the images and labels `{ds['sha256']}`.")
     w(f"- Recipe: Adam, lr {tr['lr']:g} ({tr['schedule']}), batch {tr['batch_size']}, "
-      f"{tr['epochs']} epochs, log-standardised moduli, {tr['augment']} augmentation; "
+      f"{tr['epochs']} epochs, log-standardised moduli"
+      + "".join(f" and {n}" for n in tr.get("log_poisson", [])) + f", {tr['augment']} augmentation; "
       f"{tr['seconds'] / 60:.0f} min of one-thread training for both members.")
     w("- Made with:")
     w("")
