@@ -40,7 +40,7 @@ how much) but costs four forward passes, which would put the ensemble over
 Then every model is evaluated on the held-out test file (another data-set
 seed): mean relative error and R^2 per property, parameters, training time,
 batched inference time per bed; the ensemble's flag on the out-of-
-distribution file of run/make_ood.py when it exists; and docs/surrogate.md
+distribution file of run/make_ood.py when it exists; and docs/surrogate_round1.md
 (comparison table, model card, flag results) and the learning-curve PNGs in
 docs/ are written. Run time on the 2-core development machine: about 35
 minutes with --jobs 2 and 300 epochs (printed at the end).
@@ -359,11 +359,11 @@ def write_docs(args, runs, results, ckpts, ood, ood_fill, bench, elapsed, floor,
     met = _targets_met(ms)
     L = []
     w = L.append
-    w("# The CNN surrogate: comparison and model card")
+    w("# The CNN surrogate, round 1: the paper's networks compared, and round 1's model card")
     w("")
-    w("**The shipped model is now two multi-scale nets (round 2): [model_card.md](model_card.md); "
-      "issue 13's measurements are in [surrogate_scaling.md](surrogate_scaling.md).** This page "
-      "is round 1's comparison of the paper's networks and round 1's model card.")
+    w("**The surrogate as amfe ships it now is in [surrogate.md](surrogate.md) (model card: "
+      "[model_card.md](model_card.md)).** This page is round 1's comparison of the paper's "
+      "networks and round 1's model card, kept as the baseline.")
     w("")
     train_min = sum(float(ck["training"]["seconds"]) for ck in ckpts.values()) / 60
     w("Written by `python run/train_surrogate.py` "
@@ -600,7 +600,7 @@ def write_docs(args, runs, results, ckpts, ood, ood_fill, bench, elapsed, floor,
       "or 45 degrees; wide tracks 0.2-0.3 mm; jitter +/-0.06 R (training: U(1.05, 1.06-1.14), "
       "0.35-1, 67 or 90 degrees, 0.05-0.15 mm, 0.025 R).")
     w("")
-    with open(os.path.join(DOCS, "surrogate.md"), "w") as fh:
+    with open(os.path.join(DOCS, "surrogate_round1.md"), "w") as fh:
         fh.write("\n".join(L) + "\n")
 
 
@@ -645,7 +645,7 @@ def main(argv=None):
     with open(os.path.join(args.work, "results.json"), "w") as fh:
         json.dump(summary, fh, indent=2, default=float)
     if not args.no_docs:
-        log("[5/5] docs/surrogate.md and learning curves")
+        log("[5/5] docs/surrogate_round1.md and learning curves")
         write_docs(args, runs, results, ckpts, ood, ood_fill, bench, elapsed, floor, groups)
     log(f"done in {elapsed / 60:.1f} min; results in {args.work}/results.json")
     return 0
