@@ -260,19 +260,19 @@ def test_foreign_parts_are_moved_aside_and_recomputed(tmp_path, capsys, referenc
     write_part(parts, dict(recs[2], seed=record_seed(SEED + 1, 2)),       # another data set's
                run_params("tiny", SEED + 1, N, GAMG_RTOL_AUTO, "auto"))
     write_part(parts, dict(recs[3], seed=record_seed(SEED + 1, 3)))       # old part, no run
-    write_part(parts, recs[4], run_params("tiny", SEED, N + 1, GAMG_RTOL_AUTO, "auto"))  # another count
+    write_part(parts, recs[4], run_params("tiny", SEED, N, 1e-9, "auto"))  # another rtol
     with open(part_path(parts, 5), "wb") as fh:
         fh.write(b"PK\x03\x04 damaged")
     assert run_main(out) == 0
     cap = capsys.readouterr()
     assert "this run 4 beds" in cap.out                 # the 12 good parts were kept
     for k, why in ((2, "is not record_seed(5, 2)"), (3, "is not record_seed(5, 3)"),
-                   (4, "made by another run (scale tiny, seed 5, count 17"),
+                   (4, f"made by another run (scale tiny, seed 5, count {N}, rtol 1e-09"),
                    (5, "cannot be read")):
         (line,) = [x for x in cap.err.splitlines() if f"refused record file of record {k} (" in x]
         assert why in line and line.endswith(f"rec_{k:08d}.npz; it is computed again"), line
     assert sorted(os.listdir(rejected_dir(out))) == [f"rec_{k:08d}.npz" for k in (2, 3, 4, 5)]
-    assert read_part(os.path.join(rejected_dir(out), "rec_00000004.npz"))["run"]["count"] == N + 1
+    assert read_part(os.path.join(rejected_dir(out), "rec_00000004.npz"))["run"]["rtol"] == 1e-9
     assert_identical(out, reference[0])
 
 

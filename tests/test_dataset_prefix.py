@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from amfe.cli import main
+from amfe.dataset.plan import prepare
 from amfe.dataset.prefix import write_prefix
 from amfe.errors import AmfeError
 from amfe.io.datasetparts import part_path, parts_dir, run_params, write_params_json, write_part
@@ -78,3 +79,46 @@ def test_prefix_refuses_what_it_cannot_give(runs, tmp_path, capsys):
     with pytest.raises(AmfeError, match="record 0 .* is not finished"):
         write_prefix(running, tmp_path / "x.h5")
     assert not (tmp_path / "x.h5").exists()
+
+
+def _parts_of(rows, run, params, first):
+    """Write records 0..first-1 of ``rows`` as the parts of an unfinished run ``run``."""
+    parts = parts_dir(run)
+    os.makedirs(parts)
+    write_params_json(parts, params)
+    for k in range(first):
+        rec = {key: rows[key][k] for key in ROW_KEYS}
+        rec.update(image=rec.pop("images"), bond_image=rec.pop("bond_images"),
+                   seconds=np.zeros(3), solver="",
+                   params=np.array([rows["params"][n][k] for n in PARAM_NAMES]))
+        write_part(parts, rec, params)
+    return parts
+
+
+def test_a_run_grows_to_more_records_and_keeps_its_own(runs, tmp_path, capsys):
+    """An unfinished run of FIRST records, rerun with --count BIG, equals the run of BIG."""
+    direct, big, _ = runs
+    run = tmp_path / "grown.h5"
+    small = run_params("tiny", SEED, FIRST, GAMG_RTOL_AUTO, "auto")
+    _parts_of(read_rows(direct), run, small, FIRST)
+    assert main(["dataset", "-o", str(run), "--count", str(BIG), *ARGS]) == 0
+    err = capsys.readouterr().err
+    assert f"run of {FIRST} records" in err and f"grows to {BIG}" in err
+    assert "refused" not in err                        # its parts were kept, not recomputed
+    a, b = read_rows(run), read_rows(big)
+    for key in ROW_KEYS:
+        assert np.array_equal(a[key], b[key], equal_nan=a[key].dtype.kind == "f"), key
+    assert a["attrs"]["count"] == BIG
+
+
+def test_a_run_does_not_shrink_or_change_its_method(runs, tmp_path):
+    direct, _, _ = runs
+    run = tmp_path / "run.h5"
+    params = run_params("tiny", SEED, FIRST, GAMG_RTOL_AUTO, "auto")
+    parts = _parts_of(read_rows(direct), run, params, FIRST)
+    before = tree(parts)
+    with pytest.raises(AmfeError, match="--prefix-of"):
+        prepare(run, run_params("tiny", SEED, FIRST - 1, GAMG_RTOL_AUTO, "auto"))
+    with pytest.raises(AmfeError, match="other parameters"):
+        prepare(run, run_params("tiny", SEED, BIG, 1e-9, "auto"))
+    assert tree(parts) == before

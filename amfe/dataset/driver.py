@@ -154,6 +154,9 @@ def _locked_run(MPI, world, output, params, sc, ranks_per_bed, progress, pixelat
     todo, parts = plan["todo"], plan["parts"]
     if world.rank == 0 and plan["rejected"]:
         print("\n".join(rejected_lines(plan["rejected"])), file=sys.stderr, flush=True)
+    if world.rank == 0 and plan["grown_from"] is not None:
+        print(f"amfe dataset: the run of {plan['grown_from']} records in {parts} grows to "
+              f"{params['count']}; the records it has are kept", file=sys.stderr, flush=True)
     group = world.Split(color=world.rank // ranks_per_bed, key=world.rank)
     n_groups = (world.size + ranks_per_bed - 1) // ranks_per_bed
     window = Window(MPI, world)

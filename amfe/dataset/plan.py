@@ -17,7 +17,7 @@ from amfe.io.atomic import is_no_space, no_space_error, remove_stale_tmp
 from amfe.io.datasetfile import check_dataset
 from amfe.io.datasetparts import (STATUS_OK, describe_params, done_indices, part_path,
                                   part_problem, parts_dir, read_params_json, reject_part,
-                                  remove_parts, write_params_json)
+                                  remove_parts, same_but_count, write_params_json)
 
 #: Data-set seeds are stored as an HDF5 uint64 attribute; record_seed takes any of them.
 SEED_LIMIT = 2**64
@@ -91,7 +91,8 @@ def prepare(output, params):
 
     For an unfinished run: todo (sorted record indices without a valid
     part), n_done, parts, rejected [(k, why, new path)] for the parts moved
-    aside to ``OUTPUT.rejected/``.
+    aside to ``OUTPUT.rejected/``, grown_from (the run's earlier count when
+    this call grows it: same parameters, more records; else None).
     """
     output = os.fspath(output)
     try:
@@ -108,6 +109,7 @@ def _unfinished(output, params):
     parts = parts_dir(output)
     os.makedirs(parts, exist_ok=True)
     old = read_params_json(parts)
+    grown_from = None
     done = done_indices(parts, params["count"])
     if old is None:
         if done:
@@ -115,9 +117,7 @@ def _unfinished(output, params):
                             "remove the directory to start afresh")
         write_params_json(parts, params)
     elif old != params:
-        raise AmfeError(f"{parts} belongs to a run with other parameters ({describe_params(old)}; "
-                        f"asked: {describe_params(params)}): rerun with those, or remove "
-                        f"{parts} to start afresh")
+        grown_from = _grow(parts, old, params)
     remove_stale_tmp(parts, every_target=True)   # of killed writers; the lock keeps live ones out
     rejected = []
     for k in done:
@@ -129,7 +129,25 @@ def _unfinished(output, params):
     good = [k for k in done if k not in bad]
     todo = sorted(set(range(params["count"])) - set(good))
     return {"complete": False, "todo": todo, "n_done": len(good), "parts": parts,
-            "rejected": rejected}
+            "rejected": rejected, "grown_from": grown_from}
+
+
+def _grow(parts, old, params):
+    """Let an unfinished run of ``old`` parameters go on as ``params`` when only its count grows.
+
+    Returns the old count (its parts stay: part_problem ignores the count);
+    AmfeError for any other change, or for fewer records (--prefix-of takes those).
+    """
+    if not same_but_count(old, params):
+        raise AmfeError(f"{parts} belongs to a run with other parameters ({describe_params(old)}; "
+                        f"asked: {describe_params(params)}): rerun with those, or remove "
+                        f"{parts} to start afresh")
+    if params["count"] < old["count"]:
+        raise AmfeError(f"{parts} belongs to a run of {old['count']} records, more than the "
+                        f"{params['count']} asked; rerun with --count {old['count']}, or take "
+                        f"its first records with `amfe dataset --prefix-of`")
+    write_params_json(parts, params)
+    return old["count"]
 
 
 def rejected_lines(rejected, limit=5):

@@ -162,14 +162,25 @@ def describe_params(p):
 
 
 
+def same_but_count(a, b):
+    """Whether run parameters ``a`` and ``b`` differ at most in the run's length.
+
+    Record k is a function of (seed, k) and the method alone, so a record of
+    a run of N records is record k of the same run grown to M > N records.
+    """
+    return {n: v for n, v in a.items() if n != "count"} == \
+        {n: v for n, v in b.items() if n != "count"}
+
+
 def part_problem(path, k, params, rec=None):
     """Why part file ``path`` is not record ``k`` of the run ``params`` (None if it is).
 
     Checks, reading only the small members unless ``rec`` (the part, read)
     is given: it can be read; its index is k; its bed seed is
     record_seed(params seed, k); its stored run parameters (parts written
-    before they were stored have none) equal ``params``; its images have the
-    scale's shape.
+    before they were stored have none) equal ``params`` but for the count
+    (:func:`same_but_count`: a grown run keeps its parts); its images have
+    the scale's shape.
     """
     want_seed = record_seed(int(params["seed"]), k)
     try:
@@ -188,7 +199,7 @@ def part_problem(path, k, params, rec=None):
     if seed != want_seed:
         return (f"its bed seed {seed} is not record_seed({params['seed']}, {k}) = {want_seed}: "
                 "a record of another data set")
-    if run is not None and run != params:
+    if run is not None and not same_but_count(run, params):
         return f"it was made by another run ({describe_params(run)})"
     want_shape = get_scale(params["scale"]).image_shape
     if shape is not None and shape != tuple(want_shape):
