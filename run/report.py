@@ -25,7 +25,9 @@ Sections (every number is measured by this run, on this machine):
 5. against the paper's figures.
 
 Writes OUT/report.md, OUT/report_*.png and OUT/report.json (all numbers),
-each atomically. ``--tiny`` shrinks everything further (for the test suite).
+each atomically. ``--sections 4,5`` reruns only those sections and keeps the
+others' numbers from OUT/report.json (the page names what was rerun, when,
+at which commit). ``--tiny`` shrinks everything further (for the test suite).
 """
 import argparse
 import json
@@ -58,6 +60,21 @@ def parse(argv):
     ap.add_argument("--items", help=argparse.SUPPRESS)
     ap.add_argument("--worker-out", help=argparse.SUPPRESS)
     return ap.parse_args(argv)
+
+
+def previous_run(out, sections, quick, tiny):
+    """The report.json a partial run (--sections) updates, or None for a whole run.
+
+    A run of some sections keeps the others' numbers from the last run of the
+    same kind (full, quick or tiny) in ``out``; with none there, the page has
+    only the sections run.
+    """
+    path = os.path.join(out, "report.json")
+    if sections == {1, 2, 3, 4, 5} or not os.path.exists(path):
+        return None
+    with open(path) as fh:
+        old = json.load(fh)
+    return old if (old.get("quick"), old.get("tiny")) == (quick, tiny) else None
 
 
 def main(argv=None):
@@ -95,6 +112,7 @@ def main(argv=None):
         print(msg, flush=True)
 
     data = {"machine": M.machine(), "quick": quick, "tiny": args.tiny}
+    base = previous_run(args.out, sections, quick, args.tiny)
     log(f"amfe report ({'tiny' if args.tiny else 'quick' if quick else 'full'}) on "
         f"{data['machine']['cores']} cores, PETSc {data['machine']['petsc']}")
     with tempfile.TemporaryDirectory() as tmp:
@@ -136,6 +154,12 @@ def main(argv=None):
                 log(f"  skipped: no held-out data set at {args.test} or no trained model "
                     "(run/train_surrogate.py makes both; see docs/surrogate.md)")
     data["elapsed_seconds"] = time.perf_counter() - t_start
+    if base is not None:  # the sections not rerun keep their numbers, and the page says so
+        rerun = {"sections": sorted(sections), "date": data["machine"]["date"],
+                 "commit": data["machine"]["commit"], "seconds": data["elapsed_seconds"]}
+        base.update({k: v for k, v in data.items() if k not in ("machine", "elapsed_seconds")})
+        base["updated"] = base.get("updated", []) + [rerun]
+        data = base
     from report_write import write_report
     paths = write_report(data, args.out, sections)
     log(f"wrote {', '.join(os.path.relpath(p) for p in paths)} in "

@@ -357,6 +357,10 @@ def write_report(data, out, sections):
           f"{m['cpu']}, {m['cores']} cores, {m['memory_gib']} GiB; PETSc {m['petsc']}, "
           f"torch {m['torch']}, numpy {m['numpy']}, Python {m['python']}. Every number below "
           "comes from that run; run/report.py regenerates the page and its plots.", ""]
+    for u in data.get("updated", []):
+        md[-1:-1] = [f"Section(s) {', '.join(map(str, u['sections']))} rerun with `--sections` on "
+                     f"{u['date']} (commit {u['commit']}) in {_s(u['seconds'])}; their numbers "
+                     "come from that run.", ""]
     paths = []
     if "accuracy" in data:
         paths += section_accuracy(data["accuracy"], out, md)

@@ -83,6 +83,24 @@ def test_rve_three_conditions_side_by_side(report):
     assert "| fully scanned | periodic |" in md and "**The bracket.**" in md
 
 
+def test_partial_run_keeps_the_other_sections(report, tmp_path):
+    """--sections 5 in a folder with a report: sections 1-3 keep their numbers, the page says so."""
+    import shutil
+    out, data = report
+    shutil.copytree(out, tmp_path / "r")
+    p = subprocess.run([sys.executable, os.path.join(ROOT, "run", "report.py"), "--tiny",
+                        "--sections", "5", "--out", str(tmp_path / "r")], cwd=ROOT, env=MPI_ENV,
+                       capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stdout[-2000:] + p.stderr[-2000:]
+    with open(tmp_path / "r" / "report.json") as fh:
+        again = json.load(fh)
+    for key in ("accuracy", "scaling", "rve", "machine"):
+        assert again[key] == data[key], key
+    assert [u["sections"] for u in again["updated"]] == [[5]]
+    md = (tmp_path / "r" / "report.md").read_text()
+    assert "Section(s) 5 rerun with `--sections`" in md and "## 2." in md
+
+
 def test_pareto_front_and_fit():
     runs = [{"seconds": 1, "error": 1e-2}, {"seconds": 2, "error": 1e-3},
             {"seconds": 3, "error": 1e-2}, {"seconds": 4, "error": 1e-6}]
