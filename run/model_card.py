@@ -33,6 +33,8 @@ def train_commands(ck):
               "--split-seed", str(tr["split_seed"]), "--threads", "1"]
     common += [a for k, v in ck["arch_args"].items() if k == "width"
                for a in ("--width", f"{v:g}")]
+    common += (["--val-fraction", f"{tr['val_fraction']:g}"]
+               if tr.get("val_fraction", 0.2) != 0.2 else [])
     common += ["--linear-moduli"] if not tr.get("log_moduli", True) else []
     common += ["--log-poisson", ",".join(tr["log_poisson"])] if tr.get("log_poisson") else []
     parts = [f"/work/data/exp/member{s}.pt" for s in ck["member_seeds"]]
@@ -61,6 +63,8 @@ def main(argv=None):
     ap.add_argument("--test", action="append", required=True, help="held-out data set (repeat)")
     ap.add_argument("--ood", help="out-of-distribution data set of run/make_ood.py")
     ap.add_argument("--baseline", help="another checkpoint to compare with (round 1's model)")
+    ap.add_argument("--run-count", type=int, default=25000,
+                    help="the --count of the data-set run the training file is a prefix of")
     ap.add_argument("-o", "--output", default=OUT)
     args = ap.parse_args(argv)
     import numpy as np
@@ -109,8 +113,8 @@ def main(argv=None):
     w("- Made with:")
     w("")
     w("```bash")
-    w("bash run/make_surrogate_data.sh /work/data 20000       # the run, resumable")
-    w(f"amfe dataset --prefix-of /work/data/train_seed{ds['seed']}_20000.h5 -o {ds['path']} "
+    w(f"bash run/make_surrogate_data.sh /work/data {args.run_count}       # the run, resumable")
+    w(f"amfe dataset --prefix-of /work/data/train_seed{ds['seed']}_{args.run_count}.h5 -o {ds['path']} "
       f"--count {ds['n_ok']}")
     L.extend(train_commands(ck))
     w("```")
