@@ -153,7 +153,7 @@ def main(argv=None):
                 data["surrogate"] = None
                 log(f"  skipped: no held-out data set at {args.test} or no trained model "
                     "(run/train_surrogate.py makes both; see docs/surrogate.md)")
-    data["elapsed_seconds"] = time.perf_counter() - t_start
+    data["elapsed_seconds"] = seconds = time.perf_counter() - t_start
     if base is not None:  # the sections not rerun keep their numbers, and the page says so
         rerun = {"sections": sorted(sections), "date": data["machine"]["date"],
                  "commit": data["machine"]["commit"], "seconds": data["elapsed_seconds"]}
@@ -163,7 +163,7 @@ def main(argv=None):
     from report_write import write_report
     paths = write_report(data, args.out, sections)
     log(f"wrote {', '.join(os.path.relpath(p) for p in paths)} in "
-        f"{data['elapsed_seconds']:.0f} s")
+        f"{seconds:.0f} s")
     return 0
 
 
