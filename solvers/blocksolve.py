@@ -48,7 +48,7 @@ and 0.82x on the paper's bed (idle machine, same run)."""
 
 
 def galerkin_algorithm(n_ranks):
-    """PETSc's algorithm for GAMG's Galerkin products P^T A P on a frame hung on a pin.
+    """PETSc's algorithm for GAMG's Galerkin products P^T A P under smoothed aggregation.
 
     Smoothed aggregation's prolongators are denser, and PETSc's default
     ("scalable", a sparse accumulator per row) spends most of SUBC's set-up in
@@ -61,20 +61,20 @@ def galerkin_algorithm(n_ranks):
     return "rap" if n_ranks == 1 else "nonscalable"
 
 
-def with_block_defaults(PETSc, ksp_options, hung_on_pin=False, n_ranks=1):
+def with_block_defaults(PETSc, ksp_options, smoothed=False, n_ranks=1):
     """``ksp_options`` plus the :data:`BLOCK_DEFAULTS` set neither there nor in the database.
 
-    hung_on_pin: the frame is held at one particle only (SUBC: no prescribed
-    boundary, loads as forces). It keeps smoothed aggregation and PETSc's
-    Chebyshev degree: with the defaults its iterations grow with the bed
-    (45 -> 84 from 0.6 to 1.2 mm, 113-123 with degree 1, against 15-16
-    smoothed at both sizes), 1.7x slower end to end at 1.2 mm. Its Galerkin
-    products take :func:`galerkin_algorithm` (n_ranks: the communicator's size). Periodic
-    frames (a null space of translations) do better with the defaults
-    (docs/benchmarks.md, "Six right-hand sides at once").
+    smoothed: the group's ``smoothed_aggregation`` (a frame held at one particle
+    only: SUBC, large periodic tori; no prescribed boundary, loads as forces).
+    It keeps smoothed aggregation and PETSc's Chebyshev degree: with the defaults the
+    iterations grow with the bed (SUBC 45 -> 84 from 0.6 to 1.2 mm, 113-123
+    with degree 1, against 15-16 smoothed at both sizes; periodic 29 -> 38,
+    against 11), 1.7x (SUBC) and 1.1-1.3x (periodic) slower end to end at
+    1.2 mm. Its Galerkin products take :func:`galerkin_algorithm` (n_ranks:
+    the communicator's size); docs/benchmarks.md, "SUBC's set-up".
     """
     given = ksp_options or {}
-    defaults = ({"matptap_via": galerkin_algorithm(n_ranks)} if hung_on_pin
+    defaults = ({"matptap_via": galerkin_algorithm(n_ranks)} if smoothed
                 else BLOCK_DEFAULTS)
     db = PETSc.Options()
     return {**{k: v for k, v in defaults.items() if k not in given and not db.hasName(k)},

@@ -134,7 +134,7 @@ class ConstrainedOperator:
             self.block_option = PETSc.Options().getString("amfe_block", "yes")
             block = block_path_expected(PETSc, len(group.values), self.block_option, diagnose)
         if block:  # the block path multiplies with AIJ only, and has its GAMG defaults
-            ksp_options = with_block_defaults(PETSc, ksp_options, group.hung_on_pin,
+            ksp_options = with_block_defaults(PETSc, ksp_options, group.smoothed_aggregation,
                                               comm.getSize())
         A_op = A if aij_only or block else sbaij_operator(PETSc, comm, n, r0, r1, *block_rows,
                                                           fixed=group.fixed)

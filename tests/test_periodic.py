@@ -11,6 +11,7 @@ from amfe.io.bedfile import write_bed
 from amfe.io.vtp import read_case
 from amfe.model.bed import generate_bed
 from amfe.model.frame import build_frame
+from amfe.model import periodic
 from amfe.model.periodic import love_weber_stiffness, periodic_average, periodic_groups
 from amfe.model.scales import sample_bed_params
 from amfe.model.scanpath import ScanPath
@@ -125,7 +126,7 @@ def test_bounds_sit_above_the_periodic_value_and_approach_it():
 # --------------------------------------------------------------------------- #
 # HCP beds: the three forms agree; invariance; refusals
 # --------------------------------------------------------------------------- #
-def test_dot_product_energy_and_love_weber_agree_and_petsc_matches():
+def test_dot_product_energy_and_love_weber_agree_and_petsc_matches(monkeypatch):
     bed = generate_bed(SIZE, seed=4, periodic=True)
     fr = build_frame(bed.centers, bed.radii, box=periodic_box(bed))
     C, u = periodic_scipy(fr)
@@ -137,6 +138,16 @@ def test_dot_product_energy_and_love_weber_agree_and_petsc_matches():
     s = res["solver"]
     assert s["love_weber_difference"] < 1e-9 and s["C_asymmetry"] < 1e-9
     assert res["bc"] == "periodic" and res["volume"] == pytest.approx(np.prod(periodic_box(bed)))
+    # the block path: unsmoothed aggregation on small tori, smoothed on large ones
+    iterations = []
+    for smoothed_from in (fr.n_particles + 1, 0):
+        monkeypatch.setattr(periodic, "SMOOTHED_FROM", smoothed_from)
+        assert periodic_groups(fr)[0].smoothed_aggregation == (smoothed_from == 0)
+        res = homogenize_bed(bed.centers, bed.radii, bc="periodic", box=periodic_box(bed),
+                             rtol=1e-12)
+        assert np.abs(np.array(res["C"]) / fr.stress_scale - C).max() < 1e-9 * np.abs(C).max()
+        iterations.append(max(res["solver"]["iterations"]))
+    assert iterations[1] < iterations[0]
 
 
 def test_results_do_not_change_when_the_bed_is_shifted_by_part_of_a_period():

@@ -26,9 +26,11 @@ class Group:
     case, added to the right-hand side (entries on ``fixed`` DOFs are
     ignored: a prescribed DOF takes its reaction instead). SUBC's boundary
     loads and the periodic condition's crossing-bond loads are forces
-    (docs/model.md, section 9); hung_on_pin: nothing is prescribed but one
-    particle's six DOFs (SUBC), so the frame's stiffness reaches the load
-    only through that pin (the solver picks its multigrid for it).
+    (docs/model.md, section 9); smoothed_aggregation: the block solve keeps
+    GAMG's smoothed aggregation and Chebyshev degree 2 (PETSc's defaults)
+    instead of its unsmoothed ones, for frames that nothing anchors but one
+    particle (SUBC; large periodic tori), whose iterations grow with the bed
+    under unsmoothed aggregation (:func:`amfe.solvers.blocksolve.with_block_defaults`).
     """
 
     fixed: np.ndarray
@@ -37,7 +39,7 @@ class Group:
     null_modes: np.ndarray = field(default=None)
     guesses: list = field(default=None)
     forces: list = field(default=None)
-    hung_on_pin: bool = False
+    smoothed_aggregation: bool = False
 
 
 def rigid_body_modes(points, center=None):

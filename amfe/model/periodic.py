@@ -96,12 +96,22 @@ def periodic_rhs(frame, eps=None):
     return F
 
 
+SMOOTHED_FROM = 28_000
+"""Particles from which a torus's block solve takes smoothed aggregation. Held at one
+particle only, its unsmoothed-aggregation iterations grow with the bed (29, 34, 38 at
+0.6, 0.9, 1.2 mm bases) and smoothed aggregation's do not (11-12), for 2.5x the
+set-up: unsmoothed 1.28x KUBC's time at 0.6 mm (12 480 particles) against smoothed
+1.39-1.49x; equal at 0.9 mm (28 704); 1.64x against 1.30x at 1.2 mm (50 880);
+docs/benchmarks.md, "Both bounds within 1.5x"."""
+
+
 def periodic_groups(frame):
     """One :class:`~amfe.model.loadcase.Group` of the six unit-strain cases on the torus.
 
     Particle 0's translations are fixed at zero; ``forces`` are
     :func:`periodic_rhs`; CG starts from the affine fields eps (x - x_0),
-    i.e. w = 0.
+    i.e. w = 0. Tori of :data:`SMOOTHED_FROM` particles and more take
+    smoothed aggregation (``Group.smoothed_aggregation``).
     """
     n = frame.n_particles
     fixed = np.zeros((n, 6), bool)
@@ -110,7 +120,8 @@ def periodic_groups(frame):
     guesses[:, :, :3] = np.einsum("kij,nj->kni", unit_strains(), frame.centers - frame.centers[0])
     return [Group(fixed=fixed, values=[np.zeros((n, 6)) for _ in range(6)],
                   names=list(CASE_NAMES), guesses=list(guesses),
-                  forces=list(periodic_rhs(frame)))]
+                  forces=list(periodic_rhs(frame)),
+                  smoothed_aggregation=n >= SMOOTHED_FROM)]
 
 
 def periodic_average(frame, groups, u, moments=None, diagnose=False):

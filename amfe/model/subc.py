@@ -196,7 +196,7 @@ def subc_groups(frame):
     forces[:, index, :3] = np.einsum("cij,bj->cbi", unit_stresses(), a)
     zero = [np.zeros((n, 6)) for _ in range(6)]
     return [Group(fixed=fixed, values=zero, names=list(CASE_NAMES), forces=list(forces),
-                  hung_on_pin=True)]
+                  smoothed_aggregation=True)]
 
 
 def subc_average(frame, groups, u, moments=None, diagnose=False):
