@@ -22,7 +22,7 @@ from amfe.training.metrics import property_metrics
 SAME = ("arch", "arch_args", "normalizer", "image_shape", "inputs", "pixelation", "material",
         "tta")
 SAME_DATA = ("sha256", "n_train", "n_validation", "validation_rows")
-FREE_TRAINING = ("seed", "members", "seconds", "flag_percentile")
+FREE_TRAINING = ("seed", "members", "seconds", "flag_percentile", "init_member")
 
 
 def merge_members(ckpts, data_path, flag_percentile=95.0, names=None):
@@ -46,14 +46,18 @@ def merge_members(ckpts, data_path, flag_percentile=95.0, names=None):
             if ck["dataset"].get(key) != first["dataset"].get(key):
                 raise AmfeError(f"{name} was trained on other data or another split than "
                                 f"{names[0]} (dataset {key} differs)")
+        if (ck.get("init") or {}).get("sha256") != (first.get("init") or {}).get("sha256"):
+            raise AmfeError(f"{name} was fine-tuned from another model than {names[0]} "
+                            "(init differs)")
         for key in set(first["training"]) | set(ck["training"]):
             if key not in FREE_TRAINING and ck["training"].get(key) != first["training"].get(key):
                 raise AmfeError(f"{name} was trained with another recipe than {names[0]} "
                                 f"({key}: {ck['training'].get(key)!r} against "
                                 f"{first['training'].get(key)!r})")
-    parts = sorted(((seed, state, hist) for ck in ckpts
-                    for seed, state, hist in zip(ck["member_seeds"], ck["members"],
-                                                 ck["history"])), key=lambda p: p[0])
+    parts = sorted(((seed, state, hist, _init_member(ck, j)) for ck in ckpts
+                    for j, (seed, state, hist) in enumerate(zip(ck["member_seeds"], ck["members"],
+                                                                ck["history"]))),
+                   key=lambda p: p[0])
     seeds = [p[0] for p in parts]
     if len(set(seeds)) != len(seeds):
         raise AmfeError(f"the checkpoints repeat a member seed ({seeds}): train each part "
@@ -61,6 +65,9 @@ def merge_members(ckpts, data_path, flag_percentile=95.0, names=None):
     out = dict(first, members=[p[1] for p in parts], member_seeds=seeds,
                history=[p[2] for p in parts], metrics={})
     out.pop("created", None)   # save_checkpoint stamps the merge
+    if first.get("init"):   # which initial member each merged member started from
+        out["init"] = dict(first["init"], member=[p[3][0] for p in parts],
+                           member_seeds=[p[3][1] for p in parts])
     out["training"] = dict(first["training"], seed=seeds[0], members=len(seeds),
                            flag_percentile=float(flag_percentile),
                            seconds=float(sum(ck["training"].get("seconds", 0.0)
@@ -81,3 +88,13 @@ def merge_members(ckpts, data_path, flag_percentile=95.0, names=None):
         out["metrics"]["validation"] = property_metrics(res["mean"], labels)
         out["metrics"]["validation"]["flagged_fraction"] = float(np.mean(res["flagged"]))
     return out
+
+
+def _init_member(ck, j):
+    """(index, seed) of the initial model's member that member j of ``ck`` started from."""
+    init = ck.get("init")
+    if not init:
+        return None, None
+    first, seeds = init["member"], init.get("member_seeds") or []
+    return (first[j] if isinstance(first, list) else first + j,
+            seeds[j] if j < len(seeds) else None)

@@ -78,6 +78,12 @@ def register(sub):
                    help="alexnet/vgg/multiscale: widths of the hidden FC layers (default 4096 "
                         "4096; multiscale 512 256 128)")
     p.add_argument("--batch-norm", action="store_true", help="vgg: batch normalisation")
+    p.add_argument("--init", metavar="MODEL.pt",
+                   help="fine-tune: start from this checkpoint's weights (amfe train's or a merged "
+                        "model), keeping its network, inputs and label normalisation; member k "
+                        "starts from its member --init-member + k")
+    p.add_argument("--init-member", type=nonnegative_int, default=0, metavar="K",
+                   help="with --init: the first member to start from (default 0)")
     p.add_argument("--max-train", type=nonnegative_int, default=0, metavar="N",
                    help="train on at most N of the training beds (error versus data size)")
     p.add_argument("--test", metavar="HELDOUT.h5",
@@ -114,7 +120,7 @@ def check_paths(args):
     """Refuse bad output paths and unusable data sets before training; returns the curve path."""
     if not str(args.output).endswith(".pt"):
         raise AmfeError(f"the model file should end in .pt, got {args.output}")
-    inputs = [args.data, args.test]
+    inputs = [args.data, args.test, args.init]
     check_output(args.output, inputs=inputs)
     curve = args.curve or os.path.splitext(args.output)[0] + ".png"
     if os.path.splitext(curve)[1].lower() not in CURVE_FORMATS:
@@ -139,6 +145,27 @@ def check_test_set(args, inputs):
                         "and R^2 need at least 2")
 
 
+# Options that --init takes from the initial checkpoint.
+NETWORK_OPTIONS = {"arch": DEFAULTS.arch, "inputs": ",".join(DEFAULTS.inputs), "width": None,
+                   "convs": None, "hidden": None, "batch_norm": False, "linear_moduli": False,
+                   "log_poisson": ""}
+
+
+def check_init_options(args):
+    """AmfeError when --init comes with an option that would change the network it starts from."""
+    if not args.init:
+        if args.init_member:
+            raise AmfeError("--init-member needs --init MODEL.pt")
+        return
+    given = [k for k, default in NETWORK_OPTIONS.items() if getattr(args, k) != default]
+    if given:
+        raise AmfeError(f"--init {args.init} takes the network, its inputs and its label "
+                        "normalisation from that checkpoint; drop "
+                        + ", ".join("--" + k.replace("_", "-") for k in given))
+    if not os.path.isfile(args.init):
+        raise AmfeError(f"--init {args.init}: no such file")
+
+
 def run(args):
     curve = check_paths(args)
     import torch
@@ -158,8 +185,10 @@ def run(args):
                       log_moduli=not args.linear_moduli, log_poisson=args.log_poisson,
                       augment=args.augment, tta=args.tta,
                       flag_percentile=args.flag_percentile, workers=args.workers,
-                      max_train=args.max_train, inputs=args.inputs, device=args.device)
+                      max_train=args.max_train, inputs=args.inputs, device=args.device,
+                      init=args.init or "", init_member=args.init_member)
     cfg.check()
+    check_init_options(args)
     if args.test:
         check_test_set(args, cfg.inputs)
 
