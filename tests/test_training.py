@@ -547,3 +547,24 @@ def test_poisson_ratios_in_log_space_are_opt_in_and_checked(synth):
     bad[0, 4] = -0.01
     with pytest.raises(AmfeError, match="nu_xz"):
         Normalizer.fit(bad, log=(True,) * 3 + (False, True, True))
+
+
+def test_l1_loss_is_the_mean_absolute_normalised_error(synth):
+    """--loss l1 trains and validates on mean |z_pred - z_true| (z: normalised labels); it
+    aims at the labels' median, as the mean relative error (about the mean absolute log
+    error) wants, where mse aims at their mean."""
+    from amfe.training.predict import Surrogate
+    with pytest.raises(AmfeError, match="unknown loss"):
+        TrainConfig(loss="huber").check()
+    ck = train_model(synth, TrainConfig(arch="custom", epochs=3, batch_size=16, loss="l1"),
+                     progress=False, log=lambda line: None)
+    assert ck["training"]["loss"] == "l1"
+    hist = ck["history"][0]
+    assert hist["train_loss"][-1] < hist["train_loss"][0]
+    images, labels = read_rows(synth, ck["dataset"]["validation_rows"])
+    norm = Normalizer.from_dict(ck["normalizer"])
+    z = norm.encode(Surrogate(ck, "l1").member_outputs(images)[0])
+    expected = float(torch.mean(torch.abs(z - norm.encode(labels))))
+    assert hist["val_loss"][-1] == pytest.approx(expected, rel=1e-4)
+    assert hist["val_loss"][-1] != pytest.approx(float(torch.mean((z - norm.encode(labels)) ** 2)),
+                                                 rel=1e-2)

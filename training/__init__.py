@@ -16,3 +16,4 @@ parsers without importing torch.
 ARCH_NAMES = ("custom", "lenet5", "alexnet", "vgg", "multiscale")
 AUGMENTATIONS = ("none", "flips", "d4")
 SCHEDULES = ("constant", "cosine")
+LOSSES = ("mse", "l1")

@@ -24,7 +24,7 @@ from amfe.vocab import LABEL_NAMES
 from amfe.errors import AmfeError
 from amfe.model.material import STEEL
 
-from amfe.training import AUGMENTATIONS, SCHEDULES
+from amfe.training import AUGMENTATIONS, LOSSES, SCHEDULES
 from amfe.training.checkpoint import check_image_shape
 from amfe.training.device import device_of, resolve_device
 from amfe.training.finetune import check_data, load_init, widened_fill_range
@@ -46,6 +46,8 @@ class TrainConfig:
     lr: float = 1e-3
     weight_decay: float = 0.0
     schedule: str = "constant"
+    loss: str = "mse"           # on the normalised labels; "l1" aims at the median (the
+                                # mean relative error is the mean absolute log error)
     seed: int = 0
     members: int = 1
     split_seed: int = 0
@@ -80,6 +82,8 @@ class TrainConfig:
         if self.schedule not in SCHEDULES:
             raise AmfeError(f"unknown schedule {self.schedule!r}; choose one of "
                             f"{', '.join(SCHEDULES)}")
+        if self.loss not in LOSSES:
+            raise AmfeError(f"unknown loss {self.loss!r}; choose one of {', '.join(LOSSES)}")
         if self.augment not in AUGMENTATIONS:
             raise AmfeError(f"unknown augmentation {self.augment!r}; choose one of "
                             f"{', '.join(AUGMENTATIONS)}")
@@ -138,6 +142,7 @@ def train_member(train_ds, val_images, val_labels, norm, cfg, image_shape, seed,
     if cfg.schedule == "cosine":
         sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=cfg.epochs * n_batches)
     gen = torch.Generator().manual_seed(int(seed))
+    loss_fn = {"mse": torch.nn.functional.mse_loss, "l1": torch.nn.functional.l1_loss}[cfg.loss]
     vx = torch.from_numpy(val_images)
     vz = norm.encode(val_labels) if len(val_labels) else None
     hist = {"seed": int(seed), "train_loss": [], "val_loss": [], "val_mre": [], "batch_loss": [],
@@ -155,7 +160,7 @@ def train_member(train_ds, val_images, val_labels, norm, cfg, image_shape, seed,
             total, count = 0.0, 0
             for xb, yb in _batches(train_ds, cfg.batch_size, gen, cfg.workers):
                 xb, yb = augment_batch(xb.float(), yb.double(), cfg.augment, gen)
-                loss = torch.nn.functional.mse_loss(net(xb.to(dev)), norm.encode(yb).to(dev))
+                loss = loss_fn(net(xb.to(dev)), norm.encode(yb).to(dev))
                 opt.zero_grad(set_to_none=True)
                 loss.backward()
                 opt.step()
@@ -168,7 +173,7 @@ def train_member(train_ds, val_images, val_labels, norm, cfg, image_shape, seed,
             hist["train_loss"].append(total / max(count, 1))
             if vz is not None:
                 z = predict_normalised(net, vx)
-                hist["val_loss"].append(float(torch.mean((z - vz) ** 2)))
+                hist["val_loss"].append(float(loss_fn(z, vz)))
                 pred = (predict_raw(net, vx, norm, cfg.tta) if cfg.tta != "none"
                         else norm.decode(z))
                 m = property_metrics(pred.numpy(), val_labels)

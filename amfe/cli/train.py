@@ -25,12 +25,13 @@ from amfe.io.paths import check_output
 # amfe.training.train.TrainConfig's defaults, without importing torch to build the parser
 # (tests/test_training.py checks that they agree).
 DEFAULTS = SimpleNamespace(arch="custom", epochs=80, batch_size=100, lr=1e-3, schedule="constant",
+                           loss="mse",
                            weight_decay=0.0, seed=0, members=1, split_seed=0, val_fraction=0.2,
                            augment="none", flag_percentile=95.0, inputs=("fill",))
 
 
 def register(sub):
-    from amfe.training import ARCH_NAMES, AUGMENTATIONS, SCHEDULES
+    from amfe.training import ARCH_NAMES, AUGMENTATIONS, LOSSES, SCHEDULES
 
     d = DEFAULTS
     p = sub.add_parser("train", help="train a CNN surrogate on a data set (checkpoint + curve)",
@@ -44,6 +45,8 @@ def register(sub):
     p.add_argument("--lr", type=positive_float, default=d.lr, help=f"Adam learning rate (default {d.lr:g})")
     p.add_argument("--schedule", choices=SCHEDULES, default=d.schedule,
                    help="learning rate: constant (the paper's) or cosine decay to 0")
+    p.add_argument("--loss", choices=LOSSES, default=d.loss,
+                   help="on the normalised labels: mse (the paper's) or l1 (aims at the median)")
     p.add_argument("--weight-decay", type=nonnegative_float, default=d.weight_decay, help="Adam weight decay")
     p.add_argument("--seed", type=nonnegative_int, default=d.seed,
                    help="seed of the first member (member k: seed + k; default 0)")
@@ -180,7 +183,7 @@ def run(args):
         torch.set_num_threads(args.threads)
     cfg = TrainConfig(arch=args.arch, arch_args=arch_args_of(args), epochs=args.epochs,
                       batch_size=args.batch_size, lr=args.lr, weight_decay=args.weight_decay,
-                      schedule=args.schedule, seed=args.seed, members=args.members,
+                      schedule=args.schedule, loss=args.loss, seed=args.seed, members=args.members,
                       split_seed=args.split_seed, val_fraction=args.val_fraction,
                       log_moduli=not args.linear_moduli, log_poisson=args.log_poisson,
                       augment=args.augment, tta=args.tta,
@@ -197,7 +200,7 @@ def run(args):
             print(line, file=sys.stderr, flush=True)
 
     ckpt = train_model(args.data, cfg, progress=not args.quiet, log=log)
-    lines = [f"amfe train: {args.arch}, {ckpt['n_parameters']:,} parameters, "
+    lines = [f"amfe train: {ckpt['arch']}, {ckpt['n_parameters']:,} parameters, "
              f"{len(ckpt['members'])} member(s), trained in {ckpt['training']['seconds']:.1f} s"]
     val = ckpt["metrics"].get("validation")
     if val:
@@ -210,8 +213,8 @@ def run(args):
                      + metrics_line(m))
         lines.append("  held-out R^2: " + metrics_line(m, "r2", 1, "{:.4f}"))
     _write(args.output, save_checkpoint, args.output, ckpt)
-    _write(curve, plot_learning_curves, {args.arch: ckpt["history"]}, curve,
-           f"{args.arch} on {os.path.basename(args.data)}")
+    _write(curve, plot_learning_curves, {ckpt["arch"]: ckpt["history"]}, curve,
+           f"{ckpt['arch']} on {os.path.basename(args.data)}")
     lines.append(f"wrote {args.output} ({os.path.getsize(args.output) / 1e6:.2f} MB) and {curve}")
     print("\n".join(lines))
     return 0
