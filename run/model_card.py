@@ -2,14 +2,15 @@
 
     .venv/bin/python run/model_card.py --test /work/data/heldout_seed4_1000.h5 \
         --test /work/data/heldout_seed2_300.h5 --ood /work/data/small_ood.h5 \
-        --baseline /work/data/exp/custom_small_round1.pt
+        --baseline /work/data/exp/custom_small_round1.pt --previous /work/data/exp/initial.pt
 
 Everything comes from the checkpoint (architecture, members and seeds, data
 set hash and split, recipe) and from evaluating it here: errors per property
 and per kind of bed on each held-out file (run/eval_surrogate.py's groups),
 batched speed on one thread, and the out-of-distribution flag's caught and
-missed large errors (run/train_surrogate.py's ood_report). --baseline adds the
-same rows for another checkpoint (round 1's shipped model) for comparison.
+missed large errors (run/train_surrogate.py's ood_report). --baseline and
+--previous add the same rows for round 1's shipped model and the one shipped
+before, for comparison.
 """
 import argparse
 import os
@@ -24,22 +25,36 @@ OUT = os.path.join(ROOT, "docs", "model_card.md")
 MODEL = "amfe/models/multiscale_small.pt"
 
 
-def train_commands(ck):
-    """The `amfe train` lines that made each member, and the merge that made the ensemble."""
-    tr, data = ck["training"], ck["dataset"]["path"]
-    common = ["--arch", ck["arch"], "--epochs", str(tr["epochs"]), "--batch-size",
+def train_commands(ck, init_path=None):
+    """The `amfe train` lines that made each member, and the merge that made the ensemble.
+
+    A fine-tuned model (``ck["init"]``) gets `--init` lines (the network options come from
+    the initial model, ``init_path`` where it is kept) after the initial model's own lines.
+    """
+    tr, data, init = ck["training"], ck["dataset"]["path"], ck.get("init")
+    common = ["--epochs", str(tr["epochs"]), "--batch-size",
               str(tr["batch_size"]), "--lr", f"{tr['lr']:g}", "--schedule", tr["schedule"],
-              "--augment", tr["augment"], "--inputs", ",".join(ck["inputs"]),
-              "--split-seed", str(tr["split_seed"]), "--threads", "1"]
-    common += [a for k, v in ck["arch_args"].items() if k == "width"
-               for a in ("--width", f"{v:g}")]
+              "--augment", tr["augment"], "--split-seed", str(tr["split_seed"]), "--threads", "1"]
+    common += ["--loss", tr["loss"]] if tr.get("loss", "mse") != "mse" else []
     common += (["--val-fraction", f"{tr['val_fraction']:g}"]
                if tr.get("val_fraction", 0.2) != 0.2 else [])
+    if init:
+        return _member_lines(ck, data, common, lambda k: ["--init", init_path or init["path"],
+                                                          "--init-member", str(init["member"][k])])
+    common = ["--arch", ck["arch"], *common, "--inputs", ",".join(ck["inputs"])]
+    common += [a for k, v in ck["arch_args"].items() if k == "width"
+               for a in ("--width", f"{v:g}")]
     common += ["--linear-moduli"] if not tr.get("log_moduli", True) else []
     common += ["--log-poisson", ",".join(tr["log_poisson"])] if tr.get("log_poisson") else []
-    parts = [f"/work/data/exp/member{s}.pt" for s in ck["member_seeds"]]
-    lines = [shlex.join([".venv/bin/amfe", "train", data, *common, "--seed", str(s), "-o", p])
-             for s, p in zip(ck["member_seeds"], parts)]
+    return _member_lines(ck, data, common, lambda k: [])
+
+
+def _member_lines(ck, data, common, extra):
+    stem = "tuned" if ck.get("init") else "member"
+    parts = [f"/work/data/exp/{stem}{s}.pt" for s in ck["member_seeds"]]
+    lines = [shlex.join([".venv/bin/amfe", "train", data, *common, *extra(k), "--seed", str(s),
+                         "-o", p])
+             for k, (s, p) in enumerate(zip(ck["member_seeds"], parts))]
     test = ["--test", ck["metrics"]["test"]["path"]] if "test" in ck["metrics"] else []
     lines.append(shlex.join([".venv/bin/python", "run/merge_members.py", *parts, "--data", data,
                              *test, "-o", MODEL]))
@@ -63,8 +78,14 @@ def main(argv=None):
     ap.add_argument("--test", action="append", required=True, help="held-out data set (repeat)")
     ap.add_argument("--ood", help="out-of-distribution data set of run/make_ood.py")
     ap.add_argument("--baseline", help="another checkpoint to compare with (round 1's model)")
-    ap.add_argument("--run-count", type=int, default=25000,
+    ap.add_argument("--previous", help="the model shipped before, to compare with")
+    ap.add_argument("--run-count", type=int, default=12000,
                     help="the --count of the data-set run the training file is a prefix of")
+    ap.add_argument("--init-commit", default="1ef9405",
+                    help="for a fine-tuned model: the commit whose amfe/models/"
+                         "multiscale_small.pt was the initial model")
+    ap.add_argument("--init-card", default="docs/model_card.md",
+                    help="where that commit describes the initial model")
     ap.add_argument("-o", "--output", default=OUT)
     args = ap.parse_args(argv)
     import numpy as np
@@ -80,7 +101,9 @@ def main(argv=None):
     torch.set_num_threads(1)
     ck = load_checkpoint(args.model)
     sur = Surrogate(ck, args.model)
-    models = {"shipped": args.model, **({"round 1": args.baseline} if args.baseline else {})}
+    models = {"shipped": args.model,
+              **({"shipped before": args.previous} if args.previous else {}),
+              **({"round 1": args.baseline} if args.baseline else {})}
     L = []
     w = L.append
     tr, ds = ck["training"], ck["dataset"]
@@ -102,21 +125,36 @@ def main(argv=None):
       f"pixelated by `amfe predict` exactly as the training data (cells "
       f"{' x '.join(f'{1e3 * c:g}' for c in ck['pixelation']['image_cell'])} mm, box "
       f"{' x '.join(f'{1e3 * c:g}' for c in ck['pixelation']['bed_size'])} mm).")
+    init = ck.get("init")
+    if init:
+        ids = init["dataset"]
+        w(f"- Fine-tuned (`amfe train --init`): member k started from member "
+          f"{init['member']} of the model shipped before (commit {args.init_commit}, seeds "
+          f"{init['member_seeds']}; its card: `git show {args.init_commit}:{args.init_card}`), "
+          f"which had been trained on {ids['n_train']} beds of the data-set seed {ids['seed']} "
+          f"(`{os.path.basename(str(ids['path']))}`, sha256 `{ids['sha256']}`).")
     w(f"- Data: `{os.path.basename(ds['path'])}`, the first {ds['n_ok']} records of the "
-      f"data-set seed {ds['seed']} run (`{ds['scale']}` scale; docs/datasets.md, \"The large "
-      f"data set\"), {ds['n_train']} training and {ds['n_validation']} validation beds "
+      f"data-set seed {ds['seed']} run (`{ds['scale']}` scale; docs/datasets.md), "
+      f"{ds['n_train']} training and {ds['n_validation']} validation beds "
       f"(split seed {tr['split_seed']}); sha256 of the images and labels `{ds['sha256']}`.")
+    loss = {"mse": "MSE", "l1": "L1 (mean absolute)"}[tr.get("loss", "mse")]
     w(f"- Recipe: Adam, lr {tr['lr']:g} ({tr['schedule']}), batch {tr['batch_size']}, "
-      f"{tr['epochs']} epochs, log-standardised moduli"
+      f"{tr['epochs']} epochs, {loss} loss on log-standardised moduli"
       + "".join(f" and {n}" for n in tr.get("log_poisson", [])) + f", {tr['augment']} augmentation; "
-      f"{tr['seconds'] / 60:.0f} min of one-thread training for both members.")
+      f"{tr['seconds'] / 60:.0f} min of one-thread training for both members"
+      + (" (the fine-tuning; the initial model's took longer, see its card)." if init else "."))
     w("- Made with:")
     w("")
     w("```bash")
-    w(f"bash run/make_surrogate_data.sh /work/data {args.run_count}       # the run, resumable")
-    w(f"amfe dataset --prefix-of /work/data/train_seed{ds['seed']}_{args.run_count}.h5 -o {ds['path']} "
-      f"--count {ds['n_ok']}")
-    L.extend(train_commands(ck))
+    run_file = f"/work/data/train_seed{ds['seed']}_{args.run_count}.h5"
+    w(f"mpirun -n 2 .venv/bin/amfe dataset -o {run_file} --count {args.run_count} "
+      f"--seed {ds['seed']} --scale {ds['scale']} --solver auto     # resumable")
+    w(f"amfe dataset --prefix-of {run_file} -o {ds['path']} --count {ds['n_ok']}")
+    init_path = None
+    if init:
+        init_path = "/work/data/exp/initial.pt"
+        w(f"git show {args.init_commit}:amfe/models/multiscale_small.pt > {init_path}")
+    L.extend(train_commands(ck, init_path))
     w("```")
     w("")
     w("## Held-out errors")
