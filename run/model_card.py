@@ -128,7 +128,7 @@ def main(argv=None):
     init = ck.get("init")
     if init:
         ids = init["dataset"]
-        w(f"- Fine-tuned (`amfe train --init`): member k started from member "
+        w(f"- Fine-tuned (`amfe train --init`): its members started from the members "
           f"{init['member']} of the model shipped before (commit {args.init_commit}, seeds "
           f"{init['member_seeds']}; its card: `git show {args.init_commit}:{args.init_card}`), "
           f"which had been trained on {ids['n_train']} beds of the data-set seed {ids['seed']} "

@@ -158,7 +158,9 @@ def main(argv=None):
         rerun = {"sections": sorted(sections), "date": data["machine"]["date"],
                  "commit": data["machine"]["commit"], "seconds": data["elapsed_seconds"]}
         base.update({k: v for k, v in data.items() if k not in ("machine", "elapsed_seconds")})
-        base["updated"] = base.get("updated", []) + [rerun]
+        # an earlier partial run whose sections were all rerun now says nothing of the page
+        base["updated"] = [u for u in base.get("updated", [])
+                           if not set(u["sections"]) <= set(rerun["sections"])] + [rerun]
         data = base
     from report_write import write_report
     paths = write_report(data, args.out, sections)

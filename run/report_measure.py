@@ -369,7 +369,8 @@ def surrogate_vs_solver(test_path, models_dir, n_solver_beds, rtols, log=print):
             "r2": {k: float(m[k]["r2"]) for k in LABELS},
             "mean_error": float(np.mean([m[k]["mre"] for k in LABELS])),
             "train_seconds": float(ck["training"]["seconds"]), "params": int(ck["n_parameters"]),
-            "members": len(ck["members"]), "inputs": list(sur.inputs)}
+            "members": len(ck["members"]), "inputs": list(sur.inputs),
+            "fine_tuned": bool(ck.get("init"))}
         log(f"  {desc:<26} {ms:7.3f} ms/bed  mean rel err "
             f"{100 * out['networks'][name]['mean_error']:.2f} %")
     pix, bonds, by_rtol = [], [], {rt: [] for rt in rtols}

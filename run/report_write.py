@@ -279,7 +279,8 @@ def section_surrogate(sur, out, md):
            "| nu_xz | nu_xy |", "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in sur["networks"].values():
         md.append(f"| {r['description']} | {r['params']:,}" + (f" x {r['members']}"
-                  if r["members"] > 1 else "") + f" | {_s(r['train_seconds'])} | "
+                  if r["members"] > 1 else "") + f" | {_s(r['train_seconds'])}"
+                  + (" of fine-tuning" if r.get("fine_tuned") else "") + " | "
                   f"{r['ms_per_bed']:.3f} | {100 * r['mean_error']:.2f} % | "
                   + " | ".join(f"{100 * r['mre'][k]:.2f} %" for k in M.LABELS) + " |")
     for r in s:

@@ -99,6 +99,16 @@ def test_partial_run_keeps_the_other_sections(report, tmp_path):
     assert [u["sections"] for u in again["updated"]] == [[5]]
     md = (tmp_path / "r" / "report.md").read_text()
     assert "Section(s) 5 rerun with `--sections`" in md and "## 2." in md
+    # a second rerun of the same section replaces the first one's line
+    p = subprocess.run([sys.executable, os.path.join(ROOT, "run", "report.py"), "--tiny",
+                        "--sections", "5", "--out", str(tmp_path / "r")], cwd=ROOT, env=MPI_ENV,
+                       capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stdout[-2000:] + p.stderr[-2000:]
+    with open(tmp_path / "r" / "report.json") as fh:
+        third = json.load(fh)
+    assert [u["sections"] for u in third["updated"]] == [[5]]
+    assert third["updated"][0]["date"] >= again["updated"][0]["date"]
+    assert (tmp_path / "r" / "report.md").read_text().count("rerun with `--sections`") == 1
 
 
 def test_pareto_front_and_fit():

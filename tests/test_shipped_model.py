@@ -25,14 +25,17 @@ def test_shipped_model_is_plain_small_and_for_the_small_scale(shipped):
     assert os.path.getsize(shipped) < 20e6             # issue 13's limit
     ck = load_checkpoint(shipped)                      # torch.load(weights_only=True) inside
     assert ck["arch"] == "multiscale" and len(ck["members"]) == 2
-    assert ck["member_seeds"] == [0, 1] and ck["dataset"]["n_train"] == 19000
+    assert ck["member_seeds"] == [0, 1] and ck["dataset"]["n_train"] == 8550
+    # fine-tuned on seed 5 from the pair trained on 19 000 beds of seed 3 (docs/model_card.md)
+    assert ck["init"]["dataset"]["n_train"] == 19000 and ck["init"]["member"] == [0, 1]
+    assert ck["dataset"]["seed"] == 5 and ck["init"]["dataset"]["seed"] == 3
     assert ck["inputs"] == ["fill", "bonds"] and ck["image_shape"] == [6, 20, 20]
     sc = get_scale("small")
     px = ck["pixelation"]
     assert np.allclose(px["bed_size"], sc.size) and px["image_spacing"] == sc.image_spacing
     assert np.allclose(px["image_cell"], [sc.cell[0], sc.cell[1], sc.layer_thickness])
     assert ck["spread"]["threshold"] > 0 and ck["fill_range"]["lo"] < ck["fill_range"]["hi"]
-    # the model card's held-out numbers travel with it (docs/model_card.md: 3.3 %)
+    # the model card's held-out numbers travel with it (docs/model_card.md: 3.2 %)
     assert ck["metrics"]["test"]["Ex"]["mre"] < 0.04
 
 
