@@ -75,7 +75,7 @@ def direct_u(frame, group):
 def assert_same(loop, block, u_direct=None):
     """Same moments (the constants' input) to 1e-9 and u to 1e-9, both converged.
 
-    With ``u_direct``: u within 1e-6 of it on both paths instead (for beds whose
+    With ``u_direct``: u within 1e-5 of it on both paths instead (for beds whose
     conditioning leaves either path's u further from it than 1e-9).
     """
     for k, (a, b) in enumerate(zip(loop, block)):
@@ -85,7 +85,7 @@ def assert_same(loop, block, u_direct=None):
             assert np.abs(b.u - a.u).max() <= 1e-9 * np.abs(a.u).max(), a.name
         else:
             for c in (a, b):
-                assert np.abs(c.u - u_direct[k]).max() <= 1e-6 * np.abs(a.u).max(), a.name
+                assert np.abs(c.u - u_direct[k]).max() <= 1e-5 * np.abs(a.u).max(), a.name
         assert b.residual < 1e-9 and a.residual < 1e-9
         # the preconditioners differ by ~1e-6 (six-digit Chebyshev targets): a step at most,
         # but the track's 300 iterations amplify that and the rounding (measured: 302 vs 346)
@@ -119,7 +119,10 @@ def test_block_vcycle_is_gamgs_vcycle_column_by_column():
 # bed, and whether u can agree to 1e-9: the track's 300-350 iterations leave u up to 2e-7
 # from a direct solve at rtol 1e-12 on either path (measured: 2.0e-7 one at a time, 1.5e-7
 # block), and the one-at-a-time path itself moves u by up to 1.3e-7 when its Chebyshev
-# targets move by 5e-7; the moments of the two paths agree to 3e-13.
+# targets move by 5e-7; the moments of the two paths agree to 3e-13. On another machine
+# (AMD EPYC, 2026-12-02) the same solves took 437-519 iterations and left u 8.4e-7 (one at
+# a time) and 1.7e-6 (block) from the direct solve, whose residual is 1e-15: a residual
+# test at rtol 1e-12 bounds u's error only by the condition number times 1e-12.
 BEDS = {
     "cubic lattice 5^3": (lambda: cubic_lattice(5), True),
     "near-critical interior bonds": (lambda: near_critical_interior_bed(CRIT - 1e-5), True),
