@@ -83,29 +83,29 @@ def test_rve_three_conditions_side_by_side(report):
     assert "| fully scanned | periodic |" in md and "**The bracket.**" in md
 
 
+def _rerun_section_5(out):
+    """`run/report.py --tiny --sections 5 --out OUT`; its report.json."""
+    p = subprocess.run([sys.executable, os.path.join(ROOT, "run", "report.py"), "--tiny",
+                        "--sections", "5", "--out", str(out)], cwd=ROOT, env=MPI_ENV,
+                       capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stdout[-2000:] + p.stderr[-2000:]
+    with open(out / "report.json") as fh:
+        return json.load(fh)
+
+
 def test_partial_run_keeps_the_other_sections(report, tmp_path):
     """--sections 5 in a folder with a report: sections 1-3 keep their numbers, the page says so."""
     import shutil
     out, data = report
     shutil.copytree(out, tmp_path / "r")
-    p = subprocess.run([sys.executable, os.path.join(ROOT, "run", "report.py"), "--tiny",
-                        "--sections", "5", "--out", str(tmp_path / "r")], cwd=ROOT, env=MPI_ENV,
-                       capture_output=True, text=True, timeout=300)
-    assert p.returncode == 0, p.stdout[-2000:] + p.stderr[-2000:]
-    with open(tmp_path / "r" / "report.json") as fh:
-        again = json.load(fh)
+    again = _rerun_section_5(tmp_path / "r")
     for key in ("accuracy", "scaling", "rve", "machine"):
         assert again[key] == data[key], key
     assert [u["sections"] for u in again["updated"]] == [[5]]
     md = (tmp_path / "r" / "report.md").read_text()
     assert "Section(s) 5 rerun with `--sections`" in md and "## 2." in md
     # a second rerun of the same section replaces the first one's line
-    p = subprocess.run([sys.executable, os.path.join(ROOT, "run", "report.py"), "--tiny",
-                        "--sections", "5", "--out", str(tmp_path / "r")], cwd=ROOT, env=MPI_ENV,
-                       capture_output=True, text=True, timeout=300)
-    assert p.returncode == 0, p.stdout[-2000:] + p.stderr[-2000:]
-    with open(tmp_path / "r" / "report.json") as fh:
-        third = json.load(fh)
+    third = _rerun_section_5(tmp_path / "r")
     assert [u["sections"] for u in third["updated"]] == [[5]]
     assert third["updated"][0]["date"] >= again["updated"][0]["date"]
     assert (tmp_path / "r" / "report.md").read_text().count("rerun with `--sections`") == 1
