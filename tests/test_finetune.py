@@ -1,6 +1,7 @@
 """Fine-tuning from a trained checkpoint (`amfe train --init`, training/finetune.py)."""
 import argparse
 
+import h5py
 import numpy as np
 import pytest
 import torch
@@ -93,6 +94,11 @@ def test_bad_starting_points_are_refused(base, tmp_path):
         "layer_thickness": 0.1e-3, "image_spacing": 2.5e-6}))
     with pytest.raises(AmfeError, match="bed_size"):
         train_model(tiny, TrainConfig(epochs=1, init=base["path"]), **QUIET)
+    negative = str(write_synthetic(tmp_path / "negative.h5", failed=()))
+    with h5py.File(negative, "r+") as f:   # the base model takes nu_xy's logarithm
+        f["labels"][:, 5] = -0.01
+    with pytest.raises(AmfeError, match=r"logarithms.*nu_xy \(min -0.01\)"):
+        train_model(negative, TrainConfig(epochs=1, init=base["path"], val_fraction=0.0), **QUIET)
 
 
 def test_cli_refuses_network_options_with_init(base):

@@ -247,14 +247,21 @@ class Normalizer:
         if not torch.all(self.std > 0):
             raise AmfeError(f"normaliser stds must be positive, got {self.std.tolist()}")
 
+    @staticmethod
+    def nonpositive_logs(labels, log):
+        """'name (min v), ...' of the labels marked ``log`` (6,) with a value <= 0 in
+        ``labels`` (n, 6); "" when there is none."""
+        labels = np.asarray(labels, np.float64)
+        bad = np.asarray(log, bool) & np.any(labels <= 0, axis=0)
+        return ", ".join(f"{LABEL_NAMES[k]} (min {labels[:, k].min():.3g})"
+                         for k in np.flatnonzero(bad))
+
     @classmethod
     def fit(cls, labels, log=(True, True, True, False, False, False)):
         labels = np.asarray(labels, np.float64)
         log = np.asarray(log, bool)
-        bad = log & np.any(labels <= 0, axis=0)
-        if np.any(bad):
-            names = ", ".join(f"{LABEL_NAMES[k]} (min {labels[:, k].min():.3g})"
-                              for k in np.flatnonzero(bad))
+        names = cls.nonpositive_logs(labels, log)
+        if names:
             raise AmfeError(f"log normalisation of a label with non-positive values: {names}; "
                             "train it in linear space")
         f = np.where(log, np.log(np.where(log, labels, 1.0)), labels)

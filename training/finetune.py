@@ -16,7 +16,6 @@ import hashlib
 import numpy as np
 
 from amfe.errors import AmfeError
-from amfe.vocab import LABEL_NAMES
 
 from amfe.training.checkpoint import check_image_shape, load_checkpoint
 from amfe.training.data import Normalizer
@@ -67,17 +66,16 @@ def check_data(start, data_path, info, pixelation, labels):
     path, ckpt = start["record"]["path"], start["ckpt"]
     check_image_shape(ckpt, info["image_shape"], f"the data set {data_path}", path)
     theirs = ckpt.get("pixelation") or {}
-    for key in ("bed_size", "image_cell", "layer_thickness", "image_spacing"):
+    for key in (k for k in pixelation if k != "scale"):   # the grid, not the scale's name
         a, b = np.atleast_1d(theirs.get(key, np.nan)), np.atleast_1d(pixelation[key])
         if a.shape != b.shape or not np.allclose(a, b, rtol=1e-9, atol=0):
             raise AmfeError(f"--init {path} was trained on images with {key} {theirs.get(key)}, "
                             f"the data set {data_path} has {pixelation[key]}: fine-tune on a "
                             "data set of the same scale")
-    log = start["normalizer"].log.numpy()
-    bad = [n for k, n in enumerate(LABEL_NAMES) if log[k] and np.any(labels[:, k] <= 0)]
+    bad = Normalizer.nonpositive_logs(labels, start["normalizer"].log.numpy())
     if bad:
-        raise AmfeError(f"--init {path} standardises {', '.join(bad)} as logarithms, but the data "
-                        f"set {data_path} has non-positive values of it")
+        raise AmfeError(f"--init {path} standardises these labels as logarithms, but the data "
+                        f"set {data_path} has non-positive values of them: {bad}")
 
 
 def widened_fill_range(old, new):
