@@ -99,7 +99,7 @@ class Surrogate:
     def n_members(self):
         return len(self.nets)
 
-    def member_outputs(self, images, batch_size=1024):
+    def member_outputs(self, images, batch_size=None):
         """Raw predictions of every member, float64 array (members, n, 6)."""
         x = torch.as_tensor(np.asarray(images, np.float32))
         if x.ndim == 3:
@@ -112,7 +112,7 @@ class Surrogate:
             out[k] = predict_raw(net, x, self.norm, self.tta, batch_size).numpy()
         return out
 
-    def predict(self, images, batch_size=1024):
+    def predict(self, images, batch_size=None):
         """Predict the six constants of beds or of their images.
 
         ``images``: a :class:`~amfe.model.bed.Bed`, a bed file's path, or inputs
@@ -186,24 +186,38 @@ def symmetries(mode, square=True):
     return out
 
 
-def predict_raw(net, images, norm, tta="none", batch_size=1024):
+# Images per forward pass on a CPU: the fastest measured on this project's machine
+# (one thread: 0.12-0.13 ms per image at 32-64 against 0.18 at 100-1000, whose
+# activations no longer fit in cache; docs/surrogate.md, "Speed").
+CPU_PASS_IMAGES = 64
+GPU_PASS_IMAGES = 1024
+
+
+def predict_raw(net, images, norm, tta="none", batch_size=None):
     """Raw predictions (n, 6) float64 of one network, averaged over the TTA symmetries.
 
     A mirrored image has the same six labels; an x<->y transposed one has
     them permuted (amfe.training.data.transpose_labels, an involution), so its
-    prediction is mapped back before averaging (in raw units).
+    prediction is mapped back before averaging (in raw units). The symmetric
+    images of a chunk of beds go through the network in one pass of about
+    ``batch_size`` images (default: CPU_PASS_IMAGES on a CPU, GPU_PASS_IMAGES
+    on a GPU).
     """
     net.eval()
     dev = device_of(net)
     syms = symmetries(tta_mode(tta), images.shape[-1] == images.shape[-2])
+    if batch_size is None:
+        batch_size = CPU_PASS_IMAGES if dev.type == "cpu" else GPU_PASS_IMAGES
+    chunk = max(1, int(batch_size) // len(syms))
     out = []
     with torch.inference_mode():
-        for s in range(0, images.shape[0], batch_size):
-            xb = images[s:s + batch_size]
+        for s in range(0, images.shape[0], chunk):
+            xb = images[s:s + chunk]
+            views = torch.cat([flip_images(xb, fx, fy, tr) for fx, fy, tr in syms])
+            y = norm.decode(net(views.to(dev)).cpu()).view(len(syms), xb.shape[0], 6)
             acc = 0.0
-            for fx, fy, tr in syms:
-                y = norm.decode(net(flip_images(xb, fx, fy, tr).to(dev)).cpu())
-                acc = acc + (transpose_labels(y) if tr else y)
+            for k, (_, _, tr) in enumerate(syms):
+                acc = acc + (transpose_labels(y[k]) if tr else y[k])
             out.append(acc / len(syms))
     return torch.cat(out) if out else torch.zeros(0, 6, dtype=torch.float64)
 
