@@ -56,8 +56,9 @@ def _member_lines(ck, data, common, extra):
                          "-o", p])
              for k, (s, p) in enumerate(zip(ck["member_seeds"], parts))]
     test = ["--test", ck["metrics"]["test"]["path"]] if "test" in ck["metrics"] else []
+    tta = ["--tta", ck["tta"]] if ck.get("tta", "none") != "none" else []
     lines.append(shlex.join([".venv/bin/python", "run/merge_members.py", *parts, "--data", data,
-                             *test, "-o", MODEL]))
+                             *test, *tta, "-o", MODEL]))
     return lines
 
 
@@ -81,7 +82,7 @@ def main(argv=None):
     ap.add_argument("--previous", help="the model shipped before, to compare with")
     ap.add_argument("--run-count", type=int, default=12000,
                     help="the --count of the data-set run the training file is a prefix of")
-    ap.add_argument("--init-commit", default="1ef9405",
+    ap.add_argument("--init-commit", default="5991b88",
                     help="for a fine-tuned model: the commit whose amfe/models/"
                          "multiscale_small.pt was the initial model")
     ap.add_argument("--init-card", default="docs/model_card.md",
@@ -119,7 +120,12 @@ def main(argv=None):
     w(f"- {len(ck['members'])} members of the multi-scale net (`training/multiscale.py`, "
       f"arguments {ck['arch_args']}), {ck['n_parameters']:,} parameters each, seeds "
       f"{ck['member_seeds']}; {os.path.getsize(args.model) / 1e6:.2f} MB of plain tensors "
-      "(`torch.load(weights_only=True)`). Prediction: the members' mean.")
+      "(`torch.load(weights_only=True)`). Prediction: the members' mean"
+      + {"none": ".", "flips": ", each member's averaged over the bed's four mirror images "
+         "(test-time averaging: the six constants do not change when a bed is mirrored in x "
+         "or y; `--tta flips` of run/merge_members.py).",
+         "d4": ", each member's averaged over the eight symmetries of the square."}[
+          ck.get("tta", "none")])
     w(f"- Input: {' x '.join(map(str, ck['image_shape']))} images, "
       f"{' then '.join(ck['inputs'])} (volume fraction and bond stiffness per cell and layer), "
       f"pixelated by `amfe predict` exactly as the training data (cells "
@@ -131,8 +137,11 @@ def main(argv=None):
         w(f"- Fine-tuned (`amfe train --init`): its members started from the members "
           f"{init['member']} of the model shipped before (commit {args.init_commit}, seeds "
           f"{init['member_seeds']}; its card: `git show {args.init_commit}:{args.init_card}`), "
-          f"which had been trained on {ids['n_train']} beds of the data-set seed {ids['seed']} "
-          f"(`{os.path.basename(str(ids['path']))}`, sha256 `{ids['sha256']}`).")
+          f"which had been {'fine-tuned' if init['training'].get('init') else 'trained'} on "
+          f"{ids['n_train']} beds of the data-set seed {ids['seed']} "
+          f"(`{os.path.basename(str(ids['path']))}`, sha256 `{ids['sha256']}`)"
+          + ("; where that model started is in its card." if init["training"].get("init")
+             else "."))
     w(f"- Data: `{os.path.basename(ds['path'])}`, the first {ds['n_ok']} records of the "
       f"data-set seed {ds['seed']} run (`{ds['scale']}` scale; docs/datasets.md), "
       f"{ds['n_train']} training and {ds['n_validation']} validation beds "

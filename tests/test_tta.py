@@ -1,4 +1,4 @@
-"""Test-time averaging: one stacked pass per chunk equals the views taken one at a time."""
+"""Inference: test-time averaging in stacked passes, and the multi-scale net's fast maxima."""
 import os
 import sys
 
@@ -82,3 +82,29 @@ def test_merge_sets_the_averaging_and_calibrates_the_flag_with_it(tmp_path):
                for k in plain["members"][1])
     # The flag is calibrated on the averaged predictions: another threshold.
     assert flips["spread"]["threshold"] != plain["spread"]["threshold"]
+
+
+def _reference_forward(net, x):
+    """MultiScaleNet.forward with every stage's maximum taken over its whole map."""
+    import torch.nn.functional as F
+    holes = 1.0 - x[:, :net.n_fill].amin(dim=1, keepdim=True)
+    summaries = []
+    for stage, pool in zip(net.stages, net.pool_after):
+        x = stage(torch.cat([x, holes], dim=1))
+        summaries += [x.mean(dim=(2, 3)), x.amax(dim=(2, 3))]
+        if pool:
+            x, holes = F.max_pool2d(x, 2), F.max_pool2d(holes, 2)
+    return net.head(torch.cat(summaries, dim=1))
+
+
+@pytest.mark.parametrize("hw", [(20, 20), (21, 19), (6, 10)])
+def test_multiscale_maxima_from_the_pooled_maps_are_exact(hw):
+    """The stage maxima taken from the 2 x 2 maxima (even maps) are the maps' own, bit for bit,
+    and the gradient still reaches the weights."""
+    torch.manual_seed(2)
+    net = build_net("multiscale", (6, *hw), {"n_fill": 3, "width": 0.25})
+    x = torch.rand(5, 6, *hw)
+    with torch.no_grad():
+        assert torch.equal(net(x), _reference_forward(net, x))
+    net(x).sum().backward()
+    assert all(p.grad is not None and torch.isfinite(p.grad).all() for p in net.parameters())

@@ -78,7 +78,7 @@ class Surrogate:
         self.path = os.fspath(path)
         self.nets = build_members(ckpt, self.path)
         for net in self.nets:
-            # Channels-last activations: 8 passes over 1000 beds on one CPU thread here
+            # Channels-last activations: 8 passes over 1 000 beds on one CPU thread here
             # took 0.89 s against 1.03 s (docs/surrogate.md, "Speed"); same results to 2e-7.
             net.to(memory_format=torch.channels_last)
         self.norm = Normalizer.from_dict(ckpt["normalizer"])
@@ -191,9 +191,10 @@ def symmetries(mode, square=True):
 
 
 # Images per forward pass on a CPU: the fastest measured on this project's machine
-# (one thread: 0.12-0.13 ms per image at 32-64 against 0.18 at 100-1000, whose
-# activations no longer fit in cache; docs/surrogate.md, "Speed").
-CPU_PASS_IMAGES = 64
+# (the shipped model, 8 passes over 1 000 beds, one thread: 0.84-0.87 s at 128 images
+# a pass, 0.90-0.94 s at 64, 1.02 s at 32, 0.86-0.91 s at 192-256; larger passes'
+# activations leave the cache; docs/surrogate.md, "Speed").
+CPU_PASS_IMAGES = 128
 GPU_PASS_IMAGES = 1024
 
 
