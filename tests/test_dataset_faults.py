@@ -145,7 +145,9 @@ def test_second_writer_is_refused_while_the_first_runs(tmp_path, reference):
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         t0 = time.time()
-        while not os.path.exists(lock_path(out)):
+        # Wait for the lock's content, not its name: O_EXCL creates it empty and the
+        # holder writes it just after, so a run frozen in between leaves it empty.
+        while read_lock(lock_path(out)) is None:
             assert first.poll() is None and time.time() - t0 < 60
             time.sleep(0.005)
         pids = _session_pids(first.pid)
