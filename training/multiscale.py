@@ -76,7 +76,8 @@ class MultiScaleNet(nn.Module):
                 if top.shape[-1] % 2 == 0 and top.shape[-2] % 2 == 0:
                     # The same maximum from the 2 x 2 maxima that cover the map: torch's
                     # amax over a 64 x 16 x 20 x 20 block took 1.2 ms, over its pooled
-                    # 10 x 10 maps 12 us (one thread; docs/surrogate_scaling.md, "Speed of the eight passes").
+                    # 10 x 10 maps 12 us (one thread; docs/surrogate_scaling.md,
+                    # "Speed of the eight passes").
                     top = x
             summaries += [mean, top.amax(dim=(2, 3))]
         return self.head(torch.cat(summaries, dim=1))

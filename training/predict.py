@@ -79,7 +79,8 @@ class Surrogate:
         self.nets = build_members(ckpt, self.path)
         for net in self.nets:
             # Channels-last activations: 8 passes over 1 000 beds on one CPU thread here
-            # took 0.89 s against 1.03 s (docs/surrogate_scaling.md, "Speed of the eight passes"); same results to 2e-7.
+            # took 0.89 s against 1.03 s, with the same results to 2e-7
+            # (docs/surrogate_scaling.md, "Speed of the eight passes").
             net.to(memory_format=torch.channels_last)
         self.norm = Normalizer.from_dict(ckpt["normalizer"])
         self.image_shape = tuple(int(s) for s in ckpt["image_shape"])
@@ -193,7 +194,8 @@ def symmetries(mode, square=True):
 # Images per forward pass on a CPU: the fastest measured on this project's machine
 # (the shipped model, 8 passes over 1 000 beds, one thread: 0.84-0.87 s at 128 images
 # a pass, 0.90-0.94 s at 64, 1.02 s at 32, 0.86-0.91 s at 192-256; larger passes'
-# activations leave the cache; docs/surrogate_scaling.md, "Speed of the eight passes").
+# activations leave the cache;
+# docs/surrogate_scaling.md, "Speed of the eight passes").
 CPU_PASS_IMAGES = 128
 GPU_PASS_IMAGES = 1024
 
