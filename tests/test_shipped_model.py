@@ -7,8 +7,7 @@ import torch
 
 from amfe.model.scales import bed_for, get_scale, record_seed
 from amfe.training.checkpoint import load_checkpoint
-from amfe.training.predict import (Surrogate, bond_image_like_training, default_model_path,
-                                   pixelate_like_training)
+from amfe.training.predict import Surrogate, default_model_path
 
 torch.set_num_threads(1)
 
@@ -68,8 +67,7 @@ def test_shipped_model_gives_a_mirrored_bed_its_constants(shipped):
     sur = Surrogate.load()
     assert sur.tta == "flips"
     beds = [bed_for(get_scale("small"), record_seed(2, k)) for k in range(3)]
-    x = np.stack([np.concatenate([pixelate_like_training(b, sur.ckpt),
-                                  bond_image_like_training(b, sur.ckpt)]) for b in beds])
+    x = np.stack([sur.inputs_of(b)[0] for b in beds])
     base = sur.predict(x)["mean"]
     for mirrored in (x[..., ::-1], x[..., ::-1, :], x[..., ::-1, ::-1]):
         np.testing.assert_allclose(sur.predict(np.ascontiguousarray(mirrored))["mean"], base,

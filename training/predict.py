@@ -144,11 +144,12 @@ class Surrogate:
         res["flagged"] = res["flagged"] | res["fill_out"]
         return res
 
-    def predict_bed(self, bed):
-        """Image ``bed`` as the training data was and predict.
+    def inputs_of(self, bed):
+        """The network input of ``bed``, imaged as the training data was.
 
-        Returns (result dict, volume-fraction image (layers, H, W), seconds
-        {pixelate, bonds (when the model reads bond images), predict}).
+        Returns (inputs (channels, H, W) float32: the image kinds of
+        ``self.inputs`` stacked, volume-fraction image (layers, H, W), seconds
+        {pixelate, bonds (when the model reads bond images)}).
         """
         t0 = time.perf_counter()
         image = pixelate_like_training(bed, self.ckpt, self.path)
@@ -158,7 +159,15 @@ class Surrogate:
         if "bonds" in self.inputs:
             parts["bonds"] = bond_image_like_training(bed, self.ckpt)
             times["bonds"] = time.perf_counter() - t1
-        x = np.concatenate([parts[k] for k in self.inputs], axis=0)
+        return np.concatenate([parts[k] for k in self.inputs], axis=0), image, times
+
+    def predict_bed(self, bed):
+        """Image ``bed`` as the training data was and predict.
+
+        Returns (result dict, volume-fraction image (layers, H, W), seconds
+        {pixelate, bonds (when the model reads bond images), predict}).
+        """
+        x, image, times = self.inputs_of(bed)
         t2 = time.perf_counter()
         res = self.predict(x[None])
         times["predict"] = time.perf_counter() - t2
