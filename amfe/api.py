@@ -33,8 +33,11 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
         on a periodic bed) and returns a dict {bc: Result}, VTU files in
         ``vtu_dir``/<bc>.
     rtol : float, optional
-        GAMG's relative residual tolerance (default: 1e-8 with ``solver="gamg"``,
-        1e-7 for the beds ``"auto"`` gives to GAMG).
+        GAMG's relative residual tolerance. Default: 1e-5 for KUBC on a bed
+        whose hull vertices are all prescribed (the reaction stress is then
+        corrected to second order in the solver's error, docs/model.md
+        section 5); otherwise 1e-8 with ``solver="gamg"``, 1e-7 for the beds
+        ``"auto"`` gives to GAMG.
     comm : mpi4py or PETSc communicator, optional
         The ranks that share the solve (default: all of them).
     fields : bool

@@ -5,9 +5,15 @@
     python run/bench_block.py --scale small --repeat 3 # a data-set bed, best of 3
     python run/bench_block.py --petsc "-pc_gamg_agg_nsmooths 0" --paths block
 
+Paths (:data:`PATHS`): block (amfe's defaults), loop (one case at a time),
+uncorrected (the block path at rtol 1e-8 without the second-order stress: the
+code before it) and reference (block, rtol 1e-11: each path's error is the
+largest relative difference of its nine constants from this one's).
 Runs each path in its own `mpirun -n RANKS` (so each has its own peak memory),
 end to end: bed generation, frame, assembly, GAMG set-up, six solves,
-averaging. Then one more run measures, on the same bed: one MatMult with the
+averaging. With --repeat the later runs find memory the process already
+touched (on this virtual machine that first touch costs 3-5 s/GB): the best
+of several is faster than a user's single run; compare single runs. Then one more run measures, on the same bed: one MatMult with the
 fine SBAIJ and AIJ matrices, one 6-column product (MAIJ, and MatMatMult with a
 dense block for AIJ and SBAIJ), per path one block V-cycle on that path's GAMG
 hierarchy (the block path's options differ), and a STREAM-like triad
@@ -45,18 +51,30 @@ def bed_of(args):
     return generate_bed(size=tuple(v * 1e-3 for v in args.size), seed=args.seed)
 
 
+PATHS = {  # name: (PETSc options, rtol (None: --rtol, else amfe's default))
+    "block": ({"amfe_block": "yes"}, None),
+    "loop": ({"amfe_block": "no"}, None),
+    # the block path as it was before the second-order stress: rtol 1e-8, uncorrected
+    "uncorrected": ({"amfe_block": "yes", "amfe_correction": "no"}, 1e-8),
+    # the constants every path's error is measured against
+    "reference": ({"amfe_block": "yes"}, 1e-11),
+}
+
+
 def worker_path(args, PETSc, comm):
     """End to end on one path; rank 0 gets the result summary."""
     from amfe.solvers.driver import homogenize_bed
     mpi = comm.tompi4py()
-    options = {"amfe_block": "yes" if args.worker == "block" else "no", **petsc_dict(args)}
+    given, rtol = PATHS[args.worker]
+    options = {**given, **petsc_dict(args)}
+    rtol = args.rtol if rtol is None else rtol
     best = None
     for _ in range(args.repeat):
         comm.barrier()
         t0, c0 = time.perf_counter(), time.process_time()
         bed = bed_of(args)
         t_gen = time.perf_counter() - t0
-        res = homogenize_bed(bed.centers, bed.radii, rtol=args.rtol, comm=comm,
+        res = homogenize_bed(bed.centers, bed.radii, rtol=rtol, comm=comm,
                              ksp_options=options)
         comm.barrier()
         total = time.perf_counter() - t0
@@ -67,6 +85,7 @@ def worker_path(args, PETSc, comm):
                     "assembly": s["assembly_seconds"], "setup": s["setup_seconds"],
                     "solve": s["solve_seconds"], "iterations": s["iterations"],
                     "residual": max(s["residuals"]), "particles": res["n_particles"],
+                    "rtol": s["rtol"], "correction": s.get("correction"),
                     "properties": res["properties"], "C": res["C"]}
     best["peak_gb"] = max(mpi.allgather(peak_gb()))
     best["load"] = os.getloadavg()[0]
@@ -120,12 +139,14 @@ def worker_measure(args, PETSc, comm):
     r0, r1 = int(ranges[rank]), int(ranges[rank + 1])
     out = {}
     for path in args.paths.split(","):
+        if path == "reference":
+            continue
         options = petsc_dict(args)
-        if path == "block":  # its hierarchy, but with the SBAIJ copy for the timings
+        if path != "loop":  # its hierarchy, but with the SBAIJ copy for the timings
             options = with_block_defaults(PETSc, options)
         with petsc_options(PETSc, {**options, "amfe_block": "no"}):
             op = ConstrainedOperator(PETSc, frame, comm, r0, r1, local_block_rows(frame, r0, r1),
-                                     group, rtol=args.rtol)
+                                     group, rtol=args.rtol or 1e-8)
         m = op.A.getLocalSize()[0]
         X, Y = np.random.default_rng(rank).random((m, 6)), np.empty((m, 6))
         if "t_sbaij" not in out:
@@ -215,16 +236,27 @@ def report(args, runs):
     def say(s=""):
         print(s, flush=True)
     rel = lambda a, b: max(abs(a[k] - b[k]) / abs(b[k]) for k in b if abs(b[k]) > 1e-6)  # noqa
-    say(f"# bench_block: {args.ranks} rank(s), rtol {args.rtol:g}, options '{args.petsc}', "
-        f"bed {args.scale or args.size}, best of {args.repeat}")
-    say(f"{'path':<14} {'particles':>9} {'gen':>6} {'frame':>6} {'asm':>6} {'setup':>7} "
-        f"{'six solves':>10} {'total':>7} {'cpu':>7} {'its':>18} {'peak GB/rank':>12} {'load':>5}")
+    say(f"# bench_block: {args.ranks} rank(s), rtol {args.rtol or 'amfe default'}, options "
+        f"'{args.petsc}', bed {args.scale or args.size}, best of {args.repeat}")
+    ref = runs.get("reference")
+    say(f"{'path':<12} {'particles':>9} {'rtol':>6} {'gen':>6} {'frame':>6} {'asm':>6} "
+        f"{'setup':>7} {'six solves':>10} {'total':>7} {'cpu':>7} {'its':>18} {'peak GB/rank':>12} "
+        f"{'load':>5} {'error':>8}")
     for path in args.paths.split(","):
         r = runs[path]
-        say(f"{path:<14} {r['particles']:>9} {r['gen']:6.2f} {r['frame']:6.2f} "
+        err = f"{rel(r['properties'], ref['properties']):8.1e}" if ref and path != "reference" \
+            else f"{'-':>8}"
+        say(f"{path:<12} {r['particles']:>9} {r['rtol']:6.0e} {r['gen']:6.2f} {r['frame']:6.2f} "
             f"{r['assembly']:6.2f} {r['setup']:7.2f} {r['solve']:10.2f} {r['total']:7.2f} "
             f"{r['cpu']:7.2f} {','.join(map(str, r['iterations'])):>18} {r['peak_gb']:12.2f} "
-            f"{r['load']:5.1f}")
+            f"{r['load']:5.1f} {err}")
+    if ref:
+        say("error: the largest relative difference of the nine constants from the reference "
+            "path's (block, rtol 1e-11)")
+    if "block" in runs and "uncorrected" in runs:
+        b, u = runs["block"], runs["uncorrected"]
+        say(f"block / uncorrected at rtol 1e-8 (the code before): end to end "
+            f"{b['total'] / u['total']:.2f}, six solves {b['solve'] / u['solve']:.2f}")
     if "block" in runs and "loop" in runs:
         b, l = runs["block"], runs["loop"]
         say(f"block / one at a time: end to end {b['total'] / l['total']:.2f}, six solves "
@@ -239,7 +271,7 @@ def report(args, runs):
         f"SBAIJ x dense {m['t_sbaij_dense'] * 1e3:.1f} ms")
     bw = m["bandwidth"]
     say(f"triad bandwidth {bw / 1e9:.2f} GB/s (all ranks; load {m['load']:.1f})")
-    for path in args.paths.split(","):
+    for path in [p for p in args.paths.split(",") if p in m]:
         h, its = m[path], max(runs[path]["iterations"])
         bound = (its + 2) * (h["vcycle_bytes"] + h["product_bytes"]) / bw
         say(f"{path}: levels {h['levels']}, degrees {h['degrees']}, {h['vcycle_fine_reads']:.2f} "
@@ -255,9 +287,11 @@ def main():
     ap.add_argument("--scale", help="a data-set scale (small, tiny) instead of --size")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--ranks", type=int, default=2)
-    ap.add_argument("--rtol", type=float, default=1e-8)
+    ap.add_argument("--rtol", type=float, default=None,
+                    help="of the block and loop paths (default: amfe's)")
     ap.add_argument("--repeat", type=int, default=1, help="end-to-end runs per path (best)")
-    ap.add_argument("--paths", default="block,loop", help="block, loop or both")
+    ap.add_argument("--paths", default="block,loop,uncorrected,reference",
+                    help=f"some of {', '.join(PATHS)}, comma-separated")
     ap.add_argument("--petsc", default="", help="PETSc options for every run, one string")
     ap.add_argument("--no-measure", action="store_true", help="skip products and bandwidth")
     ap.add_argument("--worker", help=argparse.SUPPRESS)

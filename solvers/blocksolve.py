@@ -172,7 +172,7 @@ class BlockCG:
         return self.reason == 0
 
 
-def solve_block(PETSc, ksp, bs, X0, backend="auto", info=None):
+def solve_block(PETSc, ksp, bs, X0, backend="auto", info=None, prescribed=None):
     """Solve A x_j = b_j for every case j with k CGs sharing one block V-cycle.
 
     ksp: a set-up KSP (CG with GAMG); bs: k right-hand side Vecs; X0: None or
@@ -180,7 +180,12 @@ def solve_block(PETSc, ksp, bs, X0, backend="auto", info=None):
     (converged or not: the caller holds each to the convergence contract), or
     None when the preconditioner is not one the block V-cycle reproduces (the
     caller then solves one at a time). Collective. ``info`` (a dict) receives
-    the V-cycle check, the levels, the counts of iterations and V-cycles.
+    the V-cycle check, the levels, the counts of iterations and V-cycles, and
+    "cross": the (k, k) matrix x_i . r_j of the solutions and true residuals,
+    summed over ranks (:func:`amfe.solvers.correction.moment_corrections`).
+    prescribed: (local rows (p,), values (p, k)): rows whose exact values are
+    known (identity rows of MatZeroRowsColumns); they are set before the true
+    residuals, which are then zero there.
     """
     t0 = time.perf_counter()
     k = len(bs)
@@ -192,11 +197,16 @@ def solve_block(PETSc, ksp, bs, X0, backend="auto", info=None):
         cg = _iterate(PETSc, ksp, V, bs, X0)
         if cg is None:
             return None
+        if prescribed is not None:
+            cg.X[prescribed[0]] = prescribed[1]
         B = np.stack([b.getArray() for b in bs], axis=1)  # again: not kept while iterating
-        residuals = _true_residuals(V.fine, B, cg.X, cg.R, ksp.getComm().tompi4py())
+        mpi = ksp.getComm().tompi4py()
+        residuals = _true_residuals(V.fine, B, cg.X, cg.R, mpi)
         del B
         if info is not None:
-            info.update(cg.info, products=V.products_per_cycle())
+            # one (k, k) product over the blocks (not k^2 column dots)
+            info.update(cg.info, products=V.products_per_cycle(),
+                        cross=mpi.allreduce(cg.X.T @ cg.R))
     finally:
         V.destroy()
     seconds = time.perf_counter() - t0
@@ -304,7 +314,8 @@ def _test(cg, rnorm, it, rtol, atol, dtol):
 
 
 def _true_residuals(A, B, X, work, mpi):
-    """||b_j - A x_j|| / ||b_j|| (||r_j|| where b_j = 0) with the block product."""
+    """||b_j - A x_j|| / ||b_j|| (||r_j|| where b_j = 0) with the block product;
+    ``work`` is left holding the residuals b_j - A x_j."""
     np.subtract(B, A.mult(X, work), out=work)
     rr, bb = np.sqrt(mpi.allreduce(np.array([np.einsum("ij,ij->j", work, work),
                                              np.einsum("ij,ij->j", B, B)])))

@@ -11,7 +11,9 @@ The contract is the label's accuracy, not the method: every constant within
 - ``gamg``: CG + GAMG. Its constants carry about 3-30x rtol of error, worst on
   small sparse beds; ``auto`` runs it at :data:`GAMG_RTOL_AUTO` (1e-7: at most
   5.0e-6 on the beds auto sends to it with the block path, 7.3e-6 over all 60),
-  ``--solver gamg`` at the 1e-8 default.
+  ``--solver gamg`` at the 1e-8 default. KUBC's reaction stress is corrected
+  to second order in the solver's error (:mod:`amfe.solvers.correction`):
+  both then run at rtol 1e-5, about 1e-7 from the reference.
 
 :func:`choose_solver` decides per bed from the predicted fill of a
 factorisation (:func:`solve_features`, a few milliseconds), never from the
@@ -23,6 +25,7 @@ from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 from amfe.errors import AmfeError
 from amfe.model.memory import direct_bytes
+from amfe.solvers.correction import CORRECTED_RTOL
 from amfe.solvers.ksp import DEFAULT_RTOL
 
 METHODS = ("auto", "gamg", "cholesky")
@@ -80,7 +83,7 @@ def solve_features(frame):
 
 
 def choose_solver(features, nranks, requested="auto", rtol=None, package="cholmod",
-                  user_options=(), singular=False, check_memory=None):
+                  user_options=(), singular=False, check_memory=None, corrected=False):
     """(method, reason, rtol, ksp_options) for one bed.
 
     features: the dict of :func:`solve_features` (or a callable that returns
@@ -93,13 +96,18 @@ def choose_solver(features, nranks, requested="auto", rtol=None, package="cholmo
     modes (the mixed conditions), which a factorisation cannot take;
     check_memory(estimate [bytes], what): raises AmfeError when an estimate
     is over the memory limit (:func:`amfe.model.memory.direct_bytes` of the
-    factorisation): auto then takes GAMG, ``cholesky`` is refused. The
-    returned rtol is None for Cholesky.
+    factorisation): auto then takes GAMG, ``cholesky`` is refused;
+    corrected: the condition's reaction stress takes the second-order
+    correction (:mod:`amfe.solvers.correction`), whose default rtol
+    :data:`~amfe.solvers.correction.CORRECTED_RTOL` then serves ``gamg`` and
+    ``auto`` alike. The returned rtol is None for Cholesky.
     """
     if requested not in METHODS:
         raise AmfeError(f"unknown solver {requested!r}; choose one of {', '.join(METHODS)}")
     direct = {"ksp_type": "preonly", "pc_type": "cholesky",
               "pc_factor_mat_solver_type": package, "amfe_operator_type": "aij"}
+    if rtol is None and corrected:
+        rtol = CORRECTED_RTOL
     if requested == "gamg":
         return "gamg", "asked for (--solver gamg)", DEFAULT_RTOL if rtol is None else rtol, {}
     if requested == "cholesky":

@@ -21,12 +21,18 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from amfe.errors import AmfeError
 from amfe.model.averages import bagi_stress
 from amfe.solvers.assembly import aij_from_blocks, sbaij_operator
 from amfe.solvers.blocksolve import (block_path_applies, block_path_expected, solve_block,
                                      with_block_defaults)
+from amfe.solvers.correction import moment_corrections, relative_size, takes_correction
 from amfe.solvers.ksp import check_solution, make_ksp, petsc_options
 from amfe.solvers.nullspace import near_nullspace, orthonormal_nullspace
+
+
+AMFE_OPTIONS = ("amfe_operator_type", "amfe_block", "amfe_correction")
+"""amfe's own PETSc options (docs/model.md, section 5)."""
 
 
 @dataclass
@@ -49,6 +55,7 @@ class SetupRecord:
     pc_complexity: dict = field(default_factory=dict)
     unused_options: list = field(default_factory=list)
     path: str = "one at a time"  # or "block" (ConstrainedOperator.solve_all)
+    correction: float = None  # largest relative change the moments' correction made
 
 
 @dataclass
@@ -132,6 +139,7 @@ class ConstrainedOperator:
         with petsc_options(PETSc, ksp_options):  # a direct solve sets amfe_operator_type aij
             aij_only = PETSc.Options().getString("amfe_operator_type", "sbaij") == "aij"
             self.block_option = PETSc.Options().getString("amfe_block", "yes")
+            self.correct_option = PETSc.Options().getString("amfe_correction", "yes")
             block = block_path_expected(PETSc, len(group.values), self.block_option, diagnose)
         if block:  # the block path multiplies with AIJ only, and has its GAMG defaults
             ksp_options = with_block_defaults(PETSc, ksp_options, group.smoothed_aggregation,
@@ -149,6 +157,8 @@ class ConstrainedOperator:
         self.A, self.A_op = A, A_op
         t_assembly = time.perf_counter() - t0
         with petsc_options(PETSc, ksp_options) as unused:
+            for name in AMFE_OPTIONS:  # read above, in another setting of the options: mark them used
+                PETSc.Options().getString(name, "")
             ksp = make_ksp(PETSc, A_op, A, rtol=rtol, max_it=max_it)
             if diagnose:
                 ksp.setComputeEigenvalues(True)
@@ -163,11 +173,13 @@ class ConstrainedOperator:
         self._f = self.A_r.createVecLeft()
         self._scatter, self._u0 = PETSc.Scatter.toZero(self._r)
 
-    def solve(self, k, center, guess=None, gather=True):
+    def solve(self, k, center, guess=None, gather=True, keep=None):
         """Solve the group's case ``k``; returns a :class:`CaseSolution`.
 
         center (3,): the point the reaction moments are taken about;
-        guess: optional (n, 6) initial guess (ignored by direct solvers).
+        guess: optional (n, 6) initial guess (ignored by direct solvers);
+        keep: a list that receives copies of (x, b - A x) (for :meth:`solve_all`'s
+        correction; the caller destroys them).
         """
         PETSc, ksp, r0, r1 = self.PETSc, self.ksp, self.r0, self.r1
         name, b = self.group.names[k], self._b[k]
@@ -180,6 +192,8 @@ class ConstrainedOperator:
         t0 = time.perf_counter()
         ksp.solve(b, u)
         seconds = time.perf_counter() - t0
+        # the prescribed DOFs' exact values (an iterate carries rtol-sized errors there)
+        u.getArray()[self._local_dofs] = self._x0[k].getArray()[self._local_dofs]
         self.A.mult(u, self._r)
         self._r.aypx(-1.0, b)
         bnorm = b.norm()  # zero when a case prescribes nothing but zeros
@@ -194,6 +208,8 @@ class ConstrainedOperator:
                        condition=float(smax / smin) if smin > 0 else float("inf"))
         moment, u_root = self._reactions(u, center, gather)
         iterations = int(ksp.getIterationNumber())
+        if keep is not None:
+            keep.append((u.copy(), self._r.copy()))
         u.destroy()
         return CaseSolution(name, iterations, residual, seconds, moment, u_root, eig, warning,
                             note)
@@ -209,13 +225,23 @@ class ConstrainedOperator:
         (n, 6) initial guesses, one per case. ``record.path`` says which ran.
         """
         names, r0, r1 = self.group.names, self.r0, self.r1
-        cols = None
+        correct = self._corrects()
+        cols, info = None, {}
         if block_path_applies(self.ksp, len(names), self.block_option, self.diagnose):
             X0 = None if guesses is None else [g[r0:r1].ravel() for g in guesses]
-            cols = solve_block(self.PETSc, self.ksp, self._b, X0)
+            fixed = (self._local_dofs,
+                     np.stack([x.getArray()[self._local_dofs] for x in self._x0], axis=1))
+            cols = solve_block(self.PETSc, self.ksp, self._b, X0, info=info, prescribed=fixed)
         if cols is None:
-            return [self.solve(k, center, None if guesses is None else guesses[k], gather)
-                    for k in range(len(names))]
+            keep = [] if correct else None
+            out = [self.solve(k, center, None if guesses is None else guesses[k], gather, keep)
+                   for k in range(len(names))]
+            if correct:
+                info["cross"] = np.array([[xi.dot(rj) for _, rj in keep] for xi, _ in keep])
+                for pair in keep:
+                    for v in pair:
+                        v.destroy()
+            return self._corrected(out, info.get("cross"))
         self.record.path = "block"
         checks = {}  # the contract of solve(); an indefinite preconditioner first (the retry)
         for k in sorted(range(len(cols)), key=lambda k: not cols[k].indefinite):
@@ -228,7 +254,27 @@ class ConstrainedOperator:
             out.append(CaseSolution(name, col.iterations, col.residual, col.seconds, moment,
                                     u_root, {}, *checks[k]))
             col.u.destroy()
-        return out
+        return self._corrected(out, info.get("cross") if correct else None)
+
+    def _corrects(self):
+        """Whether this group's moments take the correction (-amfe_correction, default yes)."""
+        if self.correct_option not in ("yes", "no"):
+            raise AmfeError(f"-amfe_correction {self.correct_option!r}: give yes (the "
+                            "second-order reaction stress, the default) or no")
+        return self.correct_option == "yes" and takes_correction(self.group)
+
+    def _corrected(self, cases, cross):
+        """``cases`` with the correction added to their moments; the size of the
+        largest goes into ``record.correction``."""
+        if cross is None:
+            return cases
+        dM = moment_corrections(self.group.strains, cross)
+        if dM is None:
+            return cases
+        self.record.correction = relative_size(dM, [c.moment for c in cases])
+        for c, d in zip(cases, dM):
+            c.moment = c.moment + d
+        return cases
 
     def _column_norm(self, k, u):
         """:meth:`_residual_in_ksp_norm` of case k's block-path solution ``u``."""

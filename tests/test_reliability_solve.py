@@ -73,10 +73,12 @@ def test_accept_unconverged_keeps_the_numbers_with_a_warning(bed_file, converged
     assert proc.returncode == 0, proc.stderr
     r = json.loads(out.read_text())
     assert len(r["warnings"]) == 6 and all("CONVERGED_ATOL" in w for w in r["warnings"])
-    assert min(r["solver"]["residuals"]) > r["solver"]["residual_limit"] == 10 * 1e-8
-    # the numbers: 0 iterations, Ex 8 % high
+    # (KUBC on a box: the default rtol of the second-order stress, docs/model.md section 5)
+    assert min(r["solver"]["residuals"]) > r["solver"]["residual_limit"] == 10 * 1e-5
+    # the numbers: 0 iterations, Ex 8 % high from the affine start; the second-order
+    # stress takes that start's residual into account and brings it to 3.3 % high
     assert r["solver"]["iterations"] == [0] * 6
-    assert r["properties"]["Ex"] / converged.Ex == pytest.approx(1.082, abs=0.01)
+    assert r["properties"]["Ex"] / converged.Ex == pytest.approx(1.033, abs=0.005)
     assert proc.stderr.count("amfe: warning:") == 1
 
 

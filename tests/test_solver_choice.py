@@ -9,6 +9,7 @@ from amfe.model.frame import build_frame
 from amfe.model.scales import bed_for
 from amfe.solvers.choice import (FILL_RATIO_MAX, GAMG_RTOL_AUTO, MAX_DIRECT_PARTICLES,
                                  choose_solver, solve_features)
+from amfe.solvers.correction import CORRECTED_RTOL
 from amfe.solvers.driver import homogenize_bed
 from amfe.vocab import CONSTANT_NAMES
 from helpers import cubic_lattice, run_cli
@@ -28,6 +29,11 @@ def test_the_rule_picks_each_method_where_it_should():
     assert choose_solver(SPARSE, 1, singular=True)[0] == "gamg"        # free rigid modes
     assert choose_solver(SPARSE, 1, rtol=1e-9)[0] == "cholesky"
     assert choose_solver(DENSE, 1, rtol=1e-9)[2] == 1e-9
+    # a second-order answer (KUBC on a box) takes the corrected default, auto and gamg alike
+    assert choose_solver(DENSE, 1, corrected=True)[2] == CORRECTED_RTOL
+    assert choose_solver(DENSE, 1, "gamg", corrected=True)[2] == CORRECTED_RTOL
+    assert choose_solver(DENSE, 1, "gamg")[2] == 1e-8
+    assert choose_solver(DENSE, 1, rtol=1e-9, corrected=True)[2] == 1e-9
     assert choose_solver(DENSE, 1, "cholesky")[0] == "cholesky"
     assert choose_solver(SPARSE, 1, "gamg")[2] == 1e-8
     for bad in (dict(requested="cholesky", nranks=2), dict(requested="cholesky", nranks=1,
@@ -84,7 +90,7 @@ def test_two_ranks_use_gamg_and_cholesky_is_refused_there(tmp_path):
     proc = run_cli(["homogenize", str(bed_path), "-o", str(out), "--quiet"], ranks=2)
     assert proc.returncode == 0, proc.stderr
     s = json.loads(out.read_text())["solver"]
-    assert s["method"] == "gamg" and "2 ranks" in s["reason"] and s["rtol"] == GAMG_RTOL_AUTO
+    assert s["method"] == "gamg" and "2 ranks" in s["reason"] and s["rtol"] == CORRECTED_RTOL
     proc = run_cli(["homogenize", str(bed_path), "--solver", "cholesky", "--quiet"], ranks=2)
     assert proc.returncode == 2 and "one rank" in proc.stderr
 

@@ -27,7 +27,8 @@ def kubc_groups(frame):
         values.append(v)
     # The solution is the affine field plus a fluctuation: starting CG from the
     # affine field everywhere (rotations zero) saves iterations.
-    return [Group(fixed=fixed, values=values, names=list(CASE_NAMES), guesses=values)]
+    return [Group(fixed=fixed, values=values, names=list(CASE_NAMES), guesses=values,
+                  strains=unit_strains())]
 
 
 def boundary_particles(centers, radii) -> np.ndarray:

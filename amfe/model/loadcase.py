@@ -31,6 +31,10 @@ class Group:
     instead of its unsmoothed ones, for frames that nothing anchors but one
     particle (SUBC; large periodic tori), whose iterations grow with the bed
     under unsmoothed aggregation (:func:`amfe.solvers.blocksolve.with_block_defaults`).
+    strains: optional (k, 3, 3) macro-strains when case i prescribes exactly
+    the translations eps_i (x - x_c) (KUBC): the reaction moments then take
+    the correction that makes them second-order accurate in the solver's
+    error (:mod:`amfe.solvers.correction`).
     """
 
     fixed: np.ndarray
@@ -40,6 +44,7 @@ class Group:
     guesses: list = field(default=None)
     forces: list = field(default=None)
     smoothed_aggregation: bool = False
+    strains: np.ndarray = field(default=None)
 
 
 def rigid_body_modes(points, center=None):

@@ -1,0 +1,85 @@
+"""The reaction stress to second order in the solver's error (docs/model.md, section 5).
+
+KUBC's stiffness C_ij = eps_i : sigma_j is a linear functional of case j's
+solution: the work of case i's prescribed translations a_i against case j's
+reactions, over V. An iterate x_j with residual r_j = b_j - A x_j gives it
+with an error linear in x_j's error e_j. That error has a closed form: the
+functional's adjoint solution is minus case i's own exact solution on the
+free DOFs, so
+
+    a_i . f_j(x*_j) = a_i . f_j(x_j) - x*_i . r_j,
+
+and with the computed x_i in place of x*_i what is left is
+e_i^T A e_j, quadratic in the iterates' errors (the dual-weighted residual
+correction of goal-oriented error estimation). Every quantity needed is at
+hand after the six solves: D_ij = x_i . r_j over the free DOFs, one (6, 6)
+product. Pure numpy: the solvers compute D, this module turns it into the
+moments' corrections.
+"""
+import numpy as np
+
+from amfe.model.averages import hull_of, voigt_strain
+
+CORRECTED_RTOL = 1e-5
+"""Default rtol of CG + GAMG where the constants are second order in the
+solver's error (:func:`second_order`), from ``--solver gamg`` and ``auto``
+alike. Measured against Cholesky or rtol 1e-12 (docs/benchmarks.md, "The
+reaction stress to second order"): the nine constants within about 1e-7
+relative, closer than the uncorrected stress got at rtol 1e-8, in about half
+the iterations."""
+
+
+def second_order(groups, centers):
+    """Whether the constants of KUBC ``groups`` are second order in the solver's error.
+
+    The correction makes the stress so; the Bagi strain (a hull-boundary
+    integral of the hull vertices' translations) is exact when every hull
+    vertex of ``centers`` (n, 3) is prescribed, and first order in the error of
+    any that is free (a bed whose hull is not its bounding box: skipped pieces
+    at a corner). Such beds keep the uncorrected default rtol (corrected all
+    the same).
+    """
+    if not all(map(takes_correction, groups)):
+        return False
+    held = np.logical_and.reduce([g.fixed[:, :3].all(axis=1) for g in groups])
+    return bool(held[hull_of(centers).vertices].all())
+
+
+def takes_correction(group):
+    """Whether a :class:`~amfe.model.loadcase.Group`'s moments can be corrected: six cases of
+    prescribed translations eps (x - x_c) only (KUBC), nothing applied, no free rigid modes."""
+    return (group.strains is not None and group.forces is None and group.null_modes is None
+            and len(group.values) == 6)
+
+
+def moment_corrections(strains, cross):
+    """Corrections (k, 3, 3) to k cases' reaction moments, symmetric, frame units.
+
+    strains (k, 3, 3): case i prescribes the translations eps_i (x - x_c) and
+    nothing else (no applied forces, no free rigid modes); cross (k, k):
+    D_ij = x_i . r_j, case i's solution dotted with case j's true residual
+    b_j - A x_j over the free DOFs (zero on the prescribed ones). The corrected
+    moment M_j + dM_j satisfies eps_i : (M_j + dM_j) = eps_i : M_j - D_ij for
+    every i. Needs the k strains to span the symmetric tensors (k = 6); returns
+    None otherwise.
+    """
+    E = np.array([voigt_strain(e) for e in strains])  # (k, 6) engineering Voigt
+    D = np.asarray(cross, dtype=float)
+    if E.shape != (6, 6) or D.shape != (6, 6) or np.linalg.cond(E) > 1e8:
+        return None
+    # eps_i : S = sum_m E_im s_m with s the Voigt vector (xx, yy, zz, yz, xz, xy) of a
+    # symmetric S, so the corrections' Voigt vectors are the columns of -E^-1 D.
+    s = np.linalg.solve(E, -D)
+    out = np.zeros((6, 3, 3))
+    pairs = [(0, 0), (1, 1), (2, 2), (1, 2), (0, 2), (0, 1)]
+    for m, (a, b) in enumerate(pairs):
+        out[:, a, b] = out[:, b, a] = s[m]
+    return out
+
+
+def relative_size(corrections, moments):
+    """Largest ||dM_j||_F / ||M_j||_F: what the correction changed, a measure of the
+    uncorrected error (the corrected one is about its square)."""
+    sizes = [np.linalg.norm(d) / (np.linalg.norm(m) or 1.0)
+             for d, m in zip(corrections, moments)]
+    return float(max(sizes)) if sizes else 0.0

@@ -1,0 +1,140 @@
+"""The reaction stress to second order (amfe.solvers.correction, docs/model.md section 5).
+
+References: a direct solve (Cholesky, exact to round-off) of the same frame, the
+definition of the corrections, the one-at-a-time path, and other rank counts.
+"""
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from amfe.errors import AmfeError
+from amfe.model.averages import strain_from_voigt, unit_strains
+from amfe.model.bed import generate_bed
+from amfe.model.frame import build_frame
+from amfe.model.kubc import kubc_groups
+from amfe.model.subc import subc_groups
+from amfe.solvers.correction import CORRECTED_RTOL, moment_corrections, second_order
+from amfe.solvers.driver import homogenize_bed
+
+from helpers import MPI_ENV, ROOT
+
+
+def box_bed():
+    """A fully scanned box: every hull vertex is a boundary particle."""
+    return generate_bed(size=(0.4e-3, 0.4e-3, 0.2e-3), seed=1)
+
+
+def round_bed():
+    """The box cut to a cylinder: hull vertices on the round side are free under KUBC."""
+    bed = box_bed()
+    c = bed.centers
+    mid = 0.5 * (c.min(axis=0) + c.max(axis=0))
+    keep = np.hypot(c[:, 0] - mid[0], c[:, 1] - mid[1]) < 0.2e-3 - 2e-5
+    return c[keep], bed.radii[keep]
+
+
+def error(res, ref):
+    """Largest relative difference of the nine constants."""
+    return max(abs(res["properties"][k] / v - 1) for k, v in ref["properties"].items())
+
+
+@pytest.fixture(scope="module")
+def box():
+    bed = box_bed()
+    return bed.centers, bed.radii, homogenize_bed(bed.centers, bed.radii, solver="cholesky")
+
+
+def test_corrections_meet_their_definition():
+    rng = np.random.default_rng(0)
+    D = rng.normal(size=(6, 6))
+    oblique = np.stack([strain_from_voigt(v) for v in rng.normal(size=(6, 6))])
+    for strains in (unit_strains(), oblique):
+        dM = moment_corrections(strains, D)
+        assert np.allclose(dM, dM.transpose(0, 2, 1), atol=0)  # symmetric
+        # eps_i : dM_j = -D_ij
+        assert np.allclose(np.einsum("ikl,jkl->ij", strains, dM), -D, rtol=1e-12, atol=1e-12)
+    assert moment_corrections(unit_strains()[:5], D[:5, :5]) is None
+
+
+def test_second_order_needs_every_hull_vertex_prescribed():
+    bed = box_bed()
+    frame = build_frame(bed.centers, bed.radii)
+    assert second_order(kubc_groups(frame), frame.centers)
+    round_frame = build_frame(*round_bed())
+    assert not second_order(kubc_groups(round_frame), round_frame.centers)
+    assert not second_order(subc_groups(frame), frame.centers)  # forces, not displacements
+
+
+def test_corrected_constants_are_second_order_in_the_residual(box):
+    x, r, ref = box
+    err = {}
+    for rtol in (1e-3, 1e-4, 1e-5):
+        for corr in ("yes", "no"):
+            res = homogenize_bed(x, r, solver="gamg", rtol=rtol,
+                                 ksp_options={"amfe_correction": corr})
+            err[rtol, corr] = error(res, ref)
+    for rtol in (1e-3, 1e-4, 1e-5):  # the correction removes the first-order error
+        assert err[rtol, "yes"] < 0.03 * err[rtol, "no"], err
+    # a decade of rtol gains about two decades of accuracy (one without the correction)
+    assert err[1e-4, "yes"] < 0.05 * err[1e-3, "yes"], err
+    assert err[1e-5, "yes"] < 1e-6 < err[1e-5, "no"], err
+
+
+def test_default_rtol_follows_the_order_of_the_answer(box):
+    x, r, ref = box
+    res = homogenize_bed(x, r, solver="gamg")
+    s = res["solver"]
+    assert s["rtol"] == CORRECTED_RTOL and 0 < s["correction"] < 1e-3
+    assert error(res, ref) < 1e-6
+    plain = homogenize_bed(x, r, solver="gamg", ksp_options={"amfe_correction": "no"})
+    assert plain["solver"]["rtol"] == 1e-8 and "correction" not in plain["solver"]
+    assert max(s["iterations"]) < 0.75 * max(plain["solver"]["iterations"])
+    assert error(res, ref) < 2 * error(plain, ref)  # as accurate as before, or better
+    xc, rc = round_bed()
+    rnd = homogenize_bed(xc, rc, solver="gamg")
+    assert rnd["solver"]["rtol"] == 1e-8 and rnd["solver"]["correction"] > 0
+    assert error(rnd, homogenize_bed(xc, rc, solver="cholesky")) < 1e-6
+
+
+def test_both_paths_are_corrected_alike(box):
+    x, r, ref = box
+    for block in ("yes", "no"):
+        res = homogenize_bed(x, r, solver="gamg", rtol=1e-5, ksp_options={"amfe_block": block})
+        assert error(res, ref) < 1e-6, block
+        assert res["solver"]["correction"] > 0
+
+
+def test_a_bad_correction_option_is_refused(box):
+    x, r, _ = box
+    with pytest.raises(AmfeError, match="-amfe_correction 'maybe': give yes"):
+        homogenize_bed(x, r, solver="gamg", ksp_options={"amfe_correction": "maybe"})
+
+
+SCRIPT = r"""
+import json
+from amfe.solvers.petsc import init_petsc
+PETSc = init_petsc()
+from amfe.model.bed import generate_bed
+from amfe.solvers.driver import homogenize_bed
+bed = generate_bed(size=(0.4e-3, 0.4e-3, 0.2e-3), seed=1)
+res = homogenize_bed(bed.centers, bed.radii, solver="gamg")
+if PETSc.COMM_WORLD.getRank() == 0:
+    print("RESULT " + json.dumps({"properties": res["properties"], "solver": {
+        "rtol": res["solver"]["rtol"], "correction": res["solver"]["correction"]}}), flush=True)
+"""
+
+
+@pytest.mark.parametrize("ranks", [2, 3])
+def test_corrected_default_on_several_ranks(tmp_path, box, ranks):
+    _, _, ref = box
+    script = tmp_path / "corrected.py"
+    script.write_text(SCRIPT)
+    proc = subprocess.run(["mpirun", "-n", str(ranks), sys.executable, str(script)],
+                          capture_output=True, text=True, cwd=ROOT, env=MPI_ENV, timeout=60)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    res = json.loads([s for s in proc.stdout.splitlines() if s.startswith("RESULT ")][0][7:])
+    assert res["solver"]["rtol"] == CORRECTED_RTOL
+    assert error(res, ref) < 1e-6
