@@ -1,20 +1,22 @@
-"""The reaction stress to second order in the solver's error (docs/model.md, section 5).
+"""Averages to second order in the solver's error (docs/model.md, sections 5 and 9).
 
-KUBC's stiffness C_ij = eps_i : sigma_j is a linear functional of case j's
-solution: the work of case i's prescribed translations a_i against case j's
-reactions, over V. An iterate x_j with residual r_j = b_j - A x_j gives it
-with an error linear in x_j's error e_j. That error has a closed form: the
-functional's adjoint solution is minus case i's own exact solution on the
-free DOFs, so
+Each condition's constants are linear functionals of the solutions whose
+adjoint solutions are the group's own solutions. An iterate x_j with residual
+r_j = b_j - A x_j (over the free DOFs; prescribed ones set exact) gives
+them with an error linear in x_j's error e_j, and that error has a closed
+form. KUBC: C_ij = eps_i : sigma_j is the work of case i's prescribed
+translations a_i against case j's reactions over V, its adjoint minus case
+i's exact solution on the free DOFs, so
 
-    a_i . f_j(x*_j) = a_i . f_j(x_j) - x*_i . r_j,
+    a_i . f_j(x*_j) = a_i . f_j(x_j) - x*_i . r_j    (exactly).
 
-and with the computed x_i in place of x*_i what is left is
-e_i^T A e_j, quadratic in the iterates' errors (the dual-weighted residual
-correction of goal-oriented error estimation). Every quantity needed is at
-hand after the six solves: D_ij = x_i . r_j over the free DOFs, one (6, 6)
-product. Pure numpy: the solvers compute D, this module turns it into the
-moments' corrections.
+SUBC (S_ij = F_i . x_j / V) and the periodic condition (C_ij = (W0_ij -
+F_i . x_j) / V) take the loads' work, whose adjoint is plus case i's
+solution: F_i . x*_j = F_i . x_j + x*_i . r_j. With the computed x_i in
+place of x*_i what is left is e_i^T A e_j, quadratic in the iterates' errors
+(the dual-weighted residual correction of goal-oriented error estimation).
+Everything needed is at hand after the six solves: D_ij = x_i . r_j, one
+(6, 6) product. Pure numpy: the solvers compute D, the averages apply it.
 """
 import numpy as np
 
@@ -29,27 +31,38 @@ relative, closer than the uncorrected stress got at rtol 1e-8, in about half
 the iterations."""
 
 
-def second_order(groups, centers):
-    """Whether the constants of KUBC ``groups`` are second order in the solver's error.
+def takes_correction(group):
+    """Whether a :class:`~amfe.model.loadcase.Group`'s cross products D are computed: six
+    cases (one operator) and no free rigid modes. Its condition's average decides the rest."""
+    return group.null_modes is None and len(group.values) == 6
+
+
+def second_order_loads(frame, groups):
+    """SUBC and periodic: with D applied the constants are second order (the strain is the
+    applied one, or the loads' work, exactly)."""
+    return all(map(takes_correction, groups))
+
+
+def second_order_kubc(frame, groups):
+    """Whether KUBC's constants are second order in the solver's error.
 
     The correction makes the stress so; the Bagi strain (a hull-boundary
     integral of the hull vertices' translations) is exact when every hull
-    vertex of ``centers`` (n, 3) is prescribed, and first order in the error of
-    any that is free (a bed whose hull is not its bounding box: skipped pieces
-    at a corner). Such beds keep the uncorrected default rtol (corrected all
-    the same).
+    vertex of the frame's centres is prescribed, and first order in the error
+    of any that is free (a bed whose hull is not its bounding box: skipped
+    pieces at a corner). Such beds keep the uncorrected default rtol
+    (corrected all the same).
     """
-    if not all(map(takes_correction, groups)):
+    if not all(g.strains is not None and g.forces is None and takes_correction(g)
+               for g in groups):
         return False
     held = np.logical_and.reduce([g.fixed[:, :3].all(axis=1) for g in groups])
-    return bool(held[hull_of(centers).vertices].all())
+    return bool(held[hull_of(frame.centers).vertices].all())
 
 
-def takes_correction(group):
-    """Whether a :class:`~amfe.model.loadcase.Group`'s moments can be corrected: six cases of
-    prescribed translations eps (x - x_c) only (KUBC), nothing applied, no free rigid modes."""
-    return (group.strains is not None and group.forces is None and group.null_modes is None
-            and len(group.values) == 6)
+def never(frame, groups):
+    """The mixed conditions: six groups of one case, no cross products."""
+    return False
 
 
 def moment_corrections(strains, cross):
@@ -79,7 +92,7 @@ def moment_corrections(strains, cross):
 
 def relative_size(corrections, moments):
     """Largest ||dM_j||_F / ||M_j||_F: what the correction changed, a measure of the
-    uncorrected error (the corrected one is about its square)."""
+    uncorrected error (the corrected one is about its square). Also for whole matrices."""
     sizes = [np.linalg.norm(d) / (np.linalg.norm(m) or 1.0)
              for d, m in zip(corrections, moments)]
     return float(max(sizes)) if sizes else 0.0

@@ -21,7 +21,8 @@ from amfe.io.mpi import on_root
 from amfe.io.fields import frame_fields
 from amfe.io.result_meta import homogenize_header
 from amfe.io.vtp import write_fields_vtp
-from amfe.solvers.correction import second_order
+from amfe.solvers.correction import (moment_corrections, never, relative_size,
+                                     second_order_kubc, second_order_loads)
 from amfe.solvers.choice import USER_METHOD_OPTIONS, choose_solver, cholesky_package, solve_features
 from amfe.solvers.inputs import checked_inputs
 from amfe.solvers.ksp import DEFAULT_RTOL, RESIDUAL_FACTOR
@@ -33,9 +34,20 @@ from amfe.model.subc import subc_average, subc_groups
 from amfe.solvers.petsc import init_petsc, unused_options_warning
 
 
-def bagi_average(frame, groups, u, moments, diagnose=False):
-    """KUBC and mixed: (C, V, stats) from the Bagi hull strains and reaction stresses."""
+def bagi_average(frame, groups, u, moments, diagnose=False, cross=None):
+    """KUBC and mixed: (C, V, stats) from the Bagi hull strains and reaction stresses.
+
+    cross: per group D_ij = x_i . r_j or None; KUBC's (one group with its
+    strains) corrects the moments to second order (:mod:`amfe.solvers.correction`).
+    """
     hull = hull_of(frame.centers)
+    stats = {}
+    D = (cross or [None])[0]
+    if D is not None and len(groups) == 1 and groups[0].strains is not None:
+        dM = moment_corrections(groups[0].strains, D)
+        if dM is not None:
+            stats["correction"] = relative_size(dM, moments)
+            moments = np.asarray(moments) + dM
     strains, stresses, stress_asym = [], [], []
     for k in range(6):
         strains.append(voigt_strain(bagi_strain(hull, u[k][:, :3])))
@@ -44,15 +56,17 @@ def bagi_average(frame, groups, u, moments, diagnose=False):
         stresses.append(voigt(symmetric(sigma)))
     C, c_asym = stiffness(np.array(strains), np.array(stresses))
     return C, hull.volume, {"stress_asymmetry": float(max(stress_asym)),
-                            "C_asymmetry": float(c_asym)}
+                            "C_asymmetry": float(c_asym), **stats}
 
 
-#: name -> (groups(frame), average(frame, groups, u, moments, diagnose), needs a periodic bed)
-Condition = namedtuple("Condition", "groups average periodic")
-BOUNDARY_CONDITIONS = {"kubc": Condition(kubc_groups, bagi_average, False),
-                       "mixed": Condition(mixed_groups, bagi_average, False),
-                       "subc": Condition(subc_groups, subc_average, False),
-                       "periodic": Condition(periodic_groups, periodic_average, True)}
+#: name -> (groups(frame), average(frame, groups, u, moments, diagnose, cross), needs a
+#: periodic bed, second_order(frame, groups): the corrected average is second order)
+Condition = namedtuple("Condition", "groups average periodic second_order")
+BOUNDARY_CONDITIONS = {"kubc": Condition(kubc_groups, bagi_average, False, second_order_kubc),
+                       "mixed": Condition(mixed_groups, bagi_average, False, never),
+                       "subc": Condition(subc_groups, subc_average, False, second_order_loads),
+                       "periodic": Condition(periodic_groups, periodic_average, True,
+                                             second_order_loads)}
 
 
 def homogenize_bed(centers, radii, material=None, *, a_star_cap=None, rtol=None,
@@ -128,7 +142,7 @@ def homogenize_bed(centers, radii, material=None, *, a_star_cap=None, rtol=None,
     groups = BOUNDARY_CONDITIONS[bc].groups(frame)
     # the same on every rank: rank 0 decides (qhull, ~0.06 s on 300 000 centres)
     corrected = correction_wanted(PETSc, ksp_options) and mpi.bcast(
-        second_order(groups, frame.centers) if mpi.rank == 0 else None)
+        BOUNDARY_CONDITIONS[bc].second_order(frame, groups) if mpi.rank == 0 else None)
     if log:
         log(f"frame: {frame.n_particles} load-carrying particles ({frame.n_removed} removed), "
             f"{len(frame.bonds)} bonds in {t_frame:.2f} s; {bc}, {mpi.size} rank(s)")
@@ -183,7 +197,7 @@ def _average(frame, groups, sol, bc, a_star_cap, ranks, t_frame, vtu_dir, diagno
     files). ``bed``: (centers, radii), the input arrays."""
     t0 = time.perf_counter()
     C, volume, stats = BOUNDARY_CONDITIONS[bc].average(frame, groups, sol.u, sol.moments,
-                                                       diagnose=diagnose)
+                                                       diagnose=diagnose, cross=sol.cross)
     C = C * frame.stress_scale
     S, props = compliance_and_constants(C)
     t_avg = time.perf_counter() - t0
@@ -207,8 +221,6 @@ def _average(frame, groups, sol, bc, a_star_cap, ranks, t_frame, vtu_dir, diagno
             "frame_seconds": t_frame, "assembly_seconds": sol.assembly_seconds,
             "average_seconds": t_avg,
             "residuals": sol.residuals,
-            **({"correction": max(s.correction for s in sol.setups)}
-               if all(s.correction is not None for s in sol.setups) else {}),
             **stats,
         },
         "material": material,

@@ -71,6 +71,11 @@ class LoadCaseSolutions:
         return sorted({n for s in self.setups for n in s.unused_options})
 
     @property
+    def cross(self):
+        """Per group its (k, k) D_ij = x_i . r_j, or None (:mod:`amfe.solvers.correction`)."""
+        return [s.cross for s in self.setups]
+
+    @property
     def setup_seconds(self):
         return float(sum(s.setup_seconds for s in self.setups))
 

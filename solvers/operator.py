@@ -26,7 +26,7 @@ from amfe.model.averages import bagi_stress
 from amfe.solvers.assembly import aij_from_blocks, sbaij_operator
 from amfe.solvers.blocksolve import (block_path_applies, block_path_expected, solve_block,
                                      with_block_defaults)
-from amfe.solvers.correction import moment_corrections, relative_size, takes_correction
+from amfe.solvers.correction import takes_correction
 from amfe.solvers.ksp import check_solution, make_ksp, petsc_options
 from amfe.solvers.nullspace import near_nullspace, orthonormal_nullspace
 
@@ -55,7 +55,7 @@ class SetupRecord:
     pc_complexity: dict = field(default_factory=dict)
     unused_options: list = field(default_factory=list)
     path: str = "one at a time"  # or "block" (ConstrainedOperator.solve_all)
-    correction: float = None  # largest relative change the moments' correction made
+    cross: np.ndarray = None  # D_ij = x_i . r_j of the group's solutions (solvers/correction.py)
 
 
 @dataclass
@@ -241,7 +241,8 @@ class ConstrainedOperator:
                 for pair in keep:
                     for v in pair:
                         v.destroy()
-            return self._corrected(out, info.get("cross"))
+            self.record.cross = info.get("cross")
+            return out
         self.record.path = "block"
         checks = {}  # the contract of solve(); an indefinite preconditioner first (the retry)
         for k in sorted(range(len(cols)), key=lambda k: not cols[k].indefinite):
@@ -254,27 +255,15 @@ class ConstrainedOperator:
             out.append(CaseSolution(name, col.iterations, col.residual, col.seconds, moment,
                                     u_root, {}, *checks[k]))
             col.u.destroy()
-        return self._corrected(out, info.get("cross") if correct else None)
+        self.record.cross = info.get("cross") if correct else None
+        return out
 
     def _corrects(self):
-        """Whether this group's moments take the correction (-amfe_correction, default yes)."""
+        """Whether this group's cross products D are computed (-amfe_correction, default yes)."""
         if self.correct_option not in ("yes", "no"):
             raise AmfeError(f"-amfe_correction {self.correct_option!r}: give yes (the "
-                            "second-order reaction stress, the default) or no")
+                            "second-order averages, the default) or no")
         return self.correct_option == "yes" and takes_correction(self.group)
-
-    def _corrected(self, cases, cross):
-        """``cases`` with the correction added to their moments; the size of the
-        largest goes into ``record.correction``."""
-        if cross is None:
-            return cases
-        dM = moment_corrections(self.group.strains, cross)
-        if dM is None:
-            return cases
-        self.record.correction = relative_size(dM, [c.moment for c in cases])
-        for c, d in zip(cases, dM):
-            c.moment = c.moment + d
-        return cases
 
     def _column_norm(self, k, u):
         """:meth:`_residual_in_ksp_norm` of case k's block-path solution ``u``."""

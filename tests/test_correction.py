@@ -16,7 +16,9 @@ from amfe.model.bed import generate_bed
 from amfe.model.frame import build_frame
 from amfe.model.kubc import kubc_groups
 from amfe.model.subc import subc_groups
-from amfe.solvers.correction import CORRECTED_RTOL, moment_corrections, second_order
+from amfe.model.torus import periodic_box
+from amfe.solvers.correction import (CORRECTED_RTOL, moment_corrections, second_order_kubc,
+                                     second_order_loads)
 from amfe.solvers.driver import homogenize_bed
 
 from helpers import MPI_ENV, ROOT
@@ -62,10 +64,12 @@ def test_corrections_meet_their_definition():
 def test_second_order_needs_every_hull_vertex_prescribed():
     bed = box_bed()
     frame = build_frame(bed.centers, bed.radii)
-    assert second_order(kubc_groups(frame), frame.centers)
+    assert second_order_kubc(frame, kubc_groups(frame))
     round_frame = build_frame(*round_bed())
-    assert not second_order(kubc_groups(round_frame), round_frame.centers)
-    assert not second_order(subc_groups(frame), frame.centers)  # forces, not displacements
+    assert not second_order_kubc(round_frame, kubc_groups(round_frame))
+    # SUBC's loads: its own rule, always second order
+    assert not second_order_kubc(frame, subc_groups(frame))
+    assert second_order_loads(frame, subc_groups(frame))
 
 
 def test_corrected_constants_are_second_order_in_the_residual(box):
@@ -111,6 +115,21 @@ def test_a_bad_correction_option_is_refused(box):
     x, r, _ = box
     with pytest.raises(AmfeError, match="-amfe_correction 'maybe': give yes"):
         homogenize_bed(x, r, solver="gamg", ksp_options={"amfe_correction": "maybe"})
+
+
+@pytest.mark.parametrize("bc", ["subc", "periodic"])
+def test_the_loads_work_is_second_order_too(bc):
+    # SUBC (S = F . U / V) and the periodic condition (C = (W0 - F . U) / V): + D, - D
+    bed = generate_bed((150e-6, 150e-6, 100e-6), seed=4, periodic=True)
+    kw = dict(bc=bc, box=periodic_box(bed) if bc == "periodic" else None, solver="gamg")
+    ref = homogenize_bed(bed.centers, bed.radii, rtol=1e-12, **kw)
+    err = {c: error(homogenize_bed(bed.centers, bed.radii, rtol=1e-4,
+                                   ksp_options={"amfe_correction": c}, **kw), ref)
+           for c in ("yes", "no")}
+    assert err["yes"] < 0.03 * err["no"], err
+    res = homogenize_bed(bed.centers, bed.radii, **kw)
+    assert res["solver"]["rtol"] == CORRECTED_RTOL and res["solver"]["correction"] > 0
+    assert error(res, ref) < 1e-6
 
 
 SCRIPT = r"""

@@ -32,9 +32,9 @@ class Group:
     particle (SUBC; large periodic tori), whose iterations grow with the bed
     under unsmoothed aggregation (:func:`amfe.solvers.blocksolve.with_block_defaults`).
     strains: optional (k, 3, 3) macro-strains when case i prescribes exactly
-    the translations eps_i (x - x_c) (KUBC): the reaction moments then take
-    the correction that makes them second-order accurate in the solver's
-    error (:mod:`amfe.solvers.correction`).
+    the translations eps_i (x - x_c) (KUBC): the average then corrects the
+    reaction moments to second order in the solver's error
+    (:mod:`amfe.solvers.correction`).
     """
 
     fixed: np.ndarray

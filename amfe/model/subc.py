@@ -199,19 +199,28 @@ def subc_groups(frame):
                   smoothed_aggregation=True)]
 
 
-def subc_average(frame, groups, u, moments=None, diagnose=False):
+def subc_average(frame, groups, u, moments=None, diagnose=False, cross=None):
     """C (6,6), V and the record of SUBC's solutions ``u`` (6, n, 6), frame units.
 
     S_IJ = (1/V) F_I . U_J (work conjugacy; equal to the weights' strain of
-    case J, :func:`subc_strain`), C = (sym S)^-1. Returns (C, V, stats) with
-    stats = {"S_asymmetry": ||S - S^T|| / ||S||}. ``moments`` and ``diagnose``
-    are unused (the stress is the applied one exactly).
+    case J, :func:`subc_strain`), C = (sym S)^-1. cross: [D] with D_IJ =
+    U_I . r_J (the solutions against the true residuals) or [None]: with it,
+    S_IJ = (1/V) (F_I . U_J + D_IJ), second order in the solver's error
+    (docs/model.md, section 9). Returns (C, V, stats) with stats =
+    {"S_asymmetry": ||S - S^T|| / ||S||} (and "correction": ||D|| / ||F^T U||).
+    ``moments`` and ``diagnose`` are unused (the stress is the applied one exactly).
     """
     V = hull_of(frame.centers).volume
     F = np.asarray(groups[0].forces)
-    S = np.einsum("ink,jnk->ij", F, np.asarray(u)) / V
+    work = np.einsum("ink,jnk->ij", F, np.asarray(u))
+    stats = {}
+    D = (cross or [None])[0]
+    if D is not None:
+        stats["correction"] = float(np.linalg.norm(D) / np.linalg.norm(work))
+        work = work + D
+    S = work / V
     asym = float(np.linalg.norm(S - S.T) / np.linalg.norm(S))
-    return np.linalg.inv(symmetric(S)), V, {"S_asymmetry": asym}
+    return np.linalg.inv(symmetric(S)), V, {"S_asymmetry": asym, **stats}
 
 
 def kubc_admissible_strain(frame):
