@@ -142,7 +142,8 @@ class ConstrainedOperator:
             self.correct_option = PETSc.Options().getString("amfe_correction", "yes")
             block = block_path_expected(PETSc, len(group.values), self.block_option, diagnose)
         if block:  # the block path multiplies with AIJ only, and has its GAMG defaults
-            ksp_options = with_block_defaults(PETSc, ksp_options, group.smoothed_aggregation,
+            smoothed = group.smoothed_aggregation and rtol <= group.smoothed_rtol_max
+            ksp_options = with_block_defaults(PETSc, ksp_options, smoothed,
                                               comm.getSize())
         A_op = A if aij_only or block else sbaij_operator(PETSc, comm, n, r0, r1, *block_rows,
                                                           fixed=group.fixed)

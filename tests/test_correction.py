@@ -157,3 +157,16 @@ def test_corrected_default_on_several_ranks(tmp_path, box, ranks):
     res = json.loads([s for s in proc.stdout.splitlines() if s.startswith("RESULT ")][0][7:])
     assert res["solver"]["rtol"] == CORRECTED_RTOL
     assert error(res, ref) < 1e-6
+
+
+def test_tori_take_unsmoothed_aggregation_at_the_corrected_default(monkeypatch):
+    from amfe.model import periodic
+    bed = generate_bed((150e-6, 150e-6, 100e-6), seed=4, periodic=True)
+    its = {}
+    for smoothed_from, rtol in ((0, None), (10**9, None), (0, 1e-8), (10**9, 1e-8)):
+        monkeypatch.setattr(periodic, "SMOOTHED_FROM", smoothed_from)
+        res = homogenize_bed(bed.centers, bed.radii, bc="periodic", box=periodic_box(bed),
+                             solver="gamg", rtol=rtol)
+        its[smoothed_from, rtol] = res["solver"]["iterations"]
+    assert its[0, None] == its[10**9, None]  # rtol 1e-5: unsmoothed, whatever the size
+    assert max(its[0, 1e-8]) < max(its[10**9, 1e-8])  # tighter: large tori smoothed

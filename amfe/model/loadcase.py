@@ -31,6 +31,9 @@ class Group:
     instead of its unsmoothed ones, for frames that nothing anchors but one
     particle (SUBC; large periodic tori), whose iterations grow with the bed
     under unsmoothed aggregation (:func:`amfe.solvers.blocksolve.with_block_defaults`).
+    smoothed_rtol_max: the largest rtol at which ``smoothed_aggregation``
+    holds (periodic tori: at the second-order default rtol 1e-5 unsmoothed
+    aggregation is cheaper at every size measured).
     strains: optional (k, 3, 3) macro-strains when case i prescribes exactly
     the translations eps_i (x - x_c) (KUBC): the average then corrects the
     reaction moments to second order in the solver's error
@@ -44,6 +47,7 @@ class Group:
     guesses: list = field(default=None)
     forces: list = field(default=None)
     smoothed_aggregation: bool = False
+    smoothed_rtol_max: float = float("inf")
     strains: np.ndarray = field(default=None)
 
 
