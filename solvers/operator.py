@@ -141,6 +141,9 @@ class ConstrainedOperator:
             self.block_option = PETSc.Options().getString("amfe_block", "yes")
             self.correct_option = PETSc.Options().getString("amfe_correction", "yes")
             block = block_path_expected(PETSc, len(group.values), self.block_option, diagnose)
+        if self.correct_option not in ("yes", "no"):  # refused before the set-up's cost
+            raise AmfeError(f"-amfe_correction {self.correct_option!r}: give yes (the "
+                            "second-order averages, the default) or no")
         if block:  # the block path multiplies with AIJ only, and has its GAMG defaults
             smoothed = group.smoothed_aggregation and rtol <= group.smoothed_rtol_max
             ksp_options = with_block_defaults(PETSc, ksp_options, smoothed,
@@ -261,9 +264,6 @@ class ConstrainedOperator:
 
     def _corrects(self):
         """Whether this group's cross products D are computed (-amfe_correction, default yes)."""
-        if self.correct_option not in ("yes", "no"):
-            raise AmfeError(f"-amfe_correction {self.correct_option!r}: give yes (the "
-                            "second-order averages, the default) or no")
         return self.correct_option == "yes" and takes_correction(self.group)
 
     def _column_norm(self, k, u):
