@@ -176,8 +176,12 @@ def homogenize_bed(centers, radii, material=None, *, a_star_cap=None, rtol=None,
 
 
 def correction_wanted(PETSc, ksp_options):
-    """-amfe_correction (per solve or on the command line; default yes) is not "no"."""
-    given = (ksp_options or {}).get("amfe_correction")
+    """-amfe_correction (per solve or on the command line; default yes) is not "no".
+
+    ``ksp_options`` keys may carry PETSc's dash, as the operator accepts them
+    (:func:`amfe.solvers.ksp.petsc_options`): the two must read the same value.
+    """
+    given = {k.lstrip("-"): v for k, v in (ksp_options or {}).items()}.get("amfe_correction")
     return (given if given is not None
             else PETSc.Options().getString("amfe_correction", "yes")) != "no"
 

@@ -103,6 +103,14 @@ def test_default_rtol_follows_the_order_of_the_answer(box):
     assert error(rnd, homogenize_bed(xc, rc, solver="cholesky")) < 1e-6
 
 
+def test_the_option_with_petscs_dash_sets_the_default_rtol_too(box):
+    # the operator strips the dash; the default rtol must follow the same value, or the
+    # uncorrected stress would run at the corrected rtol 1e-5
+    x, r, _ = box
+    res = homogenize_bed(x, r, solver="gamg", ksp_options={"-amfe_correction": "no"})
+    assert res["solver"]["rtol"] == 1e-8 and "correction" not in res["solver"]
+
+
 def test_both_paths_are_corrected_alike(box):
     x, r, ref = box
     for block in ("yes", "no"):
