@@ -182,7 +182,7 @@ def solve_block(PETSc, ksp, bs, X0, backend="auto", info=None, prescribed=None):
     caller then solves one at a time). Collective. ``info`` (a dict) receives
     the V-cycle check, the levels, the counts of iterations and V-cycles, and
     "cross": the (k, k) matrix x_i . r_j of the solutions and true residuals,
-    summed over ranks (:func:`amfe.solvers.correction.moment_corrections`).
+    summed over ranks (:mod:`amfe.solvers.correction`).
     prescribed: (local rows (p,), values (p, k)): rows whose exact values are
     known (identity rows of MatZeroRowsColumns); they are set before the true
     residuals, which are then zero there.

@@ -11,9 +11,10 @@ The contract is the label's accuracy, not the method: every constant within
 - ``gamg``: CG + GAMG. Its constants carry about 3-30x rtol of error, worst on
   small sparse beds; ``auto`` runs it at :data:`GAMG_RTOL_AUTO` (1e-7: at most
   5.0e-6 on the beds auto sends to it with the block path, 7.3e-6 over all 60),
-  ``--solver gamg`` at the 1e-8 default. KUBC's reaction stress is corrected
-  to second order in the solver's error (:mod:`amfe.solvers.correction`):
-  both then run at rtol 1e-5, about 1e-7 from the reference.
+  ``--solver gamg`` at the 1e-8 default. Where the condition's average is
+  second order in the solver's error (:mod:`amfe.solvers.correction`: KUBC on
+  a bed whose hull vertices are all prescribed, SUBC, periodic) both run at
+  rtol 1e-5 instead, about 1e-7 from the reference.
 
 :func:`choose_solver` decides per bed from the predicted fill of a
 factorisation (:func:`solve_features`, a few milliseconds), never from the

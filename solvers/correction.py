@@ -21,10 +21,12 @@ Everything needed is at hand after the six solves: D_ij = x_i . r_j, one
 import numpy as np
 
 from amfe.model.averages import hull_of, voigt_strain
+from amfe.vocab import VOIGT_PAIRS
 
 CORRECTED_RTOL = 1e-5
 """Default rtol of CG + GAMG where the constants are second order in the
-solver's error (:func:`second_order`), from ``--solver gamg`` and ``auto``
+solver's error (:func:`second_order_kubc`, :func:`second_order_loads`), from
+``--solver gamg`` and ``auto``
 alike. Measured against Cholesky or rtol 1e-12 (docs/benchmarks.md, "The
 reaction stress to second order"): the nine constants within about 1e-7
 relative, closer than the uncorrected stress got at rtol 1e-8, in about half
@@ -84,15 +86,14 @@ def moment_corrections(strains, cross):
     # symmetric S, so the corrections' Voigt vectors are the columns of -E^-1 D.
     s = np.linalg.solve(E, -D)
     out = np.zeros((6, 3, 3))
-    pairs = [(0, 0), (1, 1), (2, 2), (1, 2), (0, 2), (0, 1)]
-    for m, (a, b) in enumerate(pairs):
+    for m, (a, b) in enumerate(VOIGT_PAIRS):
         out[:, a, b] = out[:, b, a] = s[m]
     return out
 
 
 def relative_size(corrections, moments):
     """Largest ||dM_j||_F / ||M_j||_F: what the correction changed, a measure of the
-    uncorrected error (the corrected one is about its square). Also for whole matrices."""
+    uncorrected error (the corrected one is about its square)."""
     sizes = [np.linalg.norm(d) / (np.linalg.norm(m) or 1.0)
              for d, m in zip(corrections, moments)]
     return float(max(sizes)) if sizes else 0.0

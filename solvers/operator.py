@@ -241,11 +241,10 @@ class ConstrainedOperator:
             out = [self.solve(k, center, None if guesses is None else guesses[k], gather, keep)
                    for k in range(len(names))]
             if correct:
-                info["cross"] = np.array([[xi.dot(rj) for _, rj in keep] for xi, _ in keep])
+                self.record.cross = np.array([[xi.dot(rj) for _, rj in keep] for xi, _ in keep])
                 for pair in keep:
                     for v in pair:
                         v.destroy()
-            self.record.cross = info.get("cross")
             return out
         self.record.path = "block"
         checks = {}  # the contract of solve(); an indefinite preconditioner first (the retry)

@@ -322,6 +322,20 @@ def compliance_and_constants(C):
     return S, {k: float(props[k]) for k in CONSTANT_KEYS}
 
 
+def dual_corrected(work, cross, sign):
+    """(work + sign D, stats): a condition's (6, 6) loads' work to second order.
+
+    cross: None or [D] (one group), D_IJ = U_I . r_J the solutions against the
+    true residuals; sign +1 where the average is F_I . U_J (SUBC), -1 where it
+    is W0 - F_I . U_J (periodic); the reasoning is in amfe.solvers.correction.
+    stats: {"correction": ||D|| / ||work||}, or {} without D.
+    """
+    D = (cross or [None])[0]
+    if D is None:
+        return work, {}
+    return work + sign * D, {"correction": float(np.linalg.norm(D) / np.linalg.norm(work))}
+
+
 def box_center(centers) -> np.ndarray:
     """Centre (3,) [m] of the axis-aligned bounding box of ``centers`` (N, 3)."""
     x = np.asarray(centers, dtype=float)

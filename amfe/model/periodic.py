@@ -55,7 +55,7 @@ enter. No finite-n correction (tests).
 """
 import numpy as np
 
-from amfe.model.averages import unit_strains, voigt
+from amfe.model.averages import dual_corrected, unit_strains, voigt
 from amfe.model.element import element_blocks
 from amfe.model.loadcase import Group
 from amfe.vocab import CASE_NAMES
@@ -149,12 +149,7 @@ def periodic_average(frame, groups, u, moments=None, diagnose=False, cross=None)
     d = bond_jumps(frame, unit_strains(), crossing_bonds)
     W0 = np.einsum("ibk,bkl,jbl->ij", d, Kjj[:, :3, :3], d)
     F = np.asarray(groups[0].forces)
-    energy = W0 - np.einsum("ink,jnk->ij", F, np.asarray(u))
-    stats = {}
-    D = (cross or [None])[0]
-    if D is not None:
-        stats["correction"] = float(np.linalg.norm(D) / np.linalg.norm(energy))
-        energy = energy - D
+    energy, stats = dual_corrected(W0 - np.einsum("ink,jnk->ij", F, np.asarray(u)), cross, -1)
     C = energy / V
     stats["C_asymmetry"] = float(np.linalg.norm(C - C.T) / np.linalg.norm(C))
     if diagnose:

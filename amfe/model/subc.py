@@ -87,7 +87,7 @@ right-hand sides, and buys nothing here.
 import numpy as np
 
 from amfe.errors import AmfeError
-from amfe.model.averages import box_center, hull_of, symmetric, unit_strains
+from amfe.model.averages import box_center, dual_corrected, hull_of, symmetric, unit_strains
 from amfe.model.kubc import boundary_particles
 from amfe.model.loadcase import Group
 from amfe.vocab import CASE_NAMES, VOIGT_PAIRS
@@ -212,12 +212,7 @@ def subc_average(frame, groups, u, moments=None, diagnose=False, cross=None):
     """
     V = hull_of(frame.centers).volume
     F = np.asarray(groups[0].forces)
-    work = np.einsum("ink,jnk->ij", F, np.asarray(u))
-    stats = {}
-    D = (cross or [None])[0]
-    if D is not None:
-        stats["correction"] = float(np.linalg.norm(D) / np.linalg.norm(work))
-        work = work + D
+    work, stats = dual_corrected(np.einsum("ink,jnk->ij", F, np.asarray(u)), cross, +1)
     S = work / V
     asym = float(np.linalg.norm(S - S.T) / np.linalg.norm(S))
     return np.linalg.inv(symmetric(S)), V, {"S_asymmetry": asym, **stats}
