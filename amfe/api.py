@@ -6,11 +6,16 @@ broadcast), the frame built, the load cases solved with PETSc, and the Bagi
 averages turned into the constants.
 """
 import os
+from dataclasses import replace
 
 from amfe.errors import AmfeError
+from amfe.io.console import messages
 from amfe.io.mpi import on_root
-from amfe.io.result import Result
+from amfe.io.result import Result  # noqa: F401 - the type homogenize returns
 from amfe.io.result_meta import describe_input
+from amfe.io.vtp import write_fields_vtp
+from amfe.model.options import (BC_NAMES, SolveOptions, check_choice, check_flag,
+                                check_petsc_options)
 
 
 def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_options=None,
@@ -97,52 +102,63 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
     from amfe.solvers.driver import homogenize_bed
     from amfe.solvers.petsc import init_petsc
 
+    check_flag("progress", progress)
+    for name, value in (("vtu_dir", vtu_dir), ("input_path", input_path)):
+        if value is not None and not isinstance(value, (str, os.PathLike)):
+            raise AmfeError(f"homogenize: {name} must be a path (str) or None, got "
+                            f"{type(value).__name__} {value!r}")
+    check_choice("bc", bc, BC_NAMES + ("all",))
     PETSc = init_petsc()
     pcomm = PETSc.COMM_WORLD if comm is None else (
         comm if isinstance(comm, PETSc.Comm) else PETSc.Comm(comm))
     mpi = pcomm.tompi4py()
-    if isinstance(bed, (str, os.PathLike)):
-        input_path = bed if input_path is None else input_path
-        from amfe.io.bedfile import read_bed
-        bed = on_root(mpi, read_bed, bed, max_memory=max_memory)
-    centers = radii = source = error = box = None
+    options = error = None
     try:  # a failure here on one rank only must still reach the collective check
-        centers, radii, material, source, box = _inputs(bed, material,
-                                                        material_source or "argument")
+        options = SolveOptions(
+            rtol=rtol, solver=solver, max_it=max_it, a_star_cap=a_star_cap,
+            ksp_options=check_petsc_options("petsc_options", petsc_options),
+            accept_unconverged=accept_unconverged, max_memory=max_memory, diagnose=diagnose,
+            fields=check_flag("fields", fields) or ("root" if vtu_dir is not None else False))
+        if isinstance(bed, (str, os.PathLike)):
+            input_path = bed if input_path is None else input_path
+            from amfe.io.bedfile import read_bed
+            bed = on_root(mpi, read_bed, bed, max_memory=options.max_memory)
+        bed, material, source = _inputs(bed, material, material_source or "argument")
+        options = replace(options, material=material, material_source=source)
     except AmfeError as exc:
         error = exc
 
     def one(bc, vtu_dir):
-        d = homogenize_bed(centers, radii, material, a_star_cap=a_star_cap, rtol=rtol,
-                           max_it=max_it, solver=solver, vtu_dir=vtu_dir, comm=pcomm,
-                           ksp_options=petsc_options, bc=bc, diagnose=diagnose,
-                           progress=progress, fields=fields, box=box,
-                           accept_unconverged=accept_unconverged, max_memory=max_memory,
-                           material_source=source, input_error=error)
-        describe_input(d, input_path)
-        return Result.from_dict(d, fields=d.pop("fields", None))
+        with messages(progress):
+            result = homogenize_bed(bed, options and replace(options, bc=bc), pcomm,
+                                    input_error=error)
+        describe_input(result.extra, input_path)
+        if vtu_dir is not None:
+            paths = on_root(mpi, write_fields_vtp, vtu_dir, result.fields)
+            result.extra["vtk"] = {"collection": paths[-1], "files": paths[:-1]}
+            if not fields:
+                result.fields = None
+        return result
     if bc != "all":
         return one(bc, vtu_dir)
-    names = ["kubc", "subc"] + (["periodic"] if box is not None else [])
+    names = ["kubc", "subc"] + (["periodic"] if error is None and "periodic" in bed.attrs else [])
     return {name: one(name, vtu_dir and os.path.join(vtu_dir, name)) for name in names}
 
 
 def _inputs(bed, material, given_source):
-    """(centers, radii, Material, its source, periodic box or None) of the arguments."""
+    """(Bed, Material, its source) of the arguments: the bed checked, the material resolved."""
     from amfe.model.bed import Bed
     from amfe.model.material import Material, resolve_material
 
-    if isinstance(bed, Bed):
-        centers, radii, attrs = bed.centers, bed.radii, bed.attrs
-    elif isinstance(bed, (tuple, list)) and len(bed) == 2:
-        (centers, radii), attrs = bed, {}
-    else:
+    if isinstance(bed, (tuple, list)) and len(bed) == 2:
+        bed = Bed(*bed)
+    elif not isinstance(bed, Bed):
         raise AmfeError("homogenize: bed must be an amfe.Bed, a bed file's path, or "
                         f"(centers, radii); got {type(bed).__name__}")
     if isinstance(material, Material):
-        return centers, radii, material, given_source, attrs.get("periodic")
+        return bed, material, given_source
     if material is not None and not isinstance(material, dict):
         raise AmfeError("homogenize: material must be an amfe.Material or a dict of E, nu, "
                         f"psi; got {type(material).__name__}")
-    material, record = resolve_material(attrs, material, given_source=given_source)
-    return centers, radii, material, record["source"], attrs.get("periodic")
+    material, record = resolve_material(bed.attrs, material, given_source=given_source)
+    return bed, material, record["source"]

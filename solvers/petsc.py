@@ -1,4 +1,5 @@
 """PETSc start-up: initialise petsc4py once, with command-line options if given."""
+import logging
 import sys
 
 
@@ -114,8 +115,9 @@ def unused_options(PETSc, names=None):
 
 def unused_options_warning(PETSc, rank, extra=()):
     """One line naming the options never used (with ``extra``, names already found unused
-    elsewhere), or None. Rank 0 prints it to stderr the first time these names come up in
-    this process (a data set's hundred solves warn once); every rank returns it for the JSON.
+    elsewhere), or None. Rank 0 logs it as a warning (logger "amfe.solvers") the first time
+    these names come up in this process (a data set's hundred solves warn once); every rank
+    returns it for the JSON.
     """
     names = sorted(set(unused_options(PETSc)) | set(extra))
     if not names:
@@ -123,6 +125,6 @@ def unused_options_warning(PETSc, rank, extra=()):
     line = (f"PETSc options never used: {' '.join(names)} (misspelt, or meant for a solver "
             "or preconditioner that was not used); they had no effect")
     if rank == 0 and not set(names) <= _warned:
-        print(f"amfe: warning: {line}", file=sys.stderr, flush=True)
+        logging.getLogger("amfe.solvers").warning(line)
     _warned.update(names)
     return line

@@ -227,13 +227,13 @@ from amfe.errors import AmfeError
 from amfe.model.frame import build_frame
 from amfe.model.kubc import kubc_groups
 from amfe.model.scales import bed_for
-from amfe.solvers.driver import homogenize_bed
+from helpers import homogenize_arrays
 from amfe.solvers.loadcases import solve_load_cases
 comm = PETSc.COMM_WORLD
 mpi = comm.tompi4py()
 bed = bed_for("tiny", 1)
 out = {"rank": mpi.rank}
-res = {b: homogenize_bed(bed.centers, bed.radii, rtol=1e-10, ksp_options={"amfe_block": b})
+res = {b: homogenize_arrays(bed.centers, bed.radii, rtol=1e-10, ksp_options={"amfe_block": b})
        for b in ("no", "yes")}
 C0, C1 = (np.array(res[b]["C"]) for b in ("no", "yes"))
 out["C_diff"] = float(np.abs(C1 - C0).max() / np.abs(C0).max())

@@ -16,7 +16,7 @@ from amfe.model.scales import sample_bed_params
 from amfe.model.scanpath import ScanPath
 from amfe.model.subc import (check_boundary_spans_volume, energy_gap, kubc_admissible_strain,
                              subc_average, subc_groups, subc_strain, subc_weights)
-from amfe.solvers.driver import homogenize_bed
+from helpers import homogenize_arrays
 from amfe.solvers.scipy_direct import group_solve_scipy, kubc_stiffness_scipy
 
 from helpers import cubic_lattice, run_cli
@@ -74,7 +74,7 @@ def test_loads_are_self_equilibrated_and_the_average_stress_is_the_applied_one()
 
 def test_petsc_subc_matches_the_direct_solve():
     bed = generate_bed((150e-6, 150e-6, 100e-6), seed=5)
-    res = homogenize_bed(bed.centers, bed.radii, bc="subc", rtol=1e-12)
+    res = homogenize_arrays(bed.centers, bed.radii, bc="subc", rtol=1e-12)
     fr = build_frame(bed.centers, bed.radii)
     C_ref = subc_scipy(fr)[0] * fr.stress_scale
     C = np.array(res["C"])
@@ -95,7 +95,7 @@ def test_subc_galerkin_algorithm_is_chosen_per_rank_count_and_changes_nothing():
         "matptap_via": "scalable"}
     assert "matptap_via" not in with_block_defaults(PETSc, {}, False, 1)
     bed = generate_bed((150e-6, 150e-6, 100e-6), seed=5)
-    C = [np.array(homogenize_bed(bed.centers, bed.radii, bc="subc", rtol=1e-12,
+    C = [np.array(homogenize_arrays(bed.centers, bed.radii, bc="subc", rtol=1e-12,
                                  ksp_options=opts)["C"])
          for opts in (None, {"matptap_via": "scalable"})]
     assert np.abs(C[0] - C[1]).max() < 1e-9 * np.abs(C[1]).max()
@@ -185,7 +185,7 @@ def test_subc_refuses_a_bed_whose_boundary_is_a_tilted_sheet():
     bump = mid + SPACING * np.array([-1, 0, 1]) / np.sqrt(2)
     x = np.vstack([sheet, bump])
     with pytest.raises(AmfeError, match="boundary particles lie in a plane"):
-        homogenize_bed(x, np.full(len(x), RADIUS), bc="subc")
+        homogenize_arrays(x, np.full(len(x), RADIUS), bc="subc")
 
 
 @pytest.fixture(scope="module")
@@ -259,7 +259,7 @@ def test_dataset_labels_can_be_subc(tmp_path):
     assert (status == 0).sum() >= 2
     for k in np.flatnonzero(status == 0):
         bed = generate_bed(**sample_bed_params("tiny", int(seeds[k])))
-        res = homogenize_bed(bed.centers, bed.radii, bed.material(), bc="subc", solver="auto")
+        res = homogenize_arrays(bed.centers, bed.radii, bed.material(), bc="subc", solver="auto")
         assert res["properties"]["Ex"] == pytest.approx(labels[k, 0], rel=1e-9)
-        kubc = homogenize_bed(bed.centers, bed.radii, bed.material())
+        kubc = homogenize_arrays(bed.centers, bed.radii, bed.material())
         assert labels[k, 0] < kubc["properties"]["Ex"]

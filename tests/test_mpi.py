@@ -115,13 +115,15 @@ def test_groups_of_a_split_communicator_solve_their_own_beds(tmp_path):
         "import json, sys\n"
         "from mpi4py import MPI\n"
         "from amfe.model.bed import generate_bed\n"
+        "from amfe.model.options import SolveOptions\n"
         "from amfe.solvers.driver import homogenize_bed\n"
         "w = MPI.COMM_WORLD\n"
         "g = w.Split(color=w.rank, key=0)\n"
         "bed = generate_bed(size=(100e-6, 100e-6, 60e-6), seed=20 + w.rank)\n"
-        "r = homogenize_bed(bed.centers, bed.radii, comm=g, rtol=1e-12)\n"
-        "alone = homogenize_bed(bed.centers, bed.radii, comm=MPI.COMM_SELF, rtol=1e-12)\n"
-        "out = w.gather((r['ranks'], r['properties']['Ex'], alone['properties']['Ex']), root=0)\n"
+        "options = SolveOptions(rtol=1e-12, solver='gamg')\n"
+        "r = homogenize_bed(bed, options, g)\n"
+        "alone = homogenize_bed(bed, options, MPI.COMM_SELF)\n"
+        "out = w.gather((r.ranks, r.Ex, alone.Ex), root=0)\n"
         "if w.rank == 0: print(json.dumps(out))\n")
     import subprocess
     import sys

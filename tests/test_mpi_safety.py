@@ -24,7 +24,7 @@ from mpi4py import MPI
 import amfe
 from amfe.errors import AmfeError
 from amfe.model.bed import Bed
-from amfe.solvers.driver import homogenize_bed
+from helpers import homogenize_arrays
 
 rank = MPI.COMM_WORLD.rank
 size = (0.15e-3, 0.15e-3, 0.08e-3)
@@ -35,14 +35,14 @@ c_nan = c.copy()
 if rank == 1:
     c_nan[3, 1] = np.nan
 variants = {
-    "seed": lambda: homogenize_bed(own.centers, own.radii),
-    "nan": lambda: homogenize_bed(c_nan, r),
-    "fewer": lambda: homogenize_bed(c[:len(c) - rank], r[:len(r) - rank]),
-    "material": lambda: homogenize_bed(c, r, amfe.Material(E=210e9 - rank)),
-    "rtol": lambda: homogenize_bed(c, r, rtol=1e-8 * (1 + rank)),
+    "seed": lambda: homogenize_arrays(own.centers, own.radii),
+    "nan": lambda: homogenize_arrays(c_nan, r),
+    "fewer": lambda: homogenize_arrays(c[:len(c) - rank], r[:len(r) - rank]),
+    "material": lambda: homogenize_arrays(c, r, amfe.Material(E=210e9 - rank)),
+    "rtol": lambda: homogenize_arrays(c, r, rtol=1e-8 * (1 + rank)),
     "partial_attrs": lambda: amfe.homogenize(Bed(c, r, {"material_E": 70e9} if rank else {})),
-    "same_bad": lambda: homogenize_bed(c * np.nan, r),
-    "same": lambda: homogenize_bed(c, r),
+    "same_bad": lambda: homogenize_arrays(c * np.nan, r),
+    "same": lambda: homogenize_arrays(c, r),
 }
 with open(f"{sys.argv[1]}.{rank}", "w") as log:   # one file per rank: no interleaving
     for name, run in variants.items():

@@ -16,7 +16,7 @@ from amfe.model.periodic import love_weber_stiffness, periodic_average, periodic
 from amfe.model.scales import sample_bed_params
 from amfe.model.scanpath import ScanPath
 from amfe.model.torus import find_periodic_bonds, hcp_periods, periodic_box
-from amfe.solvers.driver import homogenize_bed
+from helpers import homogenize_arrays
 from amfe.solvers.scipy_direct import group_solve_scipy
 
 from helpers import cubic_lattice, run_cli
@@ -102,7 +102,7 @@ def test_cubic_lattice_is_exact_without_finite_n_correction(n):
 def test_cubic_lattice_through_petsc():
     fr = cubic_torus(4)
     x, r = cubic_lattice(4, SPACING, RADIUS)
-    res = homogenize_bed(x + 0.3e-6, r, bc="periodic", box=np.full(3, 4 * SPACING), rtol=1e-12)
+    res = homogenize_arrays(x + 0.3e-6, r, bc="periodic", box=np.full(3, 4 * SPACING), rtol=1e-12)
     C = np.array(res["C"]) / fr.stress_scale
     s = SPACING / RADIUS
     assert np.allclose(np.diag(C), [fr.k_n[0] / s] * 3 + [fr.k_t[0] / (2 * s)] * 3, rtol=1e-9)
@@ -115,7 +115,7 @@ def test_bounds_sit_above_the_periodic_value_and_approach_it():
     per = periodic_scipy(cubic_torus(3))[0]
     gaps = []
     for n in (3, 4, 6):
-        res = homogenize_bed(*cubic_lattice(n, SPACING, RADIUS), bc="subc", rtol=1e-12)
+        res = homogenize_arrays(*cubic_lattice(n, SPACING, RADIUS), bc="subc", rtol=1e-12)
         fr = build_frame(*cubic_lattice(n, SPACING, RADIUS))
         C = np.array(res["C"]) / fr.stress_scale
         gaps.append(C[0, 0] / per[0, 0] - 1)
@@ -132,7 +132,7 @@ def test_dot_product_energy_and_love_weber_agree_and_petsc_matches(monkeypatch):
     C, u = periodic_scipy(fr)
     C_lw, asym = love_weber_stiffness(fr, u)
     assert np.abs(C_lw - C).max() < 1e-12 * np.abs(C).max() and asym < 1e-12
-    res = homogenize_bed(bed.centers, bed.radii, bc="periodic", box=periodic_box(bed),
+    res = homogenize_arrays(bed.centers, bed.radii, bc="periodic", box=periodic_box(bed),
                          rtol=1e-12, diagnose=True)
     assert np.abs(np.array(res["C"]) / fr.stress_scale - C).max() < 1e-9 * np.abs(C).max()
     s = res["solver"]
@@ -143,7 +143,7 @@ def test_dot_product_energy_and_love_weber_agree_and_petsc_matches(monkeypatch):
     for smoothed_from in (fr.n_particles + 1, 0):
         monkeypatch.setattr(periodic, "SMOOTHED_FROM", smoothed_from)
         assert periodic_groups(fr)[0].smoothed_aggregation == (smoothed_from == 0)
-        res = homogenize_bed(bed.centers, bed.radii, bc="periodic", box=periodic_box(bed),
+        res = homogenize_arrays(bed.centers, bed.radii, bc="periodic", box=periodic_box(bed),
                              rtol=1e-12)
         assert np.abs(np.array(res["C"]) / fr.stress_scale - C).max() < 1e-9 * np.abs(C).max()
         iterations.append(max(res["solver"]["iterations"]))
@@ -171,7 +171,7 @@ def test_a_cluster_that_does_not_wrap_in_every_direction_is_refused():
 def test_periodic_needs_a_periodic_bed():
     bed = generate_bed(SIZE, seed=9)
     with pytest.raises(AmfeError, match="amfe pack --periodic"):
-        homogenize_bed(bed.centers, bed.radii, bc="periodic")
+        homogenize_arrays(bed.centers, bed.radii, bc="periodic")
 
 
 # --------------------------------------------------------------------------- #

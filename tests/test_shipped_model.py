@@ -43,7 +43,7 @@ def test_shipped_model_is_plain_small_and_for_the_small_scale(shipped):
 
 def test_shipped_model_predicts_held_out_beds(shipped):
     """Six beds of the held-out test set's seeds: surrogate against the PETSc solve."""
-    from amfe.solvers.driver import homogenize_bed
+    from helpers import homogenize_arrays
 
     sur = Surrogate.load()
     sc = get_scale("small")
@@ -52,7 +52,7 @@ def test_shipped_model_predicts_held_out_beds(shipped):
         bed = bed_for(sc, record_seed(2, k))
         res, image, _ = sur.predict_bed(bed)
         assert image.shape == sc.image_shape
-        props = homogenize_bed(bed.centers, bed.radii, bed.material())["properties"]
+        props = homogenize_arrays(bed.centers, bed.radii, bed.material())["properties"]
         want = np.array([props[n] for n in LABELS])
         err.append(np.abs(res["mean"][0] - want) / np.abs(want))
     err = np.array(err)

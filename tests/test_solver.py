@@ -7,7 +7,7 @@ from amfe.model.frame import build_frame
 from amfe.model.averages import bagi_strain, hull_of, voigt_strain
 from amfe.model.material import Material
 from amfe.solvers.assembly import assemble_stiffness
-from amfe.solvers.driver import homogenize_bed
+from helpers import homogenize_arrays
 from amfe.model.kubc import kubc_groups
 from amfe.solvers.loadcases import solve_load_cases
 from amfe.model.loadcase import rigid_body_modes
@@ -27,7 +27,7 @@ def hcp_bed():
 def test_simple_cubic_lattice_analytic(n):
     s = 1.8e-6
     x, r = cubic_lattice(n, spacing=s)
-    res = homogenize_bed(x, r, rtol=1e-12)
+    res = homogenize_arrays(x, r, rtol=1e-12)
     frame = build_frame(x, r)
     k_n = frame.k_n[0] * frame.force_scale / frame.length_scale  # N/m, all bonds alike
     assert np.allclose(frame.k_n, frame.k_n[0], rtol=1e-14)
@@ -54,7 +54,7 @@ def test_kubc_bagi_strain_is_the_applied_strain(hcp_bed):
 
 
 def test_matches_independent_scipy_direct_solve(hcp_bed):
-    res = homogenize_bed(hcp_bed.centers, hcp_bed.radii, rtol=1e-12)
+    res = homogenize_arrays(hcp_bed.centers, hcp_bed.radii, rtol=1e-12)
     frame = build_frame(hcp_bed.centers, hcp_bed.radii)
     C_ref = scipy_kubc_stiffness(frame) * frame.stress_scale
     C = np.array(res["C"])
@@ -85,9 +85,9 @@ def test_free_frame_matrix_annihilates_rigid_body_modes(hcp_bed):
 
 
 def test_unit_and_material_invariance(hcp_bed):
-    ref = homogenize_bed(hcp_bed.centers, hcp_bed.radii, rtol=1e-12)
-    big = homogenize_bed(hcp_bed.centers * 1000, hcp_bed.radii * 1000, rtol=1e-12)
-    soft = homogenize_bed(hcp_bed.centers, hcp_bed.radii, Material(E=70e9), rtol=1e-12)
+    ref = homogenize_arrays(hcp_bed.centers, hcp_bed.radii, rtol=1e-12)
+    big = homogenize_arrays(hcp_bed.centers * 1000, hcp_bed.radii * 1000, rtol=1e-12)
+    soft = homogenize_arrays(hcp_bed.centers, hcp_bed.radii, Material(E=70e9), rtol=1e-12)
     for key, value in ref["properties"].items():
         assert big["properties"][key] == pytest.approx(value, rel=1e-9)
         scale = 70 / 210 if key[0] in "EG" else 1.0
@@ -97,9 +97,9 @@ def test_unit_and_material_invariance(hcp_bed):
 
 def test_floating_particles_removed_and_counted():
     x, r = cubic_lattice(4)
-    ref = homogenize_bed(x, r, rtol=1e-12)
+    ref = homogenize_arrays(x, r, rtol=1e-12)
     far = np.array([[50e-6, 0, 0], [60e-6, 0, 0], [61.5e-6, 0, 0]])  # one loner, one pair
-    res = homogenize_bed(np.vstack([far[:1], x, far[1:]]), np.r_[r[:1], r, r[:2]], rtol=1e-12)
+    res = homogenize_arrays(np.vstack([far[:1], x, far[1:]]), np.r_[r[:1], r, r[:2]], rtol=1e-12)
     assert res["n_removed"] == 3 and res["n_particles"] == len(x) + 3
     for key, value in ref["properties"].items():
         assert res["properties"][key] == pytest.approx(value, rel=1e-10, abs=1e-12)

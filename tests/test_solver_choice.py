@@ -10,7 +10,7 @@ from amfe.model.scales import bed_for
 from amfe.solvers.choice import (FILL_RATIO_MAX, GAMG_RTOL_AUTO, MAX_DIRECT_PARTICLES,
                                  choose_solver, solve_features)
 from amfe.solvers.correction import CORRECTED_RTOL
-from amfe.solvers.driver import homogenize_bed
+from helpers import homogenize_arrays
 from amfe.vocab import CONSTANT_NAMES
 from helpers import cubic_lattice, run_cli
 
@@ -61,13 +61,13 @@ def test_features_do_not_need_a_solve_and_only_run_when_asked():
 @pytest.mark.parametrize("seed", [3, 11])
 def test_every_method_meets_the_contract_on_small_beds(seed):
     bed = bed_for("tiny", seed)
-    ref = homogenize_bed(bed.centers, bed.radii, rtol=1e-10, solver="gamg")
+    ref = homogenize_arrays(bed.centers, bed.radii, rtol=1e-10, solver="gamg")
     for solver in ("auto", "gamg", "cholesky"):
-        res = homogenize_bed(bed.centers, bed.radii, solver=solver)
+        res = homogenize_arrays(bed.centers, bed.radii, solver=solver)
         assert res["solver"]["method"] in ("gamg", "cholesky") and res["solver"]["reason"]
         for k in CONSTANT_NAMES:
             assert res["properties"][k] == pytest.approx(ref["properties"][k], rel=1e-5)
-    chol = homogenize_bed(bed.centers, bed.radii, solver="cholesky")
+    chol = homogenize_arrays(bed.centers, bed.radii, solver="cholesky")
     np.testing.assert_allclose(chol["C"], ref["C"], rtol=1e-8, atol=1e-8 * np.abs(ref["C"]).max())
 
 

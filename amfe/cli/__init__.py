@@ -30,6 +30,7 @@ from amfe.solvers.petsc import is_option
 
 from amfe.cli.interrupt import Interrupted, end_broken_pipe, end_interrupted, signals_raise, world
 from amfe.errors import AmfeError
+from amfe.io.console import print_warnings
 from amfe.version import __version__
 
 COMMANDS = ["pack", "homogenize", "dataset", "train", "predict", "view"]
@@ -106,6 +107,7 @@ def main(argv=None):
         args = parse(argv)
     except BrokenPipeError:   # `amfe -h | head -1`
         return end_broken_pipe()
+    print_warnings()   # the solver layer's warnings, on stderr (amfe.io.console)
     with signals_raise():
         try:
             code = int(args.func(args) or 0)

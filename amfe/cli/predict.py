@@ -107,11 +107,13 @@ def run(args):
 
     solver = None
     if comm is not None and (args.check or flagged):
+        from amfe.model.options import SolveOptions
         from amfe.solvers.driver import homogenize_bed
         from amfe.solvers.petsc import init_petsc
         init_petsc(args.petsc_args)
         t = time.perf_counter()
-        solver = homogenize_bed(bed.centers, bed.radii, bed.material())
+        solver = homogenize_bed(bed, SolveOptions(material=bed.material(),
+                                                  solver="gamg")).to_dict()
         times["solve"] = time.perf_counter() - t
     rank = comm.rank if comm is not None else _launcher_rank()
 

@@ -50,6 +50,7 @@ def make_record(k, dataset_seed, scale, group, rtol=DEFAULT_RTOL, pixelate=None,
     complete on the group's rank 0 (the others hold no image). Never raises
     for a bad bed or a failed solve: the record says status failed and why.
     """
+    from amfe.model.options import SolveOptions
     from amfe.solvers.driver import homogenize_bed
 
     sc = get_scale(scale)
@@ -81,8 +82,8 @@ def make_record(k, dataset_seed, scale, group, rtol=DEFAULT_RTOL, pixelate=None,
     if err is None:
         t2 = time.perf_counter()
         try:
-            res = homogenize_bed(bed.centers, bed.radii, bed.material(), comm=group, rtol=rtol,
-                                 solver=solver, bc=bc)
+            res = homogenize_bed(bed, SolveOptions(material=bed.material(), rtol=rtol,
+                                                   solver=solver, bc=bc), group).to_dict()
         except Exception as exc:  # noqa: BLE001
             err = _reason(exc)
         rec["seconds"][2] = time.perf_counter() - t2

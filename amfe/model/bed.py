@@ -8,6 +8,7 @@ every bed it emits is valid for the springs of paper eqs. 1-4: bonds past a
 stated a*_max are removed by shrinking radii (:func:`limit_a_star`).
 """
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -38,7 +39,11 @@ class Bed:
     attrs: dict = field(default_factory=dict)
 
     def __post_init__(self):
+        # the one place a bed's arrays are checked: below the face nothing checks them again
         self.centers, self.radii = validate_particles(self.centers, self.radii)
+        if not isinstance(self.attrs, Mapping) or not all(isinstance(k, str) for k in self.attrs):
+            raise AmfeError(f"Bed attrs must be a dict with str keys, got "
+                            f"{type(self.attrs).__name__} {self.attrs!r}"[:300])
         self.attrs = dict(self.attrs)
 
     def __len__(self):
