@@ -107,6 +107,8 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
         if value is not None and not isinstance(value, (str, os.PathLike)):
             raise AmfeError(f"homogenize: {name} must be a path (str) or None, got "
                             f"{type(value).__name__} {value!r}")
+    if material_source is not None and not isinstance(material_source, str):
+        raise AmfeError(f"homogenize: material_source must be a str, got {material_source!r}")
     check_choice("bc", bc, BC_NAMES + ("all",))
     PETSc = init_petsc()
     pcomm = PETSc.COMM_WORLD if comm is None else (

@@ -213,7 +213,7 @@ def _matvec_seconds(PETSc, bed, comm, repeats=20):
     from amfe.solvers.partition import row_ranges
     frame = build_frame(bed.centers, bed.radii, bed.material())
     rr = row_ranges(frame.n_particles, comm.getSize())
-    A = assemble_stiffness(PETSc, frame, comm, int(rr[comm.getRank()]),
+    A = assemble_stiffness(frame, comm, int(rr[comm.getRank()]),
                            int(rr[comm.getRank() + 1]))
     x, y = A.createVecs()
     x.set(1.0)

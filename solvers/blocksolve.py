@@ -24,6 +24,7 @@ import numpy as np
 
 from amfe.errors import AmfeError
 from amfe.solvers.blockcycle import BlockUnsupported, BlockVCycle
+from amfe.solvers.petsclib import PETSc
 
 # KSPConvergedReason values (PETSc 3.18)
 RTOL, ATOL, ITS, DTOL, INDEF_PC, NANORINF, INDEF_MAT = 2, 3, -3, -4, -8, -9, -10
@@ -61,7 +62,7 @@ def galerkin_algorithm(n_ranks):
     return "rap" if n_ranks == 1 else "nonscalable"
 
 
-def with_block_defaults(PETSc, ksp_options, smoothed=False, n_ranks=1):
+def with_block_defaults(ksp_options, smoothed=False, n_ranks=1):
     """``ksp_options`` plus the :data:`BLOCK_DEFAULTS` set neither there nor in the database.
 
     smoothed: the group's ``smoothed_aggregation`` (a frame held at one particle
@@ -92,7 +93,7 @@ def block_path_applies(ksp, n_cases, option, diagnose):
             and ksp.getPC().getType() in ("gamg", "mg"))
 
 
-def block_path_expected(PETSc, n_cases, option, diagnose):
+def block_path_expected(n_cases, option, diagnose):
     """:func:`block_path_applies` before the KSP exists, from the options database.
 
     The operator then skips its SBAIJ copy (the block products use AIJ; a
@@ -172,7 +173,7 @@ class BlockCG:
         return self.reason == 0
 
 
-def solve_block(PETSc, ksp, bs, X0, backend="auto", info=None, prescribed=None):
+def solve_block(ksp, bs, X0, backend="auto", info=None, prescribed=None):
     """Solve A x_j = b_j for every case j with k CGs sharing one block V-cycle.
 
     ksp: a set-up KSP (CG with GAMG); bs: k right-hand side Vecs; X0: None or
@@ -190,11 +191,11 @@ def solve_block(PETSc, ksp, bs, X0, backend="auto", info=None, prescribed=None):
     t0 = time.perf_counter()
     k = len(bs)
     try:
-        V = BlockVCycle(PETSc, ksp.getPC(), k, backend)
+        V = BlockVCycle(ksp.getPC(), k, backend)
     except BlockUnsupported:
         return None
     try:
-        cg = _iterate(PETSc, ksp, V, bs, X0)
+        cg = _iterate(ksp, V, bs, X0)
         if cg is None:
             return None
         if prescribed is not None:
@@ -219,7 +220,7 @@ def solve_block(PETSc, ksp, bs, X0, backend="auto", info=None, prescribed=None):
     return out
 
 
-def _iterate(PETSc, ksp, V, bs, X0):
+def _iterate(ksp, V, bs, X0):
     """KSPSolve_CG for every right-hand side at once; None if V-cycle != PCApply.
 
     Eight (m, k) blocks live while iterating: X, R, Z, P, Q and the V-cycle's

@@ -28,6 +28,7 @@ from amfe.errors import AmfeError
 from amfe.model.memory import direct_bytes
 from amfe.solvers.correction import CORRECTED_RTOL
 from amfe.solvers.ksp import DEFAULT_RTOL
+from amfe.solvers.petsclib import PETSc
 
 METHODS = ("auto", "gamg", "cholesky")
 
@@ -52,7 +53,7 @@ already factorises in 3-5x GAMG's time (docs/report.md, section 1)."""
 USER_METHOD_OPTIONS = ("ksp_type", "pc_type", "pc_factor_mat_solver_type")
 
 
-def cholesky_package(PETSc):
+def cholesky_package():
     """"cholmod" when PETSc has SuiteSparse, else "mumps", else None."""
     for name, pkg in (("cholmod", "suitesparse"), ("mumps", "mumps")):
         if PETSc.Sys.hasExternalPackage(pkg):

@@ -14,6 +14,7 @@ from collections import namedtuple
 import numpy as np
 
 from amfe.model.frame import build_frame
+from amfe.model.options import SolveOptions
 from amfe.model.averages import (asymmetry, bagi_strain, compliance_and_constants, hull_of,
                              stiffness, symmetric, voigt, voigt_strain)
 from amfe.io.mpi import on_root
@@ -31,6 +32,7 @@ from amfe.model.mixed import mixed_groups
 from amfe.model.periodic import periodic_average, periodic_groups
 from amfe.model.subc import subc_average, subc_groups
 from amfe.solvers.petsc import init_petsc, unused_options_warning
+from amfe.solvers.petsclib import PETSc
 
 
 LOG = logging.getLogger("amfe.solvers")
@@ -114,13 +116,16 @@ def homogenize_bed(bed, options=None, comm=None, *, input_error=None):
     Changed in 0.3.0: it took the arrays and some twenty keyword options and
     returned a dict.
     """
-    PETSc = init_petsc(options.petsc_args if options is not None else None)
+    if options is None and input_error is None:
+        options = SolveOptions()
+    # per-call PETSc options go into the database (PETSc itself was initialised on import)
+    init_petsc(options.petsc_args if isinstance(options, SolveOptions) else None)
     if comm is None:
         comm = PETSc.COMM_WORLD
     elif not isinstance(comm, PETSc.Comm):
         comm = PETSc.Comm(comm)  # an mpi4py communicator, e.g. a batch group
     mpi = comm.tompi4py()
-    inp = checked_inputs(PETSc, mpi, bed, options, BOUNDARY_CONDITIONS, input_error)
+    inp = checked_inputs(mpi, bed, options, BOUNDARY_CONDITIONS, input_error)
     options, condition = inp.options, BOUNDARY_CONDITIONS[inp.options.bc]
     t0 = time.perf_counter()
     log = _progress(mpi.rank)
@@ -130,19 +135,19 @@ def homogenize_bed(bed, options=None, comm=None, *, input_error=None):
     t_frame = time.perf_counter() - t0
     groups = condition.groups(frame)
     # the same on every rank: rank 0 decides (qhull, ~0.06 s on 300 000 centres)
-    corrected = correction_wanted(PETSc, options.ksp_options) and mpi.bcast(
+    corrected = correction_wanted(options.ksp_options) and mpi.bcast(
         condition.second_order(frame, groups) if mpi.rank == 0 else None)
     log(f"frame: {frame.n_particles} load-carrying particles ({frame.n_removed} removed), "
         f"{len(frame.bonds)} bonds in {t_frame:.2f} s; {options.bc}, {mpi.size} rank(s)")
     method, reason, rtol, chosen = choose_solver(
         lambda: solve_features(frame), mpi.size, options.solver, options.rtol,
-        cholesky_package(PETSc),
+        cholesky_package(),
         [k for k in USER_METHOD_OPTIONS
          if PETSc.Options().hasName(k) or k in options.ksp_options],
         singular=any(g.null_modes is not None for g in groups), check_memory=inp.check_memory,
         corrected=corrected)
     log(f"solver: {method} ({reason})")
-    sol = solve_load_cases(PETSc, frame, comm, groups, rtol=DEFAULT_RTOL if rtol is None else rtol,
+    sol = solve_load_cases(frame, comm, groups, rtol=DEFAULT_RTOL if rtol is None else rtol,
                            max_it=options.max_it, log=log,
                            ksp_options={**chosen, **options.ksp_options},
                            diagnose=options.diagnose,
@@ -156,7 +161,7 @@ def homogenize_bed(bed, options=None, comm=None, *, input_error=None):
                     + ", ".join(f"{c.name} {c.residual:.1e}" for c in missed))
     # of the per-solve options, only the caller's count (not those the solver choice adds)
     mine = {k.lstrip("-") for k in options.ksp_options}
-    unused = unused_options_warning(PETSc, mpi.rank,
+    unused = unused_options_warning(mpi.rank,
                                     [n for n in sol.unused_options if n.lstrip("-") in mine])
     solved = Solved(frame, groups, sol, t_frame, mpi.size, inp.record,
                     warnings + ([unused] if unused else []), bed)
@@ -170,7 +175,7 @@ def homogenize_bed(bed, options=None, comm=None, *, input_error=None):
     return Result.from_dict(d, fields=fields)
 
 
-def correction_wanted(PETSc, ksp_options):
+def correction_wanted(ksp_options):
     """-amfe_correction (per solve or on the command line; default yes) is not "no".
 
     ``ksp_options`` keys may carry PETSc's dash, as the operator accepts them

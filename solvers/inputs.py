@@ -19,6 +19,7 @@ from amfe.model.options import SolveOptions, check_rtol  # noqa: F401 - check_rt
 from amfe.model.memory import check_memory, default_limit, solve_bytes
 from amfe.model.torus import NOT_PERIODIC
 from amfe.solvers.consistency import agree_across_ranks, digest
+from amfe.solvers.petsclib import PETSc
 
 
 #: What :func:`checked_inputs` hands on: the options, the material, its record for the
@@ -26,7 +27,7 @@ from amfe.solvers.consistency import agree_across_ranks, digest
 Inputs = namedtuple("Inputs", "options material record box check_memory")
 
 
-def _check_ksp_rtol(PETSc, ksp_options):
+def _check_ksp_rtol(ksp_options):
     given = ksp_options.get("ksp_rtol", ksp_options.get("-ksp_rtol"))
     if given is None and PETSc.Options().hasName("ksp_rtol"):
         given = PETSc.Options().getString("ksp_rtol")
@@ -44,7 +45,7 @@ def _material(bed, options):
                       "source": options.material_source or "argument"}
 
 
-def checked_inputs(PETSc, mpi, bed, options, bcs, input_error=None):
+def checked_inputs(mpi, bed, options, bcs, input_error=None):
     """:data:`Inputs` of a solve, checked and the same on every rank of ``mpi``.
 
     bed: a :class:`~amfe.model.bed.Bed` (its arrays were checked when it was
@@ -72,7 +73,7 @@ def checked_inputs(PETSc, mpi, bed, options, bcs, input_error=None):
         if bcs[options.bc].periodic and box is None:
             raise AmfeError(NOT_PERIODIC)
         material, record = _material(bed, options)
-        _check_ksp_rtol(PETSc, options.ksp_options)
+        _check_ksp_rtol(options.ksp_options)
         if options.a_star_cap is not None:
             check_a_star_cap(options.a_star_cap, material)
         error = None

@@ -17,6 +17,7 @@ from amfe.solvers.ksp import IndefinitePreconditioner
 from amfe.solvers.operator import ConstrainedOperator
 from amfe.solvers.partition import row_ranges
 from amfe.solvers.petsc import READ_AT_FINALIZE
+from amfe.solvers.petsclib import PETSc
 
 # GAMG's Chebyshev smoothers scale by an estimate of the largest eigenvalue of
 # D^-1 A from 10 Krylov steps. Very stiff bonds among the prescribed particles
@@ -94,7 +95,7 @@ class LoadCaseSolutions:
                 for c, g in zip(self.cases, self.group_of_case)]
 
 
-def solve_load_cases(PETSc, frame, comm, groups, *, rtol, max_it=None, ksp_options=None,
+def solve_load_cases(frame, comm, groups, *, rtol, max_it=None, ksp_options=None,
                      diagnose=False, center=None, log=None, accept_unconverged=False):
     """Solve every group of load cases on ``frame``; returns :class:`LoadCaseSolutions`.
 
@@ -125,7 +126,7 @@ def solve_load_cases(PETSc, frame, comm, groups, *, rtol, max_it=None, ksp_optio
     for g, group in enumerate(groups):
         last = g == len(groups) - 1
         try:
-            c, rec = _solve_group(PETSc, frame, comm, r0, r1, block_rows(last), group, center,
+            c, rec = _solve_group(frame, comm, r0, r1, block_rows(last), group, center,
                                   ksp_options, **opts)
         except PETSc.Error as exc:
             # e.g. an option PETSc cannot use (-pc_type unknown); PETSc printed the details
@@ -142,7 +143,7 @@ def solve_load_cases(PETSc, frame, comm, groups, *, rtol, max_it=None, ksp_optio
             notes.append(f"cases {', '.join(group.names)}: {str(exc).split(':')[0]} met an "
                          "indefinite preconditioner; set up again with "
                          "-pc_gamg_esteig_ksp_max_it 50 -mg_levels_esteig_ksp_max_it 50")
-            c, rec = _solve_group(PETSc, frame, comm, r0, r1, block_rows(last), group, center,
+            c, rec = _solve_group(frame, comm, r0, r1, block_rows(last), group, center,
                                   {**(ksp_options or {}), **ROBUST_ESTEIG}, **opts)
         for case in c:
             us.append(case.u)
@@ -158,12 +159,12 @@ def solve_load_cases(PETSc, frame, comm, groups, *, rtol, max_it=None, ksp_optio
                              block_seconds=block_seconds, notes=notes)
 
 
-def _solve_group(PETSc, frame, comm, r0, r1, rows, group, center, ksp_options, *,
+def _solve_group(frame, comm, r0, r1, rows, group, center, ksp_options, *,
                  rtol, max_it, diagnose, log, accept_unconverged):
     """rows: ([block rows], release or None): with release, the operator drops the
     block rows (about a third of the matrix's memory) once its matrices are made."""
     held, release = rows
-    op = ConstrainedOperator(PETSc, frame, comm, r0, r1, held[0], group, rtol=rtol,
+    op = ConstrainedOperator(frame, comm, r0, r1, held[0], group, rtol=rtol,
                              max_it=max_it, ksp_options=ksp_options, diagnose=diagnose,
                              accept_unconverged=accept_unconverged, release=release)
     try:

@@ -101,25 +101,26 @@ def option_used(name):
     return bool(flag.value)
 
 
-def unused_options(PETSc, names=None):
+def unused_options(names=None):
     """The options of the database (or of ``names``) that PETSc never read, as "-name".
 
     Call it after the solves: an option read only by an object never
     created (-pc_hypre_* with GAMG) or misspelt (-ksp_rtoll) is unused.
     Options read only at PetscFinalize (-options_left) are left out.
     """
+    PETSc = init_petsc()   # this module initialises PETSc: it does not import it at the top
     names = list(PETSc.Options().getAll()) if names is None else list(names)
     return [f"-{n}" for n in names
             if n.lstrip("-") not in READ_AT_FINALIZE and option_used(n.lstrip("-")) is False]
 
 
-def unused_options_warning(PETSc, rank, extra=()):
+def unused_options_warning(rank, extra=()):
     """One line naming the options never used (with ``extra``, names already found unused
     elsewhere), or None. Rank 0 logs it as a warning (logger "amfe.solvers") the first time
     these names come up in this process (a data set's hundred solves warn once); every rank
     returns it for the JSON.
     """
-    names = sorted(set(unused_options(PETSc)) | set(extra))
+    names = sorted(set(unused_options()) | set(extra))
     if not names:
         return None
     line = (f"PETSc options never used: {' '.join(names)} (misspelt, or meant for a solver "

@@ -89,11 +89,11 @@ def test_subc_galerkin_algorithm_is_chosen_per_rank_count_and_changes_nothing():
     from amfe.solvers.blocksolve import with_block_defaults
     from amfe.solvers.petsc import init_petsc
     PETSc = init_petsc()
-    assert with_block_defaults(PETSc, {}, True, 1) == {"matptap_via": "rap"}
-    assert with_block_defaults(PETSc, {}, True, 3) == {"matptap_via": "nonscalable"}
-    assert with_block_defaults(PETSc, {"matptap_via": "scalable"}, True, 2) == {
+    assert with_block_defaults({}, True, 1) == {"matptap_via": "rap"}
+    assert with_block_defaults({}, True, 3) == {"matptap_via": "nonscalable"}
+    assert with_block_defaults({"matptap_via": "scalable"}, True, 2) == {
         "matptap_via": "scalable"}
-    assert "matptap_via" not in with_block_defaults(PETSc, {}, False, 1)
+    assert "matptap_via" not in with_block_defaults({}, False, 1)
     bed = generate_bed((150e-6, 150e-6, 100e-6), seed=5)
     C = [np.array(homogenize_arrays(bed.centers, bed.radii, bc="subc", rtol=1e-12,
                                  ksp_options=opts)["C"])

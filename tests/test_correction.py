@@ -145,9 +145,10 @@ import json
 from amfe.solvers.petsc import init_petsc
 PETSc = init_petsc()
 from amfe.model.bed import generate_bed
-from helpers import homogenize_arrays
+from amfe.model.options import SolveOptions
+from amfe.solvers.driver import homogenize_bed
 bed = generate_bed(size=(0.4e-3, 0.4e-3, 0.2e-3), seed=1)
-res = homogenize_arrays(bed.centers, bed.radii, solver="gamg")
+res = homogenize_bed(bed, SolveOptions(solver="gamg")).to_dict()
 if PETSc.COMM_WORLD.getRank() == 0:
     print("RESULT " + json.dumps({"properties": res["properties"], "solver": {
         "rtol": res["solver"]["rtol"], "correction": res["solver"]["correction"]}}), flush=True)

@@ -24,6 +24,7 @@ from mpi4py import MPI
 import amfe
 from amfe.errors import AmfeError
 from amfe.model.bed import Bed
+sys.path.insert(0, "tests")   # run from the repository's root
 from helpers import homogenize_arrays
 
 rank = MPI.COMM_WORLD.rank

@@ -44,7 +44,7 @@ def test_simple_cubic_lattice_analytic(n):
 def test_kubc_bagi_strain_is_the_applied_strain(hcp_bed):
     frame = build_frame(hcp_bed.centers, hcp_bed.radii)
     groups = kubc_groups(frame)
-    sol = solve_load_cases(PETSc, frame, PETSc.COMM_WORLD, groups, rtol=1e-10)
+    sol = solve_load_cases(frame, PETSc.COMM_WORLD, groups, rtol=1e-10)
     hull = hull_of(frame.centers)
     # every hull vertex is a boundary particle, so the strain is exact
     assert groups[0].fixed[hull.vertices, :3].all()
@@ -70,7 +70,7 @@ def test_matches_independent_scipy_direct_solve(hcp_bed):
 
 def test_free_frame_matrix_annihilates_rigid_body_modes(hcp_bed):
     frame = build_frame(hcp_bed.centers, hcp_bed.radii)
-    A = assemble_stiffness(PETSc, frame, PETSc.COMM_WORLD, 0, frame.n_particles)
+    A = assemble_stiffness(frame, PETSc.COMM_WORLD, 0, frame.n_particles)
     modes = rigid_body_modes(frame.centers)
     x, y = A.createVecs()
     scale = A.norm(PETSc.NormType.INFINITY)
@@ -114,14 +114,14 @@ def test_sbaij_operator_equals_constrained_aij(hcp_bed):
     fixed = np.zeros((n, 6), bool)
     fixed[boundary_particles(frame.centers, frame.radii), :3] = True
     fixed[::7, 4] = True  # and some rotations, as a general DOF mask
-    A = aij_from_blocks(PETSc, PETSc.COMM_WORLD, n, 0, n, *blocks)
+    A = aij_from_blocks(PETSc.COMM_WORLD, n, 0, n, *blocks)
     dofs = np.flatnonzero(fixed.ravel()).astype(PETSc.IntType)
     diag = A.getDiagonal()
     A.zeroRowsColumns(dofs, diag=1.0)
     d = A.getDiagonal()
     d.getArray()[dofs] = diag.getArray()[dofs]
     A.setDiagonal(d)
-    S = sbaij_operator(PETSc, PETSc.COMM_WORLD, n, 0, n, *blocks, fixed=fixed)
+    S = sbaij_operator(PETSc.COMM_WORLD, n, 0, n, *blocks, fixed=fixed)
     dense_A = A.convert("dense").getDenseArray()
     x, y = A.createVecs()
     y2 = y.duplicate()

@@ -26,7 +26,7 @@ import sys
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-from amfe.solvers.petsc import is_option
+from amfe.solvers.petsc import init_petsc, is_option
 
 from amfe.cli.interrupt import Interrupted, end_broken_pipe, end_interrupted, signals_raise, world
 from amfe.errors import AmfeError
@@ -107,6 +107,8 @@ def main(argv=None):
         args = parse(argv)
     except BrokenPipeError:   # `amfe -h | head -1`
         return end_broken_pipe()
+    if args.petsc_args:   # first: PETSc reads the command line's options when it starts
+        init_petsc(args.petsc_args)
     print_warnings()   # the solver layer's warnings, on stderr (amfe.io.console)
     with signals_raise():
         try:

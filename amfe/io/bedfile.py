@@ -19,7 +19,7 @@ import h5py
 import numpy as np
 
 from amfe.model.bed import Bed
-from amfe.model.bonds import check_shapes, validate_particles
+from amfe.model.bonds import check_shapes
 from amfe.model.memory import READ_BYTES, check_memory
 from amfe.model.torus import check_box
 from amfe.io.atomic import atomic_write
@@ -187,9 +187,9 @@ def read_bed(path, max_memory=None) -> Bed:
     except OSError as exc:
         raise AmfeError(f"cannot read bed file {path}: {exc}") from None
     try:
-        centers, radii = validate_particles(centers, radii)
+        bed = Bed(centers=centers, radii=radii, attrs=attrs)  # checks the arrays
         if "periodic" in attrs:  # a periodic bed (docs/model.md, section 9)
-            check_box(attrs["periodic"], radii)
+            check_box(attrs["periodic"], bed.radii)
     except AmfeError as exc:
         raise AmfeError(f"{path}: {exc}") from None
-    return Bed(centers=centers, radii=radii, attrs=attrs)
+    return bed

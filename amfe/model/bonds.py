@@ -185,8 +185,9 @@ def contact_geometry(centers, radii, i, j, offset=None):
 
 
 def find_bonds(centers, radii):
-    """Validate the particles, detect the bonds and return their :class:`Bonds`."""
-    centers, radii = validate_particles(centers, radii)
+    """The :class:`Bonds` of checked particles (a :class:`~amfe.model.bed.Bed`'s arrays:
+    :func:`validate_particles` ran when it was made)."""
+    centers, radii = np.asarray(centers, float), np.asarray(radii, float)
     i, j = find_pairs(centers, radii)
     return contact_geometry(centers, radii, i, j)
 

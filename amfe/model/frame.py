@@ -14,7 +14,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from amfe.model.bonds import Bonds, bond_springs, contact_geometry, find_pairs, validate_particles
+from amfe.model.bonds import Bonds, bond_springs, contact_geometry, find_pairs
 from amfe.errors import AmfeError
 from amfe.model.material import STEEL, Material
 from amfe.model.torus import check_box, find_periodic_pairs, spanning_images, winding_rank, wrap
@@ -111,8 +111,8 @@ def build_frame(centers, radii, material: Material = STEEL, a_star_cap=None, non
                 box=None):
     """The largest connected, non-dimensionalised frame of a bed.
 
-    centers (N,3) [m], radii (N,) [m]. Raises AmfeError for invalid particles,
-    degenerate contacts, a bed without bonds, a load-carrying part too small to
+    centers (N,3) [m], radii (N,) [m]: a :class:`~amfe.model.bed.Bed`'s arrays, checked
+    when it was made. Raises AmfeError for degenerate contacts, a bed without bonds, a load-carrying part too small to
     span a volume, or (unless ``a_star_cap`` is given) bonds at or past the
     critical a* (see :func:`amfe.model.bonds.bond_springs`).
     ``nondimensional=False`` keeps SI units (length_scale = force_scale = 1):
@@ -121,7 +121,7 @@ def build_frame(centers, radii, material: Material = STEEL, a_star_cap=None, non
     image, the largest component on the torus, which must wrap round it in x,
     y and z (else it carries no macro-stress along some axis: an error).
     """
-    centers, radii = validate_particles(centers, radii)
+    centers, radii = np.asarray(centers, float), np.asarray(radii, float)  # checked (a Bed's)
     n_input = centers.shape[0]
     length = float(radii.mean()) if nondimensional else 1.0
     x = centers / length
