@@ -37,15 +37,11 @@ PETSc's LU shifts, a W-cycle or another smoother make 1e-3 and more."""
 
 
 BLOCK_DEFAULTS = {"pc_gamg_agg_nsmooths": "0", "mg_levels_ksp_max_it": "1"}
-"""PETSc options the block path sets unless given (docs/benchmarks.md, "Six
-right-hand sides at once"). Unsmoothed aggregation: GAMG's set-up 2.4-4x
-cheaper (2.9x on the paper's bed) with less memory, for about twice the
-iterations, which the block path makes cheap: end to end never slower in
-four alternated pairs on 46 800 particles, and as fast on `small` beds.
-Chebyshev of degree 1 on every level (PETSc's default is 2): a V-cycle
-reads the fine matrix about 2.2 times instead of 4.2, for about 1.3x the
-iterations; end to end 0.77x on a `small` bed, 0.86x on 46 800 particles
-and 0.82x on the paper's bed (idle machine, same run)."""
+"""PETSc options the block path sets unless given: unsmoothed aggregation (a cheaper
+GAMG set-up with less memory, for more iterations, which the block path makes
+cheap) and Chebyshev of degree 1 on every level (PETSc's default is 2: a V-cycle
+then reads the fine matrix fewer times). The measurements that chose them are in
+docs/benchmarks.md, "Figures quoted in the code", and "Six right-hand sides at once"."""
 
 
 def galerkin_algorithm(n_ranks):

@@ -11,7 +11,8 @@ rows of the constrained particles' translations (docs/model.md, section 5).
 
 CG multiplies with a symmetric-block (SBAIJ) copy of the constrained matrix:
 CG and the fine-level smoother are bound by MatMult's memory traffic, and the
-upper 6x6 blocks with one index per block move about a third of AIJ's bytes.
+upper 6x6 blocks with one index per block move fewer bytes than AIJ
+(docs/benchmarks.md, "Figures quoted in the code").
 GAMG is built from the AIJ matrix (it cannot use (S)BAIJ in PETSc 3.18). The
 PETSc option -amfe_operator_type aij turns the copy off; the block path
 (:meth:`ConstrainedOperator.solve_all`) needs none, as its products use AIJ.

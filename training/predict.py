@@ -78,9 +78,8 @@ class Surrogate:
         self.path = os.fspath(path)
         self.nets = build_members(ckpt, self.path)
         for net in self.nets:
-            # Channels-last activations: 8 passes over 1 000 beds on one CPU thread here
-            # took 0.89 s against 1.03 s, with the same results to 2e-7
-            # (docs/surrogate_scaling.md, "Speed of the eight passes").
+            # Channels-last activations: faster, with the same results to rounding
+            # (docs/benchmarks.md, "Figures quoted in the code").
             net.to(memory_format=torch.channels_last)
         self.norm = Normalizer.from_dict(ckpt["normalizer"])
         self.image_shape = tuple(int(s) for s in ckpt["image_shape"])

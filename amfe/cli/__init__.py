@@ -107,7 +107,9 @@ def main(argv=None):
         args = parse(argv)
     except BrokenPipeError:   # `amfe -h | head -1`
         return end_broken_pipe()
-    if args.petsc_args:   # first: PETSc reads the command line's options when it starts
+    if args.petsc_args and "petsc4py.PETSc" not in sys.modules:
+        # first: PETSc reads the command line's options (-log_view, -help) when it starts,
+        # and the solver layer imports it at module level (amfe.solvers.petsclib)
         init_petsc(args.petsc_args)
     print_warnings()   # the solver layer's warnings, on stderr (amfe.io.console)
     with signals_raise():

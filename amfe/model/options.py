@@ -43,7 +43,8 @@ def check_flag(name, value):
 def check_choice(name, value, choices):
     """``value`` if it is one of ``choices`` (str), else AmfeError naming ``name``."""
     if not isinstance(value, str) or value not in choices:
-        raise AmfeError(f"{name} must be one of {', '.join(choices)}; got {value!r}")
+        what = "unknown boundary condition" if name == "bc" else "unknown value"
+        raise AmfeError(f"{name}: {what} {value!r}; choose one of {', '.join(choices)}")
     return value
 
 
