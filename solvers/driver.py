@@ -23,7 +23,8 @@ from amfe.io.result_meta import homogenize_header
 from amfe.io.result import Result
 from amfe.solvers.correction import (moment_corrections, never, relative_size,
                                      second_order_kubc, second_order_loads)
-from amfe.solvers.choice import USER_METHOD_OPTIONS, choose_solver, cholesky_package, solve_features
+from amfe.solvers.choice import (USER_METHOD_OPTIONS, Problem, choose_solver, cholesky_package,
+                                 solve_features)
 from amfe.solvers.inputs import checked_inputs
 from amfe.solvers.ksp import DEFAULT_RTOL, RESIDUAL_FACTOR
 from amfe.model.kubc import kubc_groups
@@ -144,8 +145,8 @@ def homogenize_bed(bed, options=None, comm=None, *, input_error=None):
         cholesky_package(),
         [k for k in USER_METHOD_OPTIONS
          if PETSc.Options().hasName(k) or k in options.ksp_options],
-        singular=any(g.null_modes is not None for g in groups), check_memory=inp.check_memory,
-        corrected=corrected)
+        Problem(singular=any(g.null_modes is not None for g in groups), corrected=corrected),
+        check_memory=inp.check_memory)
     log(f"solver: {method} ({reason})")
     sol = solve_load_cases(frame, comm, groups, rtol=DEFAULT_RTOL if rtol is None else rtol,
                            max_it=options.max_it, log=log,

@@ -1,5 +1,6 @@
 """KSP/PC set-up and the convergence check every solve goes through."""
 from contextlib import contextmanager
+from dataclasses import dataclass
 
 import math
 
@@ -46,6 +47,21 @@ residual), near-critical boundary bonds lose accuracy (C off by 1.3e-6), a
 bed with a weak track stops two cases on the initial guess after 0
 iterations, and the constants of ordinary beds move by up to 4e-8 where the
 stopping iteration moves."""
+
+
+
+@dataclass(frozen=True)
+class CaseSettings:
+    """How every load case of a group is solved: rtol (CG's relative tolerance), max_it
+    (iteration limit or None), ksp_options (PETSc options of these solves only, {name:
+    value} or None), diagnose (eigenvalue estimates and GAMG complexities),
+    accept_unconverged (keep a solve that misses the contract, with a warning)."""
+
+    rtol: float
+    max_it: int = None
+    ksp_options: dict = None
+    diagnose: bool = False
+    accept_unconverged: bool = False
 
 
 def make_ksp(A, P=None, rtol=DEFAULT_RTOL, ksp_type="cg", pc_type="gamg", max_it=None):

@@ -28,7 +28,7 @@ from amfe.solvers.assembly import aij_from_blocks, sbaij_operator
 from amfe.solvers.blocksolve import (block_path_applies, block_path_expected, solve_block,
                                      with_block_defaults)
 from amfe.solvers.correction import takes_correction
-from amfe.solvers.ksp import check_solution, make_ksp, petsc_options
+from amfe.solvers.ksp import CaseSettings, check_solution, make_ksp, petsc_options
 from amfe.solvers.nullspace import near_nullspace, orthonormal_nullspace
 from amfe.solvers.petsclib import PETSc
 
@@ -93,11 +93,12 @@ class ConstrainedOperator:
     matrices are made (None: the caller keeps them).
     """
 
-    def __init__(self, frame, comm, r0, r1, block_rows, group, *, rtol, max_it=None,
-                 ksp_options=None, diagnose=False, accept_unconverged=False, release=None):
+    def __init__(self, frame, comm, r0, r1, block_rows, group, *, release=None, **settings):
+        s = CaseSettings(**settings)   # rtol, max_it, ksp_options, diagnose, accept_unconverged
+        rtol, max_it, ksp_options, diagnose = s.rtol, s.max_it, s.ksp_options, s.diagnose
         self.comm, self.r0, self.r1 = comm, r0, r1
         self.frame, self.group, self.diagnose = frame, group, diagnose
-        self.accept_unconverged = accept_unconverged
+        self.accept_unconverged = s.accept_unconverged
         n, nloc = frame.n_particles, r1 - r0
         t0 = time.perf_counter()
         A = aij_from_blocks(comm, n, r0, r1, *block_rows)
@@ -108,34 +109,7 @@ class ConstrainedOperator:
         self._isrow = PETSc.IS().createGeneral(rdofs, comm=comm)
         self._iscol = PETSc.IS().createStride(6 * nloc, first=6 * r0, step=1, comm=comm)
         self.A_r = A.createSubMatrix(self._isrow, self._iscol)  # unconstrained rows: reactions
-        # Lift every case's prescribed values into its right-hand side while A
-        # is still unconstrained (b = -A x0 on the free rows), plus any applied
-        # forces (SUBC, periodic; their entries on fixed rows are overwritten below).
-        self._x0, self._b = [], []
-        for k, values in enumerate(group.values):
-            x0 = A.createVecRight()
-            x0.setArray(np.where(fixed_loc, values[r0:r1], 0.0).ravel())
-            b = A.createVecLeft()
-            A.mult(x0, b)
-            b.scale(-1.0)
-            if group.forces is not None:
-                b.getArray()[:] += group.forces[k][r0:r1].ravel()
-            self._x0.append(x0)
-            self._b.append(b)
-        # A prescribed DOF keeps its own diagonal entry on its identity row: one
-        # scale for all of them (say the mean diagonal) lets a few very stiff bonds
-        # dominate ||b||, and rtol * ||b|| then no longer controls the free rows.
-        diag = A.getDiagonal()
-        A.zeroRowsColumns(dofs, diag=1.0)
-        self._local_dofs = dofs - 6 * r0
-        self._dvals = diag.getArray()[self._local_dofs].copy()
-        d = A.getDiagonal()
-        d.getArray()[self._local_dofs] = self._dvals
-        A.setDiagonal(d)
-        d.destroy()
-        diag.destroy()
-        for x0, b in zip(self._x0, self._b):
-            b.getArray()[self._local_dofs] = self._dvals * x0.getArray()[self._local_dofs]
+        self._constrain(A, group, fixed_loc, dofs)
         x = frame.centers
         A.setNearNullSpace(near_nullspace(A, x[r0:r1], x.mean(axis=0)))
         with petsc_options(ksp_options):  # a direct solve sets amfe_operator_type aij
@@ -178,6 +152,40 @@ class ConstrainedOperator:
         self._r = A.createVecLeft()
         self._f = self.A_r.createVecLeft()
         self._scatter, self._u0 = PETSc.Scatter.toZero(self._r)
+
+    def _constrain(self, A, group, fixed_loc, dofs):
+        """Impose the prescribed DOFs ``dofs`` on A, with every case's right-hand side.
+
+        Lift every case's prescribed values into its right-hand side while A
+        is still unconstrained (b = -A x0 on the free rows), plus any applied
+        forces (SUBC, periodic; their entries on fixed rows are overwritten below).
+        """
+        r0, r1 = self.r0, self.r1
+        self._x0, self._b = [], []
+        for k, values in enumerate(group.values):
+            x0 = A.createVecRight()
+            x0.setArray(np.where(fixed_loc, values[r0:r1], 0.0).ravel())
+            b = A.createVecLeft()
+            A.mult(x0, b)
+            b.scale(-1.0)
+            if group.forces is not None:
+                b.getArray()[:] += group.forces[k][r0:r1].ravel()
+            self._x0.append(x0)
+            self._b.append(b)
+        # A prescribed DOF keeps its own diagonal entry on its identity row: one
+        # scale for all of them (say the mean diagonal) lets a few very stiff bonds
+        # dominate ||b||, and rtol * ||b|| then no longer controls the free rows.
+        diag = A.getDiagonal()
+        A.zeroRowsColumns(dofs, diag=1.0)
+        self._local_dofs = dofs - 6 * r0
+        self._dvals = diag.getArray()[self._local_dofs].copy()
+        d = A.getDiagonal()
+        d.getArray()[self._local_dofs] = self._dvals
+        A.setDiagonal(d)
+        d.destroy()
+        diag.destroy()
+        for x0, b in zip(self._x0, self._b):
+            b.getArray()[self._local_dofs] = self._dvals * x0.getArray()[self._local_dofs]
 
     def solve(self, k, center, guess=None, gather=True, keep=None):
         """Solve the group's case ``k``; returns a :class:`CaseSolution`.

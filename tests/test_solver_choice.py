@@ -7,7 +7,7 @@ import pytest
 from amfe.errors import AmfeError
 from amfe.model.frame import build_frame
 from amfe.model.scales import bed_for
-from amfe.solvers.choice import (FILL_RATIO_MAX, GAMG_RTOL_AUTO, MAX_DIRECT_PARTICLES,
+from amfe.solvers.choice import (FILL_RATIO_MAX, GAMG_RTOL_AUTO, MAX_DIRECT_PARTICLES, Problem,
                                  choose_solver, solve_features)
 from amfe.solvers.correction import CORRECTED_RTOL
 from helpers import homogenize_arrays
@@ -26,18 +26,18 @@ def test_the_rule_picks_each_method_where_it_should():
     assert choose_solver(huge, 1)[0] == "gamg"
     assert choose_solver(SPARSE, 1, package=None)[0] == "gamg"         # no factorisation package
     assert choose_solver(SPARSE, 1, user_options=["pc_type"])[0] == "gamg"  # the user's choice
-    assert choose_solver(SPARSE, 1, singular=True)[0] == "gamg"        # free rigid modes
+    assert choose_solver(SPARSE, 1, problem=Problem(singular=True))[0] == "gamg"        # free rigid modes
     assert choose_solver(SPARSE, 1, rtol=1e-9)[0] == "cholesky"
     assert choose_solver(DENSE, 1, rtol=1e-9)[2] == 1e-9
     # a second-order answer (KUBC on a box) takes the corrected default, auto and gamg alike
-    assert choose_solver(DENSE, 1, corrected=True)[2] == CORRECTED_RTOL
-    assert choose_solver(DENSE, 1, "gamg", corrected=True)[2] == CORRECTED_RTOL
+    assert choose_solver(DENSE, 1, problem=Problem(corrected=True))[2] == CORRECTED_RTOL
+    assert choose_solver(DENSE, 1, "gamg", problem=Problem(corrected=True))[2] == CORRECTED_RTOL
     assert choose_solver(DENSE, 1, "gamg")[2] == 1e-8
-    assert choose_solver(DENSE, 1, rtol=1e-9, corrected=True)[2] == 1e-9
+    assert choose_solver(DENSE, 1, rtol=1e-9, problem=Problem(corrected=True))[2] == 1e-9
     assert choose_solver(DENSE, 1, "cholesky")[0] == "cholesky"
     assert choose_solver(SPARSE, 1, "gamg")[2] == 1e-8
     for bad in (dict(requested="cholesky", nranks=2), dict(requested="cholesky", nranks=1,
-                                                           singular=True),
+                                                           problem=Problem(singular=True)),
                 dict(requested="lu", nranks=1)):
         with pytest.raises(AmfeError):
             choose_solver(SPARSE, **bad)

@@ -23,7 +23,7 @@ def random_bonds(m, seed=0):
 def test_end_loads_are_minus_the_energy_gradient():
     # Independent: the 12x12 element matrix K gives the loads on both ends as -K [u_i; u_j].
     e, d_i, d_j, springs, u_i, u_j = random_bonds(50)
-    loads = bond_end_loads(e, d_i, d_j, *springs, u_i, u_j)
+    loads = bond_end_loads(e, d_i, d_j, springs, u_i, u_j)
     K = element_matrices(e, d_i, d_j, *springs)
     g = -np.einsum("mab,mb->ma", K, np.concatenate([u_i, u_j], axis=1))
     np.testing.assert_allclose(loads["force_i"], g[:, :3], atol=1e-12)
@@ -53,7 +53,7 @@ def test_rigid_motion_loads_nothing_and_resultants_sum():
     x_j = (d_i + d_j)[:, None] * e
     u_i = np.tile(np.r_[t, w], (20, 1))
     u_j = np.concatenate([t + np.cross(w, x_j), np.tile(w, (20, 1))], axis=1)
-    loads = bond_end_loads(e, d_i, d_j, *springs, u_i, u_j)
+    loads = bond_end_loads(e, d_i, d_j, springs, u_i, u_j)
     assert np.abs(loads["force_i"]).max() < 1e-12 and np.abs(loads["moment_i"]).max() < 1e-12
     # two particles, one bond: the resultants are the two ends' loads
     f, m = particle_resultants(2, np.array([0]), np.array([1]), e[:1], [2.0],

@@ -136,8 +136,9 @@ def frame_fields(frame, u, groups, bc="kubc", centers=None, radii=None, strains=
     uj = u[:, b.j].copy()
     if frame.shift is not None:          # the image of j moves by the jump eps (s L) more
         uj[:, :, :3] += bond_jumps(frame, strains)
-    loads = [bond_end_loads(b.normal, b.d_i, b.d_j, frame.k_n, frame.k_t, frame.kappa_n,
-                            frame.kappa_t, uk[b.i], ujk) for uk, ujk in zip(u, uj)]
+    springs = (frame.k_n, frame.k_t, frame.kappa_n, frame.kappa_t)
+    loads = [bond_end_loads(b.normal, b.d_i, b.d_j, springs, uk[b.i], ujk)
+             for uk, ujk in zip(u, uj)]
 
     def stack(key, scale):
         return np.array([d[key] * scale for d in loads])
