@@ -126,10 +126,21 @@ def predict_normalised(net, images, batch_size=1024):
     return torch.cat(out) if out else torch.zeros(0, 6)
 
 
-def train_member(train_ds, val_images, val_labels, norm, cfg, image_shape, seed, progress=True,
-                 log=print, label="", init_state=None):
+@dataclass
+class Report:
+    """How :func:`train_member` reports: progress (a tqdm bar on stderr), log (a callable
+    taking a line, or None) and label (the member's name in both)."""
+
+    progress: bool = True
+    log: object = print
+    label: str = ""
+
+
+def train_member(train_ds, val, norm, cfg, image_shape, seed, report=Report(), init_state=None):
     """Train one network (from the weights ``init_state`` if given); returns (net in eval
-    mode, history dict)."""
+    mode, history dict). val: (images, labels) of the validation rows."""
+    (val_images, val_labels), progress, log = val, report.progress, report.log
+    label = report.label
     torch.manual_seed(seed)
     dev = resolve_device(cfg.device)
     net = build_net(cfg.arch, image_shape, cfg.arch_args)
@@ -251,8 +262,8 @@ def train_model(data_path, cfg, progress=True, log=print):
     seeds = [cfg.seed + k for k in range(cfg.members)]
     for k, seed in enumerate(seeds):
         label = f"{cfg.arch} seed {seed}" + (f" ({k + 1}/{cfg.members})" if cfg.members > 1 else "")
-        net, hist = train_member(train_ds, val_images, val_labels, norm, cfg, image_shape, seed,
-                                 progress=progress, log=log, label=label,
+        net, hist = train_member(train_ds, (val_images, val_labels), norm, cfg, image_shape, seed,
+                                 Report(progress, log, label),
                                  init_state=start["states"][k] if start else None)
         nets.append(net)
         hists.append(hist)
