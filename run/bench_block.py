@@ -64,6 +64,7 @@ PATHS = {  # name: (PETSc options, rtol (None: --rtol, else amfe's default))
 def worker_path(args, PETSc, comm):
     """End to end on one path; rank 0 gets the result summary."""
     from amfe.solvers.driver import homogenize_bed
+    from amfe.model.options import SolveOptions
     mpi = comm.tompi4py()
     given, rtol = PATHS[args.worker]
     options = {**given, **petsc_dict(args)}
@@ -74,8 +75,8 @@ def worker_path(args, PETSc, comm):
         t0, c0 = time.perf_counter(), time.process_time()
         bed = bed_of(args)
         t_gen = time.perf_counter() - t0
-        res = homogenize_bed(bed.centers, bed.radii, rtol=rtol, comm=comm,
-                             ksp_options=options)
+        res = homogenize_bed(bed, SolveOptions(solver="gamg", rtol=rtol, ksp_options=options),
+                             comm).to_dict()
         comm.barrier()
         total = time.perf_counter() - t0
         cpu = max(mpi.allgather(time.process_time() - c0))

@@ -81,8 +81,10 @@ def pareto_bed(quick):
 
 def _solve(bed, comm, **kw):
     from amfe.solvers.driver import homogenize_bed
+    from amfe.model.options import SolveOptions
     t0 = time.perf_counter()
-    r = homogenize_bed(bed.centers, bed.radii, bed.material(), comm=comm, **kw)
+    kw.setdefault("solver", "gamg")
+    r = homogenize_bed(bed, SolveOptions(material=bed.material(), **kw), comm).to_dict()
     r["wall"] = time.perf_counter() - t0
     return r
 

@@ -15,7 +15,7 @@ from amfe.errors import AmfeError
 from amfe.model.bed import Bed
 from amfe.model.bonds import check_a_star_cap
 from amfe.model.material import resolve_material
-from amfe.model.options import SolveOptions, check_rtol  # noqa: F401 - check_rtol: the CLI's
+from amfe.model.options import SolveOptions, check_rtol
 from amfe.model.memory import check_memory, default_limit, solve_bytes
 from amfe.model.torus import NOT_PERIODIC
 from amfe.solvers.consistency import agree_across_ranks, digest

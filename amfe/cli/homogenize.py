@@ -81,7 +81,7 @@ def run(args):
     from amfe.io.mpi import on_root
     from amfe.io.paths import STDOUT, check_output, check_output_dir
     from amfe.model.memory import parse_size
-    from amfe.solvers.inputs import check_rtol
+    from amfe.model.options import check_rtol
     from amfe.solvers.petsc import init_petsc
 
     init_petsc(args.petsc_args)
