@@ -15,7 +15,10 @@ The face (imported lazily: ``import amfe`` pulls in neither PETSc nor torch):
 - :func:`read_bed`, :func:`write_bed`: bed files (:mod:`amfe.io`).
 - :func:`homogenize` -> :class:`Result` (with :class:`Fields`): the PETSc
   solve of the six load cases and the Bagi averages; :func:`homogenize_bed`
-  is the array-level function under it (:mod:`amfe.solvers`).
+  is the function under it (:mod:`amfe.solvers`). Changed in 0.3.0:
+  ``homogenize_bed(bed, options, comm=None)`` takes a checked :class:`Bed` and
+  one :class:`SolveOptions` and returns a :class:`Result` (it took arrays and
+  keyword options and returned a dict).
 - :class:`Surrogate`: the CNN that predicts the same constants from a bed's
   images (:mod:`amfe.training`).
 - :class:`AmfeError`: every error meant for a user.
@@ -34,7 +37,7 @@ _FACE = {
     "STEEL": "amfe.model.material",
     "read_bed": "amfe.io.bedfile", "write_bed": "amfe.io.bedfile",
     "homogenize": "amfe.api", "Result": "amfe.io.result", "Fields": "amfe.io.result",
-    "homogenize_bed": "amfe.solvers.driver",
+    "homogenize_bed": "amfe.solvers.driver", "SolveOptions": "amfe.model.options",
     "Surrogate": "amfe.training.predict",
     "AmfeError": "amfe.errors",
 }

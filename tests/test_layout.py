@@ -126,7 +126,7 @@ def test_one_top_level_package_installed(tmp_path):
 
 
 def test_import_amfe_pulls_in_neither_petsc_nor_torch(tmp_path):
-    code = ("import sys, amfe, amfe.model.bed, amfe.io.bedfile\n"
+    code = ("import sys, amfe, amfe.model.bed, amfe.io.bedfile, amfe.api, amfe.model.options\n"
             "print(sorted(m for m in ('petsc4py', 'torch', 'mpi4py') if m in sys.modules))\n")
     out = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True,
                          text=True)
@@ -135,7 +135,8 @@ def test_import_amfe_pulls_in_neither_petsc_nor_torch(tmp_path):
 
 
 @pytest.mark.parametrize("name", ["homogenize", "Result", "Fields", "read_bed", "Bed",
-                                  "generate_bed", "Surrogate", "homogenize_bed", "AmfeError"])
+                                  "generate_bed", "Surrogate", "homogenize_bed", "SolveOptions",
+                                  "AmfeError"])
 def test_the_face_lists_the_api(name):
     import amfe
     assert name in dir(amfe) and name in amfe.__all__
