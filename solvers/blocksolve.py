@@ -51,9 +51,9 @@ def galerkin_algorithm(n_ranks):
     ("scalable", a sparse accumulator per row) spends most of SUBC's set-up in
     them. Forming R = P^T first ("rap", serial matrices) or a dense row
     accumulator ("nonscalable", parallel ones; an array the length of the
-    coarse grid) halve it: 12 480 particles, 1.6-1.9 -> 0.7-0.95 s on one
-    rank, 1.17 -> 0.70 s on two, the same iterations and constants
-    (docs/benchmarks.md, "SUBC's set-up"). The unsmoothed defaults gain nothing.
+    coarse grid) halve it, with the same iterations and constants
+    (docs/benchmarks.md, "SUBC's set-up" and "Figures quoted in the code"). The
+    unsmoothed defaults gain nothing.
     """
     return "rap" if n_ranks == 1 else "nonscalable"
 

@@ -135,7 +135,7 @@ def homogenize_bed(bed, options=None, comm=None, *, input_error=None):
                         box=inp.box if condition.periodic else None)
     t_frame = time.perf_counter() - t0
     groups = condition.groups(frame)
-    # the same on every rank: rank 0 decides (qhull, ~0.06 s on 300 000 centres)
+    # the same on every rank: rank 0 decides (qhull; docs/benchmarks.md, "Figures quoted ...")
     corrected = correction_wanted(options.ksp_options) and mpi.bcast(
         condition.second_order(frame, groups) if mpi.rank == 0 else None)
     log(f"frame: {frame.n_particles} load-carrying particles ({frame.n_removed} removed), "
