@@ -99,8 +99,7 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
     >>> result.C.shape
     (6, 6)
     """
-    from amfe.solvers.driver import homogenize_bed
-    from amfe.solvers.petsc import init_petsc
+    from amfe.solvers.driver import homogenize_bed, petsc_comm
 
     check_flag("progress", progress)
     for name, value in (("vtu_dir", vtu_dir), ("input_path", input_path)):
@@ -110,9 +109,7 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
     if material_source is not None and not isinstance(material_source, str):
         raise AmfeError(f"homogenize: material_source must be a str, got {material_source!r}")
     check_choice("bc", bc, BC_NAMES + ("all",))
-    PETSc = init_petsc()
-    pcomm = PETSc.COMM_WORLD if comm is None else (
-        comm if isinstance(comm, PETSc.Comm) else PETSc.Comm(comm))
+    pcomm = petsc_comm(comm)
     mpi = pcomm.tompi4py()
     options = error = None
     try:  # a failure here on one rank only must still reach the collective check

@@ -17,6 +17,7 @@ from amfe.model.frame import build_frame
 from amfe.model.options import SolveOptions
 from amfe.model.averages import (asymmetry, bagi_strain, compliance_and_constants, hull_of,
                              stiffness, symmetric, voigt, voigt_strain)
+from amfe.errors import AmfeError
 from amfe.io.mpi import on_root
 from amfe.io.fields import frame_fields
 from amfe.io.result_meta import homogenize_header
@@ -121,10 +122,7 @@ def homogenize_bed(bed, options=None, comm=None, *, input_error=None):
         options = SolveOptions()
     # per-call PETSc options go into the database (PETSc itself was initialised on import)
     init_petsc(options.petsc_args if isinstance(options, SolveOptions) else None)
-    if comm is None:
-        comm = PETSc.COMM_WORLD
-    elif not isinstance(comm, PETSc.Comm):
-        comm = PETSc.Comm(comm)  # an mpi4py communicator, e.g. a batch group
+    comm = petsc_comm(comm)
     mpi = comm.tompi4py()
     inp = checked_inputs(mpi, bed, options, BOUNDARY_CONDITIONS, input_error)
     options, condition = inp.options, BOUNDARY_CONDITIONS[inp.options.bc]
@@ -174,6 +172,20 @@ def homogenize_bed(bed, options=None, comm=None, *, input_error=None):
     elif options.fields:
         fields = on_root(mpi, _fields, solved, options.bc)
     return Result.from_dict(d, fields=fields)
+
+
+def petsc_comm(comm):
+    """The PETSc communicator of ``comm``: None (COMM_WORLD), a PETSc or an mpi4py one (e.g. a
+    batch group's); AmfeError naming comm for anything else."""
+    if comm is None:
+        return PETSc.COMM_WORLD
+    if isinstance(comm, PETSc.Comm):
+        return comm
+    try:
+        return PETSc.Comm(comm)
+    except TypeError:
+        raise AmfeError(f"comm must be an mpi4py or PETSc communicator, got "
+                        f"{type(comm).__name__} {comm!r}") from None
 
 
 def correction_wanted(ksp_options):

@@ -43,6 +43,7 @@ def bed():
     ({"progress": "no"}, "progress"),
     ({"vtu_dir": 3}, "vtu_dir"),
     ({"material_source": 3}, "material_source"),
+    ({"comm": "world"}, "comm"),
 ])
 def test_homogenize_names_the_bad_argument(bed, kwargs, name):
     with pytest.raises(AmfeError, match=name):
@@ -93,3 +94,16 @@ def test_homogenize_bed_takes_a_bed_and_options_and_returns_a_result(bed):
         homogenize_bed((bed.centers, bed.radii), SolveOptions())
     with pytest.raises(AmfeError, match="SolveOptions"):
         homogenize_bed(bed, {"rtol": 1e-5})
+
+
+@pytest.mark.parametrize("kwargs,name", [
+    ({"max_memory": "lots"}, "max_memory"),
+    ({"periodic": "yes"}, "periodic"),
+    ({"periodic": True, "offset": "x"}, "offset"),
+    ({"periodic": True, "offset": [0.0, 1e-6]}, "offset"),
+    ({"seed": 1.5}, "seed"),
+    ({"jitter": "a lot"}, "jitter"),
+])
+def test_generate_bed_names_the_bad_argument(kwargs, name):
+    with pytest.raises(AmfeError, match=name):
+        amfe.generate_bed(size=(0.1e-3, 0.1e-3, 0.06e-3), **kwargs)

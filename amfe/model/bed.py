@@ -246,6 +246,7 @@ def generate_bed(size=(250e-6, 250e-6, 100e-6), *, mean_radius=12.5e-6,
     size, mean_radius, (lo_f, hi_f), jitter = p.size, p.mean_radius, p.enlargement, p.jitter
     layer_thickness, scan, seed, a_star_max = p.layer_thickness, p.scan, p.seed, p.a_star_max
     material, skip_seed, periodic, max_memory = p.material, p.skip_seed, p.periodic, p.max_memory
+    offset = p.offset
     r0 = mean_radius / (0.5 * (lo_f + hi_f))
     n_sites = lattice_counts(size, r0)[1]
     check_memory(generation_bytes(size, r0), max_memory,

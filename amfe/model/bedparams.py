@@ -105,7 +105,16 @@ class BedParams:
                                         f"psi={material.psi})")
         if scan is not None and not isinstance(scan, ScanPath):
             raise AmfeError(f"scan must be an amfe.model.scanpath.ScanPath or None, got {type(scan).__name__}")
-        checked = dict(size=size, mean_radius=mean_radius, enlargement=(lo_f, hi_f),
+        offset = self.offset
+        if offset is not None:
+            try:
+                offset = np.asarray(offset, dtype=float)
+            except (TypeError, ValueError):
+                offset = None
+            if offset is None or offset.shape != (3,) or not np.isfinite(offset).all():
+                raise AmfeError(f"offset must be three finite lengths in m (or None), got "
+                                f"{self.offset!r}")
+        checked = dict(size=size, offset=offset, mean_radius=mean_radius, enlargement=(lo_f, hi_f),
                        jitter=jitter, layer_thickness=layer_thickness, seed=seed,
                        skip_seed=skip_seed, a_star_max=a_star_max,
                        periodic=check_flag("periodic", self.periodic),
