@@ -15,7 +15,7 @@ flight: the same command resumes it (after removing the stale lock
 DATA.h5.lock that the kill left; the message says how). One run at a time
 writes an output (amfe.dataset.lock). A bed that fails is recorded as failed
 with its reason; more than F of them failed makes the exit status 2. File
-layout: amfe.io.datasetfile.
+layout: amfe.dataset.datafile.
 """
 import os
 import sys
@@ -89,7 +89,7 @@ def run(args):
 
 def _check(path):
     from amfe.dataset.summary import summary_text
-    from amfe.io.datasetfile import check_dataset
+    from amfe.dataset.datafile import check_dataset
 
     rank = _world_rank()
     if rank != 0:

@@ -44,14 +44,14 @@ is a failure for all of them. Generation is deterministic, and homogenize_bed
 raises AmfeError alike on every rank, so the group stays in step.
 
 Kill-safety. Each leader writes its record as its own part file
-(:mod:`amfe.io.datasetparts`, tmp + fsync + os.replace) before it asks for more
+(:mod:`amfe.dataset.parts`, tmp + fsync + os.replace) before it asks for more
 work; a kill (any rank, any moment) loses only the beds in flight. Rerunning
 the same command (after removing the stale lock the kill left) skips every
 record whose part exists. A part that cannot be written (a full disk) stops
 the hand-out: the groups finish the beds they hold and every rank raises the
 same AmfeError; the parts written are kept. When all exist, world rank 0
 merges them into a temporary file, checks it, renames it onto DATA.h5 and
-only then removes the parts (:func:`amfe.io.datasetfile.merge_parts`).
+only then removes the parts (:func:`amfe.dataset.datafile.merge_parts`).
 
 Progress. World rank 0 shows a tqdm bar (stderr) of the records finished by
 all groups, read from the window's second counter by a background thread
@@ -70,8 +70,8 @@ from amfe.dataset.record import load_pixelate, make_record
 from amfe.dataset.summary import final_summary
 from amfe.errors import AmfeError
 from amfe.io.atomic import NoSpaceError
-from amfe.io.datasetfile import merge_parts
-from amfe.io.datasetparts import STATUS_OK, describe_params, run_params, write_part
+from amfe.dataset.datafile import merge_parts
+from amfe.dataset.parts import STATUS_OK, describe_params, run_params, write_part
 from amfe.io.mpi import on_root
 from amfe.io.paths import check_output
 from amfe.model.scales import get_scale

@@ -2,7 +2,7 @@
 
 :func:`make_record` is what every group of ranks of ``amfe dataset``
 (:mod:`amfe.dataset.driver`) computes for record k; the record layout is
-:mod:`amfe.io.datasetparts`'s.
+:mod:`amfe.dataset.parts`'s.
 """
 import json
 import os
@@ -13,7 +13,7 @@ import numpy as np
 
 from amfe.dataset.upgrade import record_bond_image
 from amfe.errors import AmfeError
-from amfe.io.datasetparts import STATUS_FAILED, STATUS_OK, empty_record
+from amfe.dataset.parts import STATUS_FAILED, STATUS_OK, empty_record
 from amfe.model.bed import generate_bed
 from amfe.model.scales import PARAM_NAMES, get_scale, param_record, record_seed, sample_bed_params
 from amfe.solvers.ksp import DEFAULT_RTOL
@@ -44,7 +44,7 @@ def _agree(group, err):
 
 def make_record(k, dataset_seed, scale, group, rtol=DEFAULT_RTOL, pixelate=None, solver="gamg",
                 bc="kubc"):
-    """Record k (a dict, see amfe.io.datasetfile), computed collectively on ``group``.
+    """Record k (a dict, see amfe.dataset.datafile), computed collectively on ``group``.
 
     Every rank of ``group`` calls it with the same arguments; the record is
     complete on the group's rank 0 (the others hold no image). Never raises

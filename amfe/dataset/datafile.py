@@ -53,8 +53,8 @@ from amfe.errors import AmfeError, _list_items
 from amfe.model.scales import PARAM_NAMES, PARAM_UNITS, get_scale, record_seed
 
 from amfe.vocab import LABEL_NAMES
-from amfe.io.datasetparts import (STATUS_FAILED, STATUS_OK, done_indices, part_path,
-                                  part_problem, read_part, reject_part, remove_parts)
+from amfe.dataset.parts import (STATUS_FAILED, STATUS_OK, done_indices, part_path,
+                                part_problem, read_part, reject_part, remove_parts)
 SECONDS_NAMES = ("generate", "image", "homogenize")
 DENSITY_DEFINITION = ("mean of the image: the volume fraction of the box [0,Lx]x[0,Ly]x[0,Lz] "
                       "filled by the union of the spheres")
@@ -90,7 +90,7 @@ def merge_parts(output, parts, params, first=None):
     temporary name, checked (:func:`check_dataset`), renamed onto ``output``,
     and only then is ``parts`` removed. A kill or a failure before the rename
     leaves the parts intact and ``output`` as it was. A part that is not the
-    record it claims to be (:func:`amfe.io.datasetparts.part_problem`: another
+    record it claims to be (:func:`amfe.dataset.parts.part_problem`: another
     data set's, damaged) is moved to ``OUTPUT.rejected/`` and the merge is
     refused with an AmfeError naming it: a rerun recomputes that record. Also
     AmfeError for missing records and for a full disk.

@@ -1,7 +1,7 @@
 """A data set's part files: one ``rec_NNNNNNNN.npz`` per finished record, and params.json.
 
 ``amfe dataset`` writes each record as soon as it is solved (atomically), so a
-killed run loses only the beds in flight; :mod:`amfe.io.datasetfile` merges
+killed run loses only the beds in flight; :mod:`amfe.dataset.datafile` merges
 the parts into the HDF5 file (docs/datasets.md).
 """
 import io
