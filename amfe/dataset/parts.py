@@ -19,6 +19,11 @@ from amfe.version import __version__
 
 FORMAT = "amfe.dataset"
 FORMAT_VERSION = 1
+#: The version of the rule that turns a bed into its labels (which particles carry load,
+#: the homogenization volume, the boundary conditions' averages). Bump it when a label
+#: changes for the same bed; label tables (amfe.dataset.labels) record it, and a table
+#: of another rule is refused by `amfe dataset --from-labels`.
+LABEL_RULE_VERSION = 1
 STATUS_OK, STATUS_FAILED = 0, 1
 PARAMS_JSON = "params.json"
 REJECTED_SUFFIX = ".rejected"
