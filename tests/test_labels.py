@@ -117,6 +117,9 @@ def test_shards_join_and_count_takes_the_first_records(made, tmp_path):
     proc = run_cli(["dataset", "--export-labels", str(data), "-o", str(shards)])
     assert proc.returncode == 2 and "nothing to export" in proc.stderr
     out = tmp_path / "first.h5"
+    proc = run_cli(["dataset", "--from-labels", str(shards / names[0]), "-o", str(out),
+                    "--seed", "3"])
+    assert proc.returncode == 2 and "--seed from its tables" in proc.stderr
     # the first shard alone cannot make a data set of more than its records
     proc = run_cli(["dataset", "--from-labels", str(shards / names[1]), "-o", str(out)])
     assert proc.returncode == 2 and "records 0.." in proc.stderr and not out.exists()

@@ -159,6 +159,13 @@ def _from_labels(args):
 
     if not args.output:
         raise AmfeError("--from-labels LABELS.h5 needs -o DATA.h5, the data set to make")
+    given = [name for name, value, default in (
+        ("--seed", args.seed, 0), ("--scale", args.scale, "small"), ("--rtol", args.rtol, None),
+        ("--solver", args.solver, "auto"), ("--bc", args.bc, "kubc"),
+        ("--ranks-per-bed", args.ranks_per_bed, 1)) if value != default]
+    if given:
+        raise AmfeError(f"--from-labels takes the data set's {', '.join(given)} from its tables; "
+                        "give none")
     run_dataset(args.output, args.count, from_labels=tuple(args.from_labels),
                 progress=not args.no_progress,
                 max_failed_share=DEFAULT_MAX_FAILED_SHARE if args.max_failed_share is None
