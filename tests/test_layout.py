@@ -89,6 +89,16 @@ def test_no_import_runs_upward():
     assert not bad, "imports that run upward:\n" + "\n".join(bad)
 
 
+def test_the_data_set_code_has_one_home():
+    # Data-set files, their parts and runs live in amfe/dataset/ (issue 29, item 5); io keeps
+    # the general files (beds, results, ParaView, atomic writes).
+    strays = [p.relative_to(ROOT).as_posix() for p, module in source_files()
+              if layer_of(module) not in ("dataset", "face") and "dataset" in p.stem]
+    assert not strays, "data-set modules outside amfe/dataset/: " + ", ".join(strays)
+    assert (ROOT / "amfe" / "dataset" / "datafile.py").is_file()
+    assert (ROOT / "amfe" / "dataset" / "parts.py").is_file()
+
+
 def test_the_checker_sees_an_upward_import(tmp_path):
     # The test above must be able to fail: an upward import is caught.
     path = tmp_path / "bonds.py"

@@ -18,7 +18,7 @@ import pytest
 from helpers import MPI_ENV, ROOT
 
 from amfe.io.bedfile import write_bed
-from amfe.io.datasetparts import parts_dir
+from amfe.dataset.parts import parts_dir
 from amfe.model.bed import generate_bed
 
 LINE = "amfe {command}: interrupted ({name})"

@@ -19,13 +19,6 @@ MAX_LONG_BODIES = 3
 USER_FACING = {("amfe/api.py", "homogenize"), ("amfe/model/bed.py", "generate_bed")}
 
 
-def temporarily_exempt(rel):
-    """TEMPORARY (remove after merging issue 32): the data-set code is moved to its one home
-    by the helper of issue 32 (amfe/dataset/, amfe/io/dataset*.py), who owns these files."""
-    return rel.startswith("amfe/dataset/") or (rel.startswith("amfe/io/dataset")
-                                               and rel.endswith(".py"))
-
-
 def functions():
     """(relative path, function node) of every function in amfe/, solvers/ and training/."""
     for top in ("amfe", "solvers", "training"):
@@ -54,15 +47,14 @@ def body_lines(node):
 def test_no_function_takes_more_than_8_parameters():
     bad = [f"{rel}:{node.lineno} {node.name} ({parameters(node)})"
            for rel, node in functions()
-           if parameters(node) > MAX_PARAMETERS and (rel, node.name) not in USER_FACING
-           and not temporarily_exempt(rel)]
+           if parameters(node) > MAX_PARAMETERS and (rel, node.name) not in USER_FACING]
     assert not bad, "functions with more than 8 parameters: " + ", ".join(bad)
 
 
 def test_at_most_3_function_bodies_over_80_lines():
     long = [f"{rel}:{node.lineno} {node.name} ({body_lines(node)})"
             for rel, node in functions()
-            if body_lines(node) > MAX_BODY_LINES and not temporarily_exempt(rel)]
+            if body_lines(node) > MAX_BODY_LINES]
     assert len(long) <= MAX_LONG_BODIES, "function bodies over 80 lines: " + ", ".join(long)
 
 

@@ -1,6 +1,6 @@
 """Data for the surrogate: a lazy torch Dataset over an amfe data-set file, splits, normalisation.
 
-The file layout is :mod:`amfe.io.datasetfile` (``images`` (M, layers, H, W)
+The file layout is :mod:`amfe.dataset.datafile` (``images`` (M, layers, H, W)
 float32, ``labels`` (M, 6) Ex, Ey, Ez [Pa], nu_yz, nu_xz, nu_xy, ``status``
 (M,) 0 ok / 1 failed). Only rows with status 0 and finite labels are used.
 
@@ -35,7 +35,7 @@ import os
 import numpy as np
 import torch
 
-from amfe.io.datasetparts import STATUS_OK
+from amfe.dataset.parts import STATUS_OK
 from amfe.vocab import LABEL_NAMES
 from amfe.errors import AmfeError
 
@@ -43,7 +43,7 @@ from amfe.training import AUGMENTATIONS
 
 INPUT_KINDS = {"fill": "images", "bonds": "bond_images"}   # kind: data-set array
 DEFAULT_INPUTS = ("fill",)
-# Root attributes of a data set that say how its images were made (amfe.io.datasetfile).
+# Root attributes of a data set that say how its images were made (amfe.dataset.datafile).
 IMAGE_ATTRS = ("scale", "image_shape", "image_cell", "layer_thickness", "image_spacing",
                "bed_size", "seed", "count")
 
@@ -83,7 +83,7 @@ def _open(path):
     for name in ("images", "labels", "status"):
         if name not in f:
             f.close()
-            raise AmfeError(f"{path} is not an amfe data set: no /{name} (see amfe.io.datasetfile)")
+            raise AmfeError(f"{path} is not an amfe data set: no /{name} (see amfe.dataset.datafile)")
     if f["images"].ndim != 4 or f["labels"].shape[1:] != (6,):
         shape_i, shape_l = f["images"].shape, f["labels"].shape
         f.close()

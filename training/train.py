@@ -355,7 +355,7 @@ def pixelation_of(info):
     missing = [k for k in need if k not in info]
     if missing:
         raise AmfeError(f"{info['path']} lacks the root attribute(s) {', '.join(missing)} that say "
-                        "how its images were made (see amfe.io.datasetfile)")
+                        "how its images were made (see amfe.dataset.datafile)")
     return {"scale": info.get("scale"), "bed_size": [float(s) for s in info["bed_size"]],
             "image_cell": [float(s) for s in info["image_cell"]],
             "layer_thickness": float(info["layer_thickness"]),

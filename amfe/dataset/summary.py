@@ -4,7 +4,7 @@ import time
 
 import numpy as np
 
-from amfe.io.datasetparts import STATUS_OK
+from amfe.dataset.parts import STATUS_OK
 from amfe.vocab import LABEL_NAMES
 
 

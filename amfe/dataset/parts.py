@@ -1,7 +1,7 @@
 """A data set's part files: one ``rec_NNNNNNNN.npz`` per finished record, and params.json.
 
 ``amfe dataset`` writes each record as soon as it is solved (atomically), so a
-killed run loses only the beds in flight; :mod:`amfe.io.datasetfile` merges
+killed run loses only the beds in flight; :mod:`amfe.dataset.datafile` merges
 the parts into the HDF5 file (docs/datasets.md).
 """
 import io
@@ -19,6 +19,11 @@ from amfe.version import __version__
 
 FORMAT = "amfe.dataset"
 FORMAT_VERSION = 1
+#: The version of the rule that turns a bed into its labels (which particles carry load,
+#: the homogenization volume, the boundary conditions' averages). Bump it when a label
+#: changes for the same bed; label tables (amfe.dataset.labels) record it, and a table
+#: of another rule is refused by `amfe dataset --from-labels`.
+LABEL_RULE_VERSION = 1
 STATUS_OK, STATUS_FAILED = 0, 1
 PARAMS_JSON = "params.json"
 REJECTED_SUFFIX = ".rejected"
