@@ -57,7 +57,7 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
     diagnose, progress : bool
         Add per-case solver diagnostics; print progress lines to stderr.
     vtu_dir : str, optional
-        Write the ParaView files there: one .vtp per load case and cases.pvd
+        Write the ParaView files there: one .vtu per load case, cases.json and cases.pvd
         (docs/viewing.md); with bc="all", one subdirectory per condition.
     solver : {"auto", "gamg", "cholesky"}
         How to solve: ``"auto"`` picks per bed the cheapest method whose

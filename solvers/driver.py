@@ -20,7 +20,7 @@ from amfe.model.material import SOURCE_DEFAULT
 from amfe.io.mpi import on_root
 from amfe.io.fields import frame_fields
 from amfe.io.result_meta import homogenize_header
-from amfe.io.vtp import write_fields_vtp
+from amfe.io.vtu import write_fields_vtu
 from amfe.solvers.correction import (moment_corrections, never, relative_size,
                                      second_order_kubc, second_order_loads)
 from amfe.solvers.choice import USER_METHOD_OPTIONS, choose_solver, cholesky_package, solve_features
@@ -242,7 +242,7 @@ def _average(frame, groups, sol, bc, a_star_cap, ranks, t_frame, vtu_dir, diagno
     if fields:
         result["fields"] = f
     if vtu_dir is not None:
-        paths = write_fields_vtp(vtu_dir, f)
+        paths = write_fields_vtu(vtu_dir, f)
         result["vtk"] = {"collection": paths[-1], "files": paths[:-1]}
     return result
 
