@@ -237,7 +237,10 @@ def main(argv):
     return 0
 
 
-if __name__ == "__main__":
+# paraview --script runs this file as __main__ too, with sys.argv == [""]: there it only
+# builds the view (main's os._exit would close the GUI at once).
+IN_GUI = not sys.argv or not sys.argv[0]
+if __name__ == "__main__" and not IN_GUI:
     status = main(sys.argv[1:])
     # Debian's ParaView 5.11 under Xvfb dies in teardown with "GLXBadContext" and exit
     # status 1 after everything is written: leave without the teardown.
