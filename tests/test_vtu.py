@@ -130,6 +130,9 @@ def test_a_new_set_removes_the_old_one_and_bad_input_touches_nothing(tmp_path):
         with pytest.raises(AmfeError, match=message):
             vtu.write_fields_vtu(tmp_path, fields)
         assert {p: (tmp_path / p).read_bytes() for p in os.listdir(tmp_path)} == before
+    with pytest.raises(AmfeError, match="JSON-serialisable"):
+        vtu.write_fields_vtu(tmp_path, tiny_fields(), field_data={"x": object()})
+        assert {p: (tmp_path / p).read_bytes() for p in os.listdir(tmp_path)} == before
 
 
 def test_a_failed_write_leaves_no_collection(tmp_path, monkeypatch):

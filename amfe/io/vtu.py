@@ -198,7 +198,10 @@ def write_fields_vtu(directory, fields, field_data=None):
         meshio.vtu.write(path, mesh, binary=True, compression=COMPRESSION,
                          header_type="UInt64")
 
-    text = json.dumps(sidecar, indent=1) + "\n"
+    try:
+        text = json.dumps(sidecar, indent=1) + "\n"
+    except (TypeError, ValueError) as exc:       # before any file is touched
+        raise AmfeError(f"field_data must be JSON-serialisable: {exc}") from None
     return _write_set(os.fspath(directory), write_case, names, text)
 
 
