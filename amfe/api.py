@@ -13,7 +13,7 @@ from amfe.io.console import messages
 from amfe.io.mpi import on_root
 from amfe.io.result import Result  # noqa: F401 - the type homogenize returns
 from amfe.io.result_meta import describe_input
-from amfe.io.vtp import write_fields_vtp
+from amfe.io.vtu import write_fields_vtu
 from amfe.model.options import (BC_NAMES, SolveOptions, check_choice, check_flag,
                                 check_petsc_options)
 
@@ -62,7 +62,7 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
     diagnose, progress : bool
         Add per-case solver diagnostics; print progress lines to stderr.
     vtu_dir : str, optional
-        Write the ParaView files there: one .vtp per load case and cases.pvd
+        Write the ParaView files there: one .vtu per load case, cases.json and cases.pvd
         (docs/viewing.md); with bc="all", one subdirectory per condition.
     solver : {"auto", "gamg", "cholesky"}
         How to solve: ``"auto"`` picks per bed the cheapest method whose
@@ -133,7 +133,7 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
                                     input_error=error)
         describe_input(result.extra, input_path)
         if vtu_dir is not None:
-            paths = on_root(mpi, write_fields_vtp, vtu_dir, result.fields)
+            paths = on_root(mpi, write_fields_vtu, vtu_dir, result.fields)
             result.extra["vtk"] = {"collection": paths[-1], "files": paths[:-1]}
             if not fields:
                 result.fields = None

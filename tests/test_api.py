@@ -9,7 +9,7 @@ import pytest
 
 import amfe
 from amfe.io.result import SCHEMA_VERSION, Result
-from amfe.io.vtp import read_case
+from amfe.io.vtu import read_case
 from amfe.vocab import CASE_NAMES, CONSTANT_NAMES
 from helpers import MPI_ENV, ROOT, run_cli
 
@@ -70,13 +70,13 @@ def test_fields_equal_what_the_vtu_holds(with_fields, bed_path, tmp_path):
     bed = amfe.read_bed(bed_path)
     np.testing.assert_array_equal(f.centers, bed.centers[f.particle_id])
     # The files written from the API and those the CLI writes hold the same arrays.
-    paths = r.write_vtp(tmp_path / "api")
+    paths = r.write_vtu(tmp_path / "api")
     proc = run_cli(["homogenize", str(bed_path), "--vtu", str(tmp_path / "cli"),
                     "--rtol", "1e-10", "--quiet"])
     assert proc.returncode == 0, proc.stderr
     for k, name in enumerate(CASE_NAMES):
         mesh = read_case(paths[k])
-        cli = read_case(tmp_path / "cli" / f"case_{name}.vtp")
+        cli = read_case(tmp_path / "cli" / f"case_{name}.vtu")
         np.testing.assert_array_equal(mesh["points"], f.centers)
         np.testing.assert_array_equal(mesh["point_data"]["displacement_m"], f.displacement[k])
         np.testing.assert_array_equal(mesh["point_data"]["rotation_rad"], f.rotation[k])

@@ -8,7 +8,7 @@ import pytest
 from amfe.model.bed import generate_bed
 from amfe.io.bedfile import write_bed
 from amfe.io.result_meta import HEADER_KEYS
-from amfe.io.vtp import read_case
+from amfe.io.vtu import read_case
 
 from helpers import run_cli
 
@@ -77,10 +77,10 @@ def test_vtu_written_once_and_complete_under_two_ranks(bed_file, tmp_path):
     proc = run_cli(["homogenize", bed_file, "--vtu", str(vtu)], ranks=2)
     assert proc.returncode == 0, proc.stderr
     files = sorted(os.listdir(vtu))
-    assert files == sorted(["cases.pvd"] + [f"case_{n}.vtp" for n in
+    assert files == sorted(["cases.json", "cases.pvd"] + [f"case_{n}.vtu" for n in
                                             ["xx", "yy", "zz", "yz", "xz", "xy"]])
     assert "Ex" in proc.stdout
-    m = read_case(vtu / "case_xx.vtp")
+    m = read_case(vtu / "case_xx.vtu")
     for name in ("displacement_m", "rotation_rad", "radius_m", "particle_id"):
         assert name in m["point_data"]
     for name in ("axial_force_N", "shear_force_N", "torsion_Nm", "bending_moment_Nm"):

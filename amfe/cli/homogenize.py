@@ -23,8 +23,8 @@ def register(sub):
                               "-log_view, -pc_type hypre.")
     p.add_argument("bed", help="bed HDF5 file (/particles/centers, /particles/radii)")
     p.add_argument("-o", "--output", help="write the result as JSON here (- : to stdout, the table to stderr)")
-    p.add_argument("--vtu", metavar="DIR", help="write the ParaView files here: case_<name>.vtp "
-                   "per load case and cases.pvd (view them: amfe view DIR)")
+    p.add_argument("--vtu", metavar="DIR", help="write the ParaView files here: case_<name>.vtu "
+                   "per load case, cases.json and cases.pvd (view them: amfe view DIR)")
     add_solver_args(p)
     p.add_argument("--cap-a-star", type=float, default=None, metavar="A",
                    help="evaluate bonds with a* > A at a* = A (A below the critical a*) "

@@ -1,7 +1,7 @@
 """Per-case fields of a solved frame as plain SI arrays: :class:`Fields` and :func:`frame_fields`.
 
 What ``homogenize(..., fields=True)`` returns and what the ParaView files
-(:mod:`amfe.io.vtp`, docs/viewing.md) hold. Particles are the kept
+(:mod:`amfe.io.vtu`, docs/viewing.md) hold. Particles are the kept
 (load-carrying) ones in input order, so ``particle_id`` is increasing and
 ``centers`` equals ``bed.centers[particle_id]`` bit for bit when the input
 arrays are given. Bond loads are those on particle i's end (the bond's first

@@ -14,7 +14,7 @@ from amfe.errors import AmfeError
 from amfe.io.atomic import write_json
 from amfe.io.fields import Fields
 from amfe.io.result_meta import HEADER_KEYS, SCHEMA_VERSION
-from amfe.io.vtp import write_fields_vtp
+from amfe.io.vtu import write_fields_vtu
 from amfe.vocab import CONSTANT_NAMES, CONSTANT_UNITS
 
 __all__ = ["Result", "Fields", "SCHEMA_VERSION"]
@@ -82,19 +82,19 @@ class Result:
         """Write :meth:`to_dict` to ``path`` atomically (a reader never sees half a file)."""
         write_json(path, self.to_dict())
 
-    def write_vtp(self, directory):
-        """ParaView files: ``case_<name>.vtp`` per load case and ``cases.pvd`` in ``directory``.
+    def write_vtu(self, directory):
+        """ParaView files: ``case_<name>.vtu`` per load case, ``cases.json`` and ``cases.pvd``.
 
-        Needs ``fields=True``; the layout is in :mod:`amfe.io.vtp` and
-        docs/viewing.md. Returns the paths, the ``.pvd`` last.
+        Needs ``fields=True``; the layout is in :mod:`amfe.io.vtu` and
+        docs/viewing.md. Returns the case files' paths, the ``.pvd`` last.
         """
         if self.fields is None:
             raise AmfeError("this result holds no fields: homogenize with fields=True "
                             "to write ParaView files")
-        return write_fields_vtp(directory, self.fields)
+        return write_fields_vtu(directory, self.fields)
 
-    #: The name of :meth:`write_vtp` before amfe wrote PolyData (``.vtp``) files.
-    write_vtu = write_vtp
+    #: amfe 0.2's name of :meth:`write_vtu` (it wrote ``.vtp`` files then).
+    write_vtp = write_vtu
 
     def __repr__(self):
         lines = [f"Result(bc={self.bc!r}, {self.n_particles} particles "
