@@ -28,7 +28,8 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 from amfe.solvers.petsc import is_option
 
-from amfe.cli.interrupt import Interrupted, end_broken_pipe, end_interrupted, signals_raise, world
+from amfe.cli.interrupt import (Interrupted, end_broken_pipe, end_interrupted, flush_stdout,
+                                signals_raise, world)
 from amfe.errors import AmfeError
 from amfe.version import __version__
 
@@ -106,6 +107,13 @@ def main(argv=None):
         args = parse(argv)
     except BrokenPipeError:   # `amfe -h | head -1`
         return end_broken_pipe()
+    except SystemExit:
+        # -h, --version or a usage error: argparse wrote to stdout, which is block-buffered
+        # on a pipe unless PYTHONUNBUFFERED is set; flush it here, where a closed pipe is
+        # still ours to catch, not at interpreter exit ("Exception ignored", exit 120).
+        if not flush_stdout():
+            return end_broken_pipe()
+        raise
     with signals_raise():
         try:
             code = int(args.func(args) or 0)

@@ -113,6 +113,17 @@ def end_broken_pipe():
     return BROKEN_PIPE_EXIT
 
 
+def flush_stdout():
+    """Flush stdout now; False when the reader has closed the pipe (BrokenPipeError)."""
+    try:
+        sys.stdout.flush()
+    except BrokenPipeError:
+        return False
+    except (OSError, ValueError, AttributeError):   # closed or replaced: nothing to flush
+        pass
+    return True
+
+
 def _say(line):
     try:
         print(line, file=sys.stderr, flush=True)
