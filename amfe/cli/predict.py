@@ -24,7 +24,7 @@ import time
 from amfe.cli.options import nonnegative_float, thread_count
 from amfe.errors import AmfeError
 from amfe.io.atomic import write_json
-from amfe.io.paths import STDOUT, check_output
+from amfe.io.paths import check_output, is_stdout
 from amfe.io.result_meta import header, predict_block
 from amfe.model.material import resolve_material
 
@@ -196,8 +196,9 @@ def _finite_or_none(props):
 
 
 def write_result(out, output):
-    """The JSON to ``output`` (atomically) or stdout (``-``), and the table to stdout or stderr."""
-    if output == STDOUT:
+    """The JSON to ``output`` (atomically) or stdout (``-``, /dev/stdout), and the table to stdout
+    or stderr."""
+    if output is not None and is_stdout(output):
         print(summary(out), file=sys.stderr, flush=True)
         print(json.dumps(out, indent=2), flush=True)
         return
