@@ -84,7 +84,8 @@ def _check_lengths(centers, radii):
                         + _list_items(f"{k} (R={radii[k]:.3g})" for k in bad)
                         + "; float64 cannot carry such lengths through the contact geometry. "
                         "Check the unit of the bed's lengths")
-    reach = np.abs(centers).max(axis=1) / radii.mean()
+    with np.errstate(over="ignore"):   # 1e300 / 1e-60: inf, refused below
+        reach = np.abs(centers).max(axis=1) / radii.mean()
     bad = np.flatnonzero(reach > MAX_REACH)
     if bad.size:
         raise AmfeError(f"{bad.size} centres lie more than {MAX_REACH:g} mean radii from the "
