@@ -21,6 +21,7 @@ import os
 import sys
 import time
 
+from amfe.cli.interrupt import launcher_rank
 from amfe.cli.options import nonnegative_float, thread_count
 from amfe.errors import AmfeError
 from amfe.io.atomic import write_json
@@ -113,7 +114,7 @@ def run(args):
         t = time.perf_counter()
         solver = homogenize_bed(bed.centers, bed.radii, bed.material())
         times["solve"] = time.perf_counter() - t
-    rank = comm.rank if comm is not None else _launcher_rank()
+    rank = comm.rank if comm is not None else launcher_rank()
 
     surrogate_props = _finite_or_none(as_properties(res["mean"][0]))
     out = {
@@ -277,11 +278,3 @@ def _percent(fraction, width, sign):
     if fraction is None:
         return f"{'-':>{width + 1}s}"
     return f"{100 * fraction:{sign}{width}.2f}%"
-
-
-def _launcher_rank():
-    """This process's rank under mpirun, from the launcher's environment (0 alone)."""
-    for var in ("OMPI_COMM_WORLD_RANK", "PMI_RANK", "PMIX_RANK"):
-        if os.environ.get(var, "").isdigit():
-            return int(os.environ[var])
-    return 0
