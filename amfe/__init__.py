@@ -26,7 +26,10 @@ amfe.cli. docs/model.md holds the physics and the conventions.
 """
 import importlib
 
+from amfe.io.mpi import abort_on_uncaught
 from amfe.version import __version__
+
+abort_on_uncaught()   # under mpirun, an uncaught exception on one rank ends every rank
 
 _FACE = {
     "Bed": "amfe.model.bed", "generate_bed": "amfe.model.bed",

@@ -8,7 +8,7 @@ averages turned into the constants.
 import os
 
 from amfe.errors import AmfeError
-from amfe.io.mpi import on_root
+from amfe.io.mpi import on_root, same_on_every_rank
 from amfe.io.result import Result
 from amfe.io.result_meta import describe_input
 
@@ -101,6 +101,10 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
     pcomm = PETSc.COMM_WORLD if comm is None else (
         comm if isinstance(comm, PETSc.Comm) else PETSc.Comm(comm))
     mpi = pcomm.tompi4py()
+    # Collective, before the first collective that depends on them: a path on one rank and
+    # a Bed on another would pair on_root's bcast with the input check's allgather.
+    same_on_every_rank(mpi, {"bed": repr(os.fspath(bed)) if isinstance(bed, (str, os.PathLike))
+                             else "an amfe.Bed or arrays", "max_memory": repr(max_memory)})
     if isinstance(bed, (str, os.PathLike)):
         input_path = bed if input_path is None else input_path
         from amfe.io.bedfile import read_bed

@@ -5,6 +5,7 @@ or PETSc assembles anything: the arrays (:func:`amfe.model.bonds.validate_partic
 the material, the boundary condition (and the periodic box it may need),
 rtol and -ksp_rtol (both in (0, 1)),
 max_it, the a* cap's range, then that every rank holds the same of all of it
+(max_memory included)
 (:func:`amfe.solvers.consistency.agree_across_ranks`, one collective), then
 the memory the solve would take against the limit summed over the machines
 (:mod:`amfe.model.memory`).
@@ -77,6 +78,7 @@ def checked_inputs(PETSc, mpi, centers, radii, material, *, bcs, bc, rtol, max_i
     except AmfeError as exc:
         error = exc
     options = dict(bc=bc, rtol=rtol, max_it=max_it, a_star_cap=a_star_cap, box=digest(box),
+                   max_memory=max_memory,   # refused below on one rank only: the same on all
                    ksp_options=sorted((ksp_options or {}).items()),
                    petsc=sorted(PETSc.Options().getAll().items()), **others)
     hosts = agree_across_ranks(mpi, {**raw, "material": repr(material),
