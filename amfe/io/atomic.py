@@ -173,16 +173,21 @@ def remove_stale_tmp(path, report=None, every_target=False):
 
 
 WRITTEN_THROUGH = ("fifo", "character device")
-REFUSED = ("block device", "socket", "directory", "special file")
+REFUSED = ("block device", "socket", "directory", "special file", "loop of symbolic links")
 
 
 def file_kind(path):
     """What ``path`` names once symbolic links are followed: "missing", "regular", "fifo",
-    "character device", "block device", "socket", "directory" or "special file"."""
+    "character device", "block device", "socket", "directory", "special file" or "loop of
+    symbolic links"."""
     try:
         mode = os.stat(path).st_mode
     except (FileNotFoundError, NotADirectoryError):
         return "missing"
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            return "loop of symbolic links"
+        raise
     for test, kind in ((stat.S_ISREG, "regular"), (stat.S_ISFIFO, "fifo"),
                        (stat.S_ISCHR, "character device"), (stat.S_ISBLK, "block device"),
                        (stat.S_ISSOCK, "socket"), (stat.S_ISDIR, "directory")):
