@@ -184,3 +184,14 @@ def test_cli_empty_output_name_is_an_error(bed):
     assert p.returncode == 2 and "Traceback" not in p.stderr
     assert p.stderr.strip().splitlines()[-1] == ("amfe homogenize: error: -o needs a file name, "
                                                  "got ''")
+
+
+def test_cli_bounds_to_stdout_writes_no_file_named_dash(bed, tmp_path):
+    """`amfe homogenize bed.h5 --bc all -o -` wrote a file named "-" (and said "wrote -"); now
+    the JSON alone on stdout, as for one condition."""
+    p = subprocess.run([sys.executable, "-m", "amfe.cli", "homogenize", bed, "--bc", "all",
+                        "-o", "-", "--quiet"], cwd=tmp_path, env=MPI_ENV, timeout=120,
+                       capture_output=True, text=True)
+    assert p.returncode == 0, p.stderr
+    assert sorted(json.loads(p.stdout)["conditions"]) == ["kubc", "subc"]
+    assert "== bounds" in p.stderr and os.listdir(tmp_path) == []
