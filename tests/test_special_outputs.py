@@ -179,11 +179,13 @@ def test_cli_output_to_a_link_to_stdout(bed, tmp_path):
     assert "Ex" in p.stderr and os.readlink(link) == "/proc/self/fd/1"
 
 
-def test_cli_empty_output_name_is_an_error(bed):
-    p = _amfe(["homogenize", bed, "-o", "", "--quiet"], capture_output=True, text=True)
+@pytest.mark.parametrize("option, what", [("-o", "file"), ("--vtu", "directory")])
+def test_cli_empty_output_name_is_an_error(bed, option, what):
+    """`-o ''` (and `--vtu ''`) exited 0 and wrote nothing."""
+    p = _amfe(["homogenize", bed, option, "", "--quiet"], capture_output=True, text=True)
     assert p.returncode == 2 and "Traceback" not in p.stderr
-    assert p.stderr.strip().splitlines()[-1] == ("amfe homogenize: error: -o needs a file name, "
-                                                 "got ''")
+    assert p.stderr.strip().splitlines()[-1] == (f"amfe homogenize: error: {option} needs a "
+                                                 f"{what} name, got ''")
 
 
 def test_cli_bounds_to_stdout_writes_no_file_named_dash(bed, tmp_path):

@@ -92,7 +92,7 @@ def run(args):
             check_rtol(args.rtol, "--rtol")
         if args.output is not None:   # -o '' is an error, not "no output"
             check_output(args.output, inputs=[args.bed], allow_stdout=True)
-        if args.vtu:
+        if args.vtu is not None:   # --vtu '' is an error too
             check_output_dir(args.vtu)
         return None if args.max_memory is None else parse_size(args.max_memory)
 

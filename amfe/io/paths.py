@@ -85,6 +85,8 @@ def check_output_dir(path, *, option="--vtu"):
     """
     path = os.fspath(path)
     what = f"{option} {path}"
+    if path == "":
+        raise AmfeError(f"{option} needs a directory name, got ''")
     if os.path.exists(path):
         if not os.path.isdir(path):
             raise AmfeError(f"cannot write {what}: it exists and is not a directory")
