@@ -23,13 +23,20 @@ The face (imported lazily: ``import amfe`` pulls in neither PETSc nor torch):
   images (:mod:`amfe.training`).
 - :class:`AmfeError`: every error meant for a user.
 
+Under mpirun, an exception that no one catches on one rank of a script ends every
+rank (MPI_Abort after the traceback; :func:`amfe.io.mpi.abort_on_uncaught`) instead of
+leaving the others waiting in amfe's next collective.
+
 Layers, bottom to top (README, Layout): amfe.errors/vocab, amfe.model,
 amfe.io, amfe.solvers, amfe.dataset, amfe.training, then this face and
 amfe.cli. docs/model.md holds the physics and the conventions.
 """
 import importlib
 
+from amfe.io.mpi import abort_on_uncaught
 from amfe.version import __version__
+
+abort_on_uncaught()   # under mpirun, an uncaught exception on one rank ends every rank
 
 _FACE = {
     "Bed": "amfe.model.bed", "generate_bed": "amfe.model.bed",

@@ -10,7 +10,7 @@ from dataclasses import replace
 
 from amfe.errors import AmfeError
 from amfe.io.console import messages
-from amfe.io.mpi import on_root
+from amfe.io.mpi import on_root, same_on_every_rank
 from amfe.io.result import Result  # noqa: F401 - the type homogenize returns
 from amfe.io.result_meta import describe_input
 from amfe.io.vtu import write_fields_vtu
@@ -111,6 +111,10 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
     check_choice("bc", bc, BC_NAMES + ("all",))
     pcomm = petsc_comm(comm)
     mpi = pcomm.tompi4py()
+    # Collective, before the first collective that depends on them: a path on one rank and
+    # a Bed on another would pair on_root's bcast with the input check's allgather.
+    same_on_every_rank(mpi, {"bed": repr(os.fspath(bed)) if isinstance(bed, (str, os.PathLike))
+                             else "an amfe.Bed or arrays", "max_memory": repr(max_memory)})
     options = error = None
     try:  # a failure here on one rank only must still reach the collective check
         options = SolveOptions(

@@ -4,7 +4,8 @@ Everything that can be refused is refused here, before the frame is built
 or PETSc assembles anything. The bed (:class:`amfe.model.bed.Bed`) and the
 options (:class:`amfe.model.options.SolveOptions`) were checked when they were
 made; here what needs both or PETSc: the periodic box the condition may need,
-the material, -ksp_rtol in (0, 1), the a* cap's range, then that every rank holds the same of all of it
+the material, -ksp_rtol in (0, 1), the a* cap's range, then that every rank
+holds the same of all of it (max_memory included)
 (:func:`amfe.solvers.consistency.agree_across_ranks`, one collective), then
 the memory the solve would take against the limit summed over the machines
 (:mod:`amfe.model.memory`).

@@ -19,9 +19,9 @@ writes an output (amfe.dataset.lock). A bed that fails is recorded as failed
 with its reason; more than F of them failed makes the exit status 2. File
 layout: amfe.dataset.datafile.
 """
-import os
 import sys
 
+from amfe.cli.interrupt import launcher_rank
 from amfe.cli.options import add_solver_args
 from amfe.errors import AmfeError
 from amfe.model.scales import SCALES
@@ -178,7 +178,4 @@ def _world_rank():
     mpi = sys.modules.get("mpi4py.MPI")
     if mpi is not None:
         return mpi.COMM_WORLD.rank
-    for var in ("OMPI_COMM_WORLD_RANK", "PMI_RANK", "PMIX_RANK"):
-        if os.environ.get(var, "").isdigit():
-            return int(os.environ[var])
-    return 0
+    return launcher_rank()
