@@ -3,7 +3,7 @@
 Everything that can be refused is refused here, before the frame is built
 or PETSc assembles anything: the arrays (:func:`amfe.model.bonds.validate_particles`),
 the material, the boundary condition (and the periodic box it may need),
-rtol and -ksp_rtol (both in (0, 1)),
+rtol and -ksp_rtol (both in (0, 1), and never both: :func:`check_no_override`),
 max_it, the a* cap's range, then that every rank holds the same of all of it
 (:func:`amfe.solvers.consistency.agree_across_ranks`, one collective), then
 the memory the solve would take against the limit summed over the machines
@@ -32,17 +32,48 @@ def check_rtol(value, name="rtol"):
     return rtol
 
 
+def petsc_value(PETSc, ksp_options, name):
+    """The value of PETSc option ``name`` for this solve: from ``ksp_options`` (with or without
+    the dash), else the options database (the command line's); None when neither sets it."""
+    options = {k.lstrip("-"): v for k, v in (ksp_options or {}).items()}
+    if name in options:
+        return options[name]
+    return PETSc.Options().getString(name) if PETSc.Options().hasName(name) else None
+
+
+# amfe's argument -> (the PETSc option that would silently override it: make_ksp sets the
+# argument, then KSPSetFromOptions reads the option over it; where the argument is given;
+# what it sets)
+OVERRIDDEN_BY = {"rtol": ("ksp_rtol", "--rtol, or rtol= in Python", "tolerance"),
+                 "max_it": ("ksp_max_it", "max_it= in Python", "iteration limit")}
+
+
+def check_no_override(PETSc, ksp_options, **given):
+    """AmfeError when an argument of ``given`` (rtol, max_it; None: not given) comes with the
+    PETSc option that would replace it (-ksp_rtol, -ksp_max_it): one number, two sources.
+
+    The PETSc option alone is honoured (and the rtol used is in the result's
+    solver record); the argument alone too; both are refused, naming both.
+    """
+    for arg, value in given.items():
+        option, where, what = OVERRIDDEN_BY[arg]
+        theirs = petsc_value(PETSc, ksp_options, option)
+        if value is not None and theirs is not None:
+            raise AmfeError(f"{arg} {value:g} ({where}) and -{option} {theirs} both set the "
+                            f"solves' {what}, and PETSc's would silently override amfe's: give "
+                            "only one of them")
+
+
 def _check_options(PETSc, ksp_options, rtol, max_it):
     if rtol is not None:
         check_rtol(rtol)
-    given = (ksp_options or {}).get("ksp_rtol", (ksp_options or {}).get("-ksp_rtol"))
-    if given is None and PETSc.Options().hasName("ksp_rtol"):
-        given = PETSc.Options().getString("ksp_rtol")
+    given = petsc_value(PETSc, ksp_options, "ksp_rtol")
     if given is not None:
         check_rtol(given, "-ksp_rtol")
     if max_it is not None and (isinstance(max_it, bool)
                                or not isinstance(max_it, (int, np.integer)) or max_it < 1):
         raise AmfeError(f"max_it must be a positive integer, got {max_it!r}")
+    check_no_override(PETSc, ksp_options, rtol=rtol, max_it=max_it)
 
 
 def checked_inputs(PETSc, mpi, centers, radii, material, *, bcs, bc, rtol, max_it, a_star_cap,
