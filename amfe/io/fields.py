@@ -101,11 +101,6 @@ class Fields:
         return int(self.bonds.shape[0])
 
 
-def _origin(frame):
-    """(3,) [m]: the input position of the frame's zero (None on frames made without one)."""
-    return 0.0 if frame.origin is None else frame.origin
-
-
 def frame_fields(frame, u, groups, bc="kubc", centers=None, radii=None, strains=None):
     """The :class:`Fields` of a solved frame.
 
@@ -150,7 +145,7 @@ def frame_fields(frame, u, groups, bc="kubc", centers=None, radii=None, strains=
     subc = bc == "subc"
     return Fields(
         particle_id=ids,
-        centers=(frame.centers[order] * L + _origin(frame) if centers is None
+        centers=(frame.centers[order] * L + frame.origin if centers is None
                  else np.asarray(centers, float)[ids]),
         radii=frame.radii[order] * L if radii is None else np.asarray(radii, float)[ids],
         bonds=np.stack([rank[b.i], rank[b.j]], axis=1).astype(np.int64),

@@ -8,7 +8,7 @@ all O(1) instead of ~1e5 N/m against ~1e-5 N m, which keeps the global matrix
 well scaled for the iterative solver and makes results independent of the
 caller's unit system.
 """
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.sparse import coo_matrix
@@ -52,7 +52,7 @@ class Frame:
     material: Material
     box: np.ndarray = None
     shift: np.ndarray = None
-    origin: np.ndarray = None
+    origin: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
     @property
     def n_particles(self):
