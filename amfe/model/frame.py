@@ -187,7 +187,7 @@ def frame_origin(centers):
 
     The constants do not depend on where a bed lies, but float64 arithmetic on
     positions far from zero does (x - x_c, the Bagi sums, the hull): a bed
-    translated by 1e7 m lost 2e-4 of its Poisson ratios that way
+    translated by 1e7 m moved its constants by 2e-4 that way
     (docs/hard_cases.md). So along an axis where every centre lies at least
     :data:`FAR` extents from zero, the origin is the middle m of the centres'
     range; every centre c then lies in [m/2, 2m] and c - m is exact
