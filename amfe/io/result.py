@@ -95,8 +95,7 @@ class Result:
         try:
             write_json(path, self.to_dict())
         except OSError as exc:
-            raise AmfeError(f"Result.to_json: cannot write {os.fspath(path)}: "
-                            f"{exc.strerror or exc}") from None
+            raise AmfeError(f"cannot write {os.fspath(path)}: {exc.strerror or exc}") from None
 
     def write_vtp(self, directory):
         """ParaView files: ``case_<name>.vtp`` per load case and ``cases.pvd`` in ``directory``.
