@@ -235,6 +235,12 @@ def test_check_fit_against_the_mean_by_hand():
     off[:, 5] = labels[:, 5] + 2 * (mean[:, 5] - labels[:, 5])   # error x 4 on nu_xy
     with pytest.raises(AmfeError, match="nu_xy is 4 times that of predicting the training mean"):
         check_fit(off, labels, norm, 1e-3)
+    # two validation beds at the training mean: any model is "worse than the mean" there,
+    # but an error of half a training standard deviation is no divergence (a warning)
+    near, warned = mean[:2], []
+    model = norm.decode(norm.encode(near).double() + 0.5).numpy()
+    ratios = check_fit(model, near, norm, 1e-3, warned.append)
+    assert min(ratios) > 1e3 and len(warned) == 1 and "not learned" in warned[0]
     with pytest.raises(AmfeError, match="predictions of 1 validation beds are not finite"):
         check_fit(np.where(np.arange(50)[:, None] == 3, np.nan, mean), labels, norm, 1e-3)
 
