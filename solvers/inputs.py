@@ -4,7 +4,8 @@ Everything that can be refused is refused here, before the frame is built
 or PETSc assembles anything. The bed (:class:`amfe.model.bed.Bed`) and the
 options (:class:`amfe.model.options.SolveOptions`) were checked when they were
 made; here what needs both or PETSc: the periodic box the condition may need,
-the material, -ksp_rtol in (0, 1), the a* cap's range, then that every rank
+the material, -ksp_rtol in (0, 1) and never with rtol (:func:`check_no_override`),
+the a* cap's range, then that every rank
 holds the same of all of it (max_memory included)
 (:func:`amfe.solvers.consistency.agree_across_ranks`, one collective), then
 the memory the solve would take against the limit summed over the machines
@@ -28,12 +29,43 @@ from amfe.solvers.petsclib import PETSc
 Inputs = namedtuple("Inputs", "options material record box check_memory")
 
 
-def _check_ksp_rtol(ksp_options):
-    given = ksp_options.get("ksp_rtol", ksp_options.get("-ksp_rtol"))
-    if given is None and PETSc.Options().hasName("ksp_rtol"):
-        given = PETSc.Options().getString("ksp_rtol")
+def petsc_value(ksp_options, name):
+    """The value of PETSc option ``name`` for this solve: from ``ksp_options`` (with or without
+    the dash), else the options database (the command line's); None when neither sets it."""
+    options = {k.lstrip("-"): v for k, v in (ksp_options or {}).items()}
+    if name in options:
+        return options[name]
+    return PETSc.Options().getString(name) if PETSc.Options().hasName(name) else None
+
+
+# amfe's argument -> (the PETSc option that would silently override it: make_ksp sets the
+# argument, then KSPSetFromOptions reads the option over it; where the argument is given;
+# what it sets)
+OVERRIDDEN_BY = {"rtol": ("ksp_rtol", "--rtol, or rtol= in Python", "tolerance"),
+                 "max_it": ("ksp_max_it", "max_it= in Python", "iteration limit")}
+
+
+def check_no_override(ksp_options, **given):
+    """AmfeError when an argument of ``given`` (rtol, max_it; None: not given) comes with the
+    PETSc option that would replace it (-ksp_rtol, -ksp_max_it): one number, two sources.
+
+    The PETSc option alone is honoured (and the rtol used is in the result's
+    solver record); the argument alone too; both are refused, naming both.
+    """
+    for arg, value in given.items():
+        option, where, what = OVERRIDDEN_BY[arg]
+        theirs = petsc_value(ksp_options, option)
+        if value is not None and theirs is not None:
+            raise AmfeError(f"{arg} {value:g} ({where}) and -{option} {theirs} both set the "
+                            f"solves' {what}, and PETSc's would silently override amfe's: give "
+                            "only one of them")
+
+
+def _check_options(options):
+    given = petsc_value(options.ksp_options, "ksp_rtol")
     if given is not None:
         check_rtol(given, "-ksp_rtol")
+    check_no_override(options.ksp_options, rtol=options.rtol, max_it=options.max_it)
 
 
 def _material(bed, options):
@@ -74,7 +106,7 @@ def checked_inputs(mpi, bed, options, bcs, input_error=None):
         if bcs[options.bc].periodic and box is None:
             raise AmfeError(NOT_PERIODIC)
         material, record = _material(bed, options)
-        _check_ksp_rtol(options.ksp_options)
+        _check_options(options)
         if options.a_star_cap is not None:
             check_a_star_cap(options.a_star_cap, material)
         error = None

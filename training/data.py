@@ -108,7 +108,8 @@ def dataset_info(path, inputs=DEFAULT_INPUTS):
     """Rows usable for training and the file's image attributes.
 
     Returns {path, n_rows, ok (int64 array of row numbers with status 0 and
-    finite labels), image_shape [channels, H, W] of the network input
+    finite labels), ok_nonfinite (those with status 0 but a non-finite label:
+    a corrupt record, which training refuses), image_shape [channels, H, W] of the network input
     (channels = layers x number of input kinds), inputs, and the root
     attributes in :data:`IMAGE_ATTRS` that exist, as plain Python values}.
     AmfeError if the file lacks an image kind of ``inputs``.
@@ -118,9 +119,11 @@ def dataset_info(path, inputs=DEFAULT_INPUTS):
         _require_inputs(f, path, inputs)
         status = f["status"][()]
         labels = f["labels"][()]
-        ok = np.flatnonzero((status == STATUS_OK) & np.all(np.isfinite(labels), axis=1))
+        finite = np.all(np.isfinite(labels), axis=1)
+        ok = np.flatnonzero((status == STATUS_OK) & finite)
         layers, H, W = (int(s) for s in f["images"].shape[1:])
         info = {"path": os.fspath(path), "n_rows": int(status.shape[0]), "ok": ok,
+                "ok_nonfinite": np.flatnonzero((status == STATUS_OK) & ~finite),
                 "image_shape": [layers * len(inputs), H, W], "inputs": list(inputs)}
         for key in IMAGE_ATTRS:
             if key in f.attrs and key != "image_shape":

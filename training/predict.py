@@ -105,7 +105,11 @@ class Surrogate:
 
     def member_outputs(self, images, batch_size=None):
         """Raw predictions of every member, float64 array (members, n, 6)."""
-        x = torch.as_tensor(np.asarray(images, np.float32))
+        try:
+            x = torch.as_tensor(np.asarray(images, np.float32))
+        except (TypeError, ValueError) as exc:
+            raise AmfeError(f"images must be an array of numbers (n, layers, H, W), got "
+                            f"{type(images).__name__} ({exc})") from None
         if x.ndim == 3:
             x = x.unsqueeze(0)
         if x.ndim != 4:
@@ -119,18 +123,21 @@ class Surrogate:
     def predict(self, images, batch_size=None):
         """Predict the six constants of beds or of their images.
 
-        ``images``: a :class:`~amfe.model.bed.Bed`, a bed file's path, or inputs
-        (n, channels, H, W) (the image kinds of ``self.inputs`` stacked). Returns
-        {mean (n, 6), spread (n, 6) relative, score (n,), fill (n,), fill_out
-        (n,) bool, nonfinite (n,) bool, flagged (n,) bool}, the six in label
-        order (Ex, Ey, Ez [Pa], nu_yz, nu_xz, nu_xy); flagged = spread over the
-        threshold, fill_out, or a member's prediction not finite (NaN, inf).
+        ``images``: a :class:`~amfe.model.bed.Bed`, a bed file's path, a list of
+        them (a batch: row k is bed k), or inputs (n, channels, H, W) (the
+        image kinds of ``self.inputs`` stacked). Returns {mean (n, 6), spread
+        (n, 6) relative, score (n,), fill (n,), fill_out (n,) bool, nonfinite
+        (n,) bool, flagged (n,) bool}, the six in label order (Ex, Ey, Ez [Pa],
+        nu_yz, nu_xz, nu_xy); flagged = spread over the threshold, fill_out, or
+        a member's prediction not finite (NaN, inf).
         """
-        if isinstance(images, (str, os.PathLike)):
-            from amfe.io.bedfile import read_bed
-            images = read_bed(images)
-        if hasattr(images, "centers"):
-            return self.predict_bed(images)[0]
+        if _is_bed(images):
+            return self.predict_bed(_read(images))[0]
+        if isinstance(images, (list, tuple)) and any(_is_bed(b) for b in images):
+            if not all(_is_bed(b) for b in images):
+                raise AmfeError("predict takes a bed, a bed file, a list of those, or an image "
+                                "array; got a list mixing beds with other things")
+            images = np.stack([self.inputs_of(_read(b))[0] for b in images])
         members = self.member_outputs(images, batch_size)
         res = summarize_members(members, self.spread_scale, self.threshold)
         x = np.asarray(images)
@@ -171,6 +178,18 @@ class Surrogate:
         res = self.predict(x[None])
         times["predict"] = time.perf_counter() - t2
         return res, image, times
+
+
+def _is_bed(item):
+    """True for what :meth:`Surrogate.predict` takes as one bed: a Bed or a bed file's path."""
+    return isinstance(item, (str, os.PathLike)) or hasattr(item, "centers")
+
+
+def _read(item):
+    if isinstance(item, (str, os.PathLike)):
+        from amfe.io.bedfile import read_bed
+        return read_bed(item)
+    return item
 
 
 TTA_MODES = ("none", "flips", "d4")

@@ -28,9 +28,10 @@ from amfe.training import AUGMENTATIONS, LOSSES, SCHEDULES
 from amfe.training.checkpoint import check_image_shape
 from amfe.training.device import device_of, resolve_device
 from amfe.training.finetune import check_data, load_init, widened_fill_range
+from amfe.training import guards
 from amfe.training.data import (DEFAULT_INPUTS, BedDataset, Normalizer, augment_batch, check_inputs,
                    dataset_hash, dataset_info, read_rows, split_indices)
-from amfe.training.metrics import metrics_line, property_metrics
+from amfe.training.metrics import metrics_line, property_metrics, validation_metrics
 from amfe.training.nets import build_net, count_parameters, resolved_args
 from amfe.training.predict import calibrate_fill, predict_raw, tta_mode
 
@@ -190,6 +191,8 @@ def train_member(train_ds, val, norm, cfg, image_shape, seed, report=Report(), i
                 m = property_metrics(pred.numpy(), val_labels)
                 hist["val_mre"].append([m[n]["mre"] for n in LABEL_NAMES])
             hist["epoch_seconds"].append(time.perf_counter() - t0)
+            guards.check_epoch(label, epoch + 1, hist["train_loss"][-1],
+                               hist["val_loss"][-1] if vz is not None else None, cfg.lr)
             line = f"epoch {epoch + 1:3d}/{cfg.epochs} loss {hist['train_loss'][-1]:.4g}"
             if vz is not None:
                 line += (f" val {hist['val_loss'][-1]:.4g} | val err % " + " ".join(
@@ -231,6 +234,7 @@ def train_model(data_path, cfg, progress=True, log=print):
     if ok.size < 1:
         raise AmfeError(f"{data_path}: no usable record (status ok, finite labels); nothing to "
                         "train on")
+    guards.check_ok_records(data_path, info["ok_nonfinite"])
     if cfg.arch == "multiscale":   # its hole maps read the fill layers only
         cfg.arch_args = {"n_fill": n_fill, **cfg.arch_args}
     train_rows, val_rows = split_indices(ok, cfg.val_fraction, cfg.split_seed)
@@ -241,6 +245,9 @@ def train_model(data_path, cfg, progress=True, log=print):
     train_ds = BedDataset(data_path, train_rows, in_memory=in_memory, inputs=cfg.inputs)
     train_images, train_labels = read_rows(data_path, train_rows, cfg.inputs)
     val_images, val_labels = read_rows(data_path, val_rows, cfg.inputs)
+    for rows, images, labels in ((train_rows, train_images, train_labels),
+                                 (val_rows, val_images, val_labels)):
+        guards.check_data(data_path, rows, images, labels, n_fill)
     # log space for the moduli (a relative error is what counts), and for the Poisson ratios
     # asked for: nu_xy spans 0.03-0.37 on `small` beds, and in log space its held-out error
     # fell from 7.06 to 6.48 % (docs/surrogate_scaling.md, "Poisson ratios in log space")
@@ -265,6 +272,8 @@ def train_model(data_path, cfg, progress=True, log=print):
         net, hist = train_member(train_ds, (val_images, val_labels), norm, cfg, image_shape, seed,
                                  Report(progress, log, label),
                                  init_state=start["states"][k] if start else None)
+        if not len(val_rows):   # no validation: the last epoch's loss against the mean's
+            guards.check_train_loss(label, hist["train_loss"][-1], train_labels, norm, cfg)
         nets.append(net)
         hists.append(hist)
         msg = f"{label}: trained in {hist['seconds']:.1f} s"
@@ -308,8 +317,7 @@ def train_model(data_path, cfg, progress=True, log=print):
             ckpt["spread"] = calibrate_spread(members, cfg.flag_percentile)
         sur = Surrogate(ckpt, "the new model")
         res = sur.predict(val_images)
-        ckpt["metrics"]["validation"] = property_metrics(res["mean"], val_labels)
-        ckpt["metrics"]["validation"]["flagged_fraction"] = float(np.mean(res["flagged"]))
+        ckpt["metrics"]["validation"] = validation_metrics(res, val_labels, norm, cfg.lr, log)
         log("validation (ensemble mean): mean rel. error % "
             + metrics_line(ckpt["metrics"]["validation"]) + " | R^2 "
             + metrics_line(ckpt["metrics"]["validation"], "r2", 1.0, "{:.4f}"))

@@ -92,7 +92,9 @@ def run(args):
     from amfe.dataset.plan import DEFAULT_MAX_FAILED_SHARE
     from amfe.solvers.petsc import init_petsc
 
-    init_petsc(args.petsc_args)
+    if init_petsc(args.petsc_args).Options().hasName("ksp_rtol"):   # every rank alike
+        raise AmfeError("-ksp_rtol would silently override the tolerance the data set records "
+                        "(--rtol, or its default); give the tolerance as --rtol")
     run_dataset(args.output, args.count, seed=args.seed, scale=args.scale,
                 ranks_per_bed=args.ranks_per_bed,
                 rtol=args.rtol, solver=args.solver, progress=not args.no_progress,

@@ -20,6 +20,7 @@ import numpy as np
 
 from amfe.model.bed import Bed
 from amfe.model.bonds import check_shapes
+from amfe.model.material import check_material_names
 from amfe.model.memory import READ_BYTES, check_memory
 from amfe.model.torus import check_box
 from amfe.io.atomic import atomic_write
@@ -132,7 +133,9 @@ def check_attrs(attrs, path="the bed"):
 
     Reals must be finite real numbers, counts (seed, n_*) integers in
     [0, 2**64), size three positive lengths [m], enlargement two factors,
-    and generator, amfe_version, units, scan text.
+    and generator, amfe_version, units, scan text; and no attribute may look
+    like the material without being spelt as amfe reads it
+    (:func:`amfe.model.material.check_material_names`: material_e, E).
     """
     def bad(key, want):
         value = attrs[key]
@@ -157,6 +160,7 @@ def check_attrs(attrs, path="the bed"):
     for key in TEXT_ATTRS:
         if key in attrs and not isinstance(attrs[key], str):
             bad(key, "text")
+    check_material_names(attrs, path)
 
 
 def read_bed(path, max_memory=None) -> Bed:

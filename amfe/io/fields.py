@@ -146,7 +146,8 @@ def frame_fields(frame, u, groups, bc="kubc", centers=None, radii=None, strains=
     subc = bc == "subc"
     return Fields(
         particle_id=ids,
-        centers=frame.centers[order] * L if centers is None else np.asarray(centers, float)[ids],
+        centers=(frame.centers[order] * L + frame.origin if centers is None
+                 else np.asarray(centers, float)[ids]),
         radii=frame.radii[order] * L if radii is None else np.asarray(radii, float)[ids],
         bonds=np.stack([rank[b.i], rank[b.j]], axis=1).astype(np.int64),
         a_star=np.asarray(b.a_star, dtype=float),

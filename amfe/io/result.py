@@ -6,6 +6,7 @@
 conventions), then the constants and the solver record; it follows the
 shipped JSON Schema. Arrays are numpy; units are SI (Pa, 1/Pa, m^3, m, N).
 """
+import os
 from dataclasses import dataclass, field, fields as dc_fields
 
 import numpy as np
@@ -79,8 +80,22 @@ class Result:
         return d
 
     def to_json(self, path):
-        """Write :meth:`to_dict` to ``path`` atomically (a reader never sees half a file)."""
-        write_json(path, self.to_dict())
+        """Write :meth:`to_dict` to ``path`` atomically (a reader never sees half a file).
+
+        AmfeError, naming the path, for a directory, a path that is not a
+        file name, and one that cannot be written (no permission, no such
+        directory and none can be made, a full disk).
+        """
+        if not isinstance(path, (str, os.PathLike)) or os.fspath(path) in ("", b""):
+            raise AmfeError(f"Result.to_json: path must be a file name (str or path-like), got "
+                            f"{type(path).__name__} {path!r}")
+        if os.path.isdir(path):
+            raise AmfeError(f"Result.to_json: {os.fspath(path)} is a directory; give a file name "
+                            f"(e.g. {os.path.join(os.fspath(path), 'result.json')})")
+        try:
+            write_json(path, self.to_dict())
+        except OSError as exc:
+            raise AmfeError(f"cannot write {os.fspath(path)}: {exc.strerror or exc}") from None
 
     def write_vtu(self, directory):
         """ParaView files: ``case_<name>.vtu`` per load case, ``cases.json`` and ``cases.pvd``.

@@ -95,7 +95,7 @@ def homogenize_header(frame, centers, radii, material):
     n_lost = 0
     if removed.sum() > 1:
         scale = frame.length_scale
-        n_lost = find_pairs(np.asarray(centers)[removed] / scale,
+        n_lost = find_pairs((np.asarray(centers)[removed] - frame.origin) / scale,
                             np.asarray(radii)[removed] / scale)[0].size
     out["counts"].update(particles_kept=int(frame.n_particles),
                          bonds_input=int(len(frame.bonds) + n_lost),

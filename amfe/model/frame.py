@@ -8,7 +8,7 @@ all O(1) instead of ~1e5 N/m against ~1e-5 N m, which keeps the global matrix
 well scaled for the iterative solver and makes results independent of the
 caller's unit system.
 """
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.sparse import coo_matrix
@@ -32,7 +32,9 @@ class Frame:
     n_capped: bonds whose a* was capped; length_scale [m]; force_scale [N].
     A periodic frame (docs/model.md, section 9) also has box (3,) [length_scale]:
     the periods, and shift (M,3) int: bond b joins i to the image of j at
-    x_j + shift_b * box; both are None otherwise.
+    x_j + shift_b * box; both are None otherwise. origin (3,) [m]: where the
+    frame's zero lies in the input's coordinates (:func:`frame_origin`):
+    input centre = centers * length_scale + origin.
     """
 
     centers: np.ndarray
@@ -50,6 +52,7 @@ class Frame:
     material: Material
     box: np.ndarray = None
     shift: np.ndarray = None
+    origin: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
     @property
     def n_particles(self):
@@ -124,7 +127,8 @@ def build_frame(centers, radii, material: Material = STEEL, a_star_cap=None, non
     centers, radii = np.asarray(centers, float), np.asarray(radii, float)  # checked (a Bed's)
     n_input = centers.shape[0]
     length = float(radii.mean()) if nondimensional else 1.0
-    x = centers / length
+    origin = np.zeros(3) if box is not None else frame_origin(centers)
+    x = (centers - origin) / length
     r = radii / length
 
     if box is None:
@@ -170,7 +174,31 @@ def build_frame(centers, radii, material: Material = STEEL, a_star_cap=None, non
     return Frame(centers=x, radii=r, kept=kept, bonds=bonds, k_n=k_n, k_t=k_t,
                  kappa_n=kappa_n, kappa_t=kappa_t, n_input=n_input, n_capped=n_capped,
                  length_scale=length, force_scale=material.E / E * length**2, material=material,
-                 box=L, shift=shift)
+                 box=L, shift=shift, origin=origin)
+
+
+FAR = 4.0
+"""A bed is built about its own middle along an axis where it lies at least this many of its
+own extents from zero (closer, positions near zero lose at most a few bits anyway)."""
+
+
+def frame_origin(centers):
+    """(3,) [m]: the origin the frame is built about, so that centre - origin is exact.
+
+    The constants do not depend on where a bed lies, but float64 arithmetic on
+    positions far from zero does (x - x_c, the Bagi sums, the hull): a bed
+    translated by 1e7 m moved its constants by 2e-4 that way
+    (docs/hard_cases.md). So along an axis where every centre lies at least
+    :data:`FAR` extents from zero, the origin is the middle m of the centres'
+    range; every centre c then lies in [m/2, 2m] and c - m is exact
+    (Sterbenz's lemma): the frame is that of the stored coordinates. Along
+    the other axes it is 0, so a bed at or around zero (a generated one, in
+    [0, L]) keeps the very numbers of before.
+    """
+    lo, hi = centers.min(axis=0), centers.max(axis=0)
+    near = np.where(lo > 0, lo, np.where(hi < 0, -hi, 0.0))   # the smallest |c| per axis
+    far = (near > 0) & (near >= FAR * (hi - lo))
+    return np.where(far, lo + (hi - lo) / 2, 0.0)
 
 
 def _check_winding(n, i, j, shift):
