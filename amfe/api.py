@@ -111,6 +111,7 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
                                                         material_source or "argument")
     except AmfeError as exc:
         error = exc
+    size = (getattr(bed, "attrs", None) or {}).get("size")  # V's box (docs/model.md, section 5)
 
     def one(bc, vtu_dir):
         d = homogenize_bed(centers, radii, material, a_star_cap=a_star_cap, rtol=rtol,
@@ -118,7 +119,7 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
                            ksp_options=petsc_options, bc=bc, diagnose=diagnose,
                            progress=progress, fields=fields, box=box,
                            accept_unconverged=accept_unconverged, max_memory=max_memory,
-                           material_source=source, input_error=error)
+                           material_source=source, input_error=error, size=size)
         describe_input(d, input_path)
         return Result.from_dict(d, fields=d.pop("fields", None))
     if bc != "all":

@@ -13,6 +13,7 @@ from collections import namedtuple
 
 import numpy as np
 
+from amfe.model.carrying import removed_warning
 from amfe.model.frame import build_frame
 from amfe.model.averages import (asymmetry, bagi_strain, compliance_and_constants, hull_of,
                              stiffness, symmetric, voigt, voigt_strain)
@@ -51,11 +52,11 @@ def bagi_average(frame, groups, u, moments, diagnose=False, cross=None):
     strains, stresses, stress_asym = [], [], []
     for k in range(6):
         strains.append(voigt_strain(bagi_strain(hull, u[k][:, :3])))
-        sigma = moments[k] / hull.volume
+        sigma = moments[k] / frame.volume  # V: the bed's box; the strain stays the hull's
         stress_asym.append(asymmetry(sigma))
         stresses.append(voigt(symmetric(sigma)))
     C, c_asym = stiffness(np.array(strains), np.array(stresses))
-    return C, hull.volume, {"stress_asymmetry": float(max(stress_asym)),
+    return C, frame.volume, {"stress_asymmetry": float(max(stress_asym)),
                             "C_asymmetry": float(c_asym), **stats}
 
 
@@ -73,7 +74,7 @@ def homogenize_bed(centers, radii, material=None, *, a_star_cap=None, rtol=None,
                    max_it=None, vtu_dir=None, comm=None, petsc_args=None, ksp_options=None,
                    nondimensional=True, bc="kubc", diagnose=False, progress=False, fields=False,
                    solver="gamg", box=None, accept_unconverged=False, max_memory=None,
-                   material_source=None, input_error=None):
+                   material_source=None, input_error=None, size=None):
     """Effective elastic constants of a bed of bonded spheres.
 
     bc: "kubc" (default; six unit macro-strains on the boundary, one operator),
@@ -120,6 +121,8 @@ def homogenize_bed(centers, radii, material=None, *, a_star_cap=None, rtol=None,
     refused before any work. ``input_error``: an AmfeError the caller met
     preparing this rank's input, raised on every rank after the ranks are
     compared (so that no rank waits in a collective).
+    ``size`` (3,) [m]: the bed's recorded box (attrs ``size``), whose volume is V
+    (default: the spheres' bounding box; docs/model.md, section 5).
     Raises AmfeError on every rank for bad input or a failed solve.
     """
     PETSc = init_petsc(petsc_args)
@@ -137,7 +140,7 @@ def homogenize_bed(centers, radii, material=None, *, a_star_cap=None, rtol=None,
     t0 = time.perf_counter()
     log = _stderr_log(mpi.rank) if progress else None
     frame = build_frame(centers, radii, material, a_star_cap, nondimensional=nondimensional,
-                        box=box if BOUNDARY_CONDITIONS[bc].periodic else None)
+                        box=box if BOUNDARY_CONDITIONS[bc].periodic else None, bc=bc, size=size)
     t_frame = time.perf_counter() - t0
     groups = BOUNDARY_CONDITIONS[bc].groups(frame)
     # the same on every rank: rank 0 decides (qhull, ~0.06 s on 300 000 centres)
@@ -212,6 +215,7 @@ def _average(frame, groups, sol, bc, a_star_cap, ranks, t_frame, vtu_dir, diagno
         "volume": float(volume * frame.length_scale**3),
         "n_particles": int(frame.n_input),
         "n_removed": int(frame.n_removed),
+        "removed": frame.removed,
         "n_bonds": int(len(frame.bonds)),
         "bc": bc,
         "ranks": int(ranks),
@@ -228,7 +232,7 @@ def _average(frame, groups, sol, bc, a_star_cap, ranks, t_frame, vtu_dir, diagno
             **stats,
         },
         "material": material,
-        "warnings": list(warnings),
+        "warnings": list(warnings) + removed_warning(frame.removed, bc),
     }
     result = {**homogenize_header(frame, bed[0], bed[1], material), **result}
     if sol.notes:

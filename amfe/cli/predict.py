@@ -111,7 +111,8 @@ def run(args):
         from amfe.solvers.petsc import init_petsc
         init_petsc(args.petsc_args)
         t = time.perf_counter()
-        solver = homogenize_bed(bed.centers, bed.radii, bed.material())
+        solver = homogenize_bed(bed.centers, bed.radii, bed.material(),
+                                size=bed.attrs.get("size"))
         times["solve"] = time.perf_counter() - t
     rank = comm.rank if comm is not None else _launcher_rank()
 

@@ -82,7 +82,7 @@ def make_record(k, dataset_seed, scale, group, rtol=DEFAULT_RTOL, pixelate=None,
         t2 = time.perf_counter()
         try:
             res = homogenize_bed(bed.centers, bed.radii, bed.material(), comm=group, rtol=rtol,
-                                 solver=solver, bc=bc)
+                                 solver=solver, bc=bc, size=bed.attrs["size"])
         except Exception as exc:  # noqa: BLE001
             err = _reason(exc)
         rec["seconds"][2] = time.perf_counter() - t2
