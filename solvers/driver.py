@@ -13,7 +13,7 @@ from collections import namedtuple
 
 import numpy as np
 
-from amfe.model.carrying import removed_warning
+from amfe.model.carrying import frame_warnings
 from amfe.model.frame import build_frame
 from amfe.model.averages import (asymmetry, bagi_strain, compliance_and_constants, hull_of,
                              stiffness, symmetric, voigt, voigt_strain)
@@ -232,7 +232,7 @@ def _average(frame, groups, sol, bc, a_star_cap, ranks, t_frame, vtu_dir, diagno
             **stats,
         },
         "material": material,
-        "warnings": list(warnings) + removed_warning(frame.removed, bc),
+        "warnings": list(warnings) + frame_warnings(frame, bc),
     }
     result = {**homogenize_header(frame, bed[0], bed[1], material), **result}
     if sol.notes:

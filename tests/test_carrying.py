@@ -76,7 +76,7 @@ def test_two_separate_blocks_both_carry_under_kubc(axis):
     assert np.abs(np.array(res["C"]) - C_ref).max() < 1e-8 * np.abs(C_ref).max()
     assert res["n_removed"] == 0 and res["removed"]["components"] == 0
     # V is the box of all the spheres, gap included
-    assert res["volume"] == pytest.approx(np.prod(bed_box(x, r)), rel=1e-12)
+    assert res["volume"] == pytest.approx(np.prod(bed_box(x, r)[0]), rel=1e-12)
     assert res["warnings"] == []
 
 
@@ -104,7 +104,7 @@ def test_two_blocks_joined_by_a_track_are_one_frame_under_every_condition():
     C_ref = kubc_stiffness_scipy(fr)[0] * fr.stress_scale
     assert np.abs(np.array(kubc["C"]) - C_ref).max() < 1e-8 * np.abs(C_ref).max()
     assert energy_gap(np.array(kubc["C"]), np.array(subc["C"])) >= -1e-9
-    assert kubc["volume"] == subc["volume"] == pytest.approx(np.prod(bed_box(x, r)))
+    assert kubc["volume"] == subc["volume"] == pytest.approx(np.prod(bed_box(x, r)[0]))
 
 
 # --------------------------------------------------------------------------- #
@@ -181,12 +181,17 @@ def test_boundary_pieces_on_one_line_are_not_held():
         build_frame(*bed([[0, 0, 0], [S, 0, 0]], [[0, 5 * S, 0], [S, 5 * S, 0]]))
 
 
-def test_recorded_size_is_the_volume_and_must_hold_the_bed():
+def test_recorded_size_is_the_volume_where_it_holds_the_bed():
+    """A size too small for the load-carrying centres (a bed edited after generation, e.g.
+    two copies under one copy's attributes) gives way to the spheres' box, with a warning."""
     x, r = bed(block(4))
     res = homogenize_bed(x, r, rtol=1e-12, size=[4 * S] * 3)
-    assert res["volume"] == pytest.approx((4 * S) ** 3, rel=1e-14)
-    with pytest.raises(AmfeError, match="smaller than the extent"):
-        homogenize_bed(x, r, size=[2 * S] * 3)
+    assert res["volume"] == pytest.approx((4 * S) ** 3, rel=1e-14) and res["warnings"] == []
+    res = homogenize_bed(x, r, rtol=1e-12, size=[2 * S] * 3)
+    assert res["volume"] == pytest.approx((3 * S + 2 * R) ** 3, rel=1e-12)
+    assert len(res["warnings"]) == 1 and "exceeds it by up to 50 %" in res["warnings"][0]
+    with pytest.raises(AmfeError, match="three positive lengths"):
+        homogenize_bed(x, r, size=[S, -S, S])
 
 
 def test_subc_weights_balance_on_each_piece():

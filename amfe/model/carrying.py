@@ -14,7 +14,8 @@ problem singular). The rules, derived in section 5:
 - SUBC: a component takes its share of the face loads Sigma n_F A_F; they
   balance on it only if it reaches both faces of every axis, so a component
   is kept when it holds boundary particles on all six faces; each kept one
-  gets its own self-equilibrated weights and its own pin.
+  gets its own self-equilibrated weights and its own pin. The search starts
+  from KUBC's pieces (every piece reaching six faces is held by KUBC).
 - periodic: a component carries macro-strain when it winds round the torus;
   winding in two or three independent directions leaves only the three
   translations free (a rotation omega is periodic only if omega x w = 0 for
@@ -61,9 +62,10 @@ def off_line(points):
     return float(np.max(np.linalg.norm(d - np.outer(d @ axis, axis), axis=1)))
 
 
-def _fixed_point(x, r, labels, keep_components):
-    """Components kept by ``keep_components(mask, on_lo, on_hi) -> kept ids`` at its fixed point."""
-    kept = np.unique(labels)
+def _fixed_point(x, r, labels, keep_components, start=None):
+    """Components kept by ``keep_components(mask, on_lo, on_hi) -> kept ids`` at its fixed
+    point, starting from the ids ``start`` (default all)."""
+    kept = np.unique(labels) if start is None else start
     while True:
         mask = np.isin(labels, kept)
         on_lo = np.zeros(x.shape, bool)
@@ -88,8 +90,8 @@ def kubc_held(x, r, labels):
     kept = _fixed_point(x, r, labels, keep)
     if kept.size == 0:
         raise AmfeError("no bonded piece of the bed is held by the boundary conditions: none "
-                        "has three prescribed boundary particles off one line, so nothing "
-                        "carries load")
+                        "has three prescribed boundary particles off one line (a chain, whose "
+                        "centres span no volume, or pieces too small), so nothing carries load")
     return kept
 
 
@@ -104,7 +106,9 @@ def subc_spanning(x, r, labels):
         faces = [np.bincount(labels[mask], weights=on[mask, a], minlength=n) > 0
                  for on in (on_lo, on_hi) for a in range(3)]
         return np.flatnonzero(np.all(faces, axis=0) & (np.bincount(labels[mask], minlength=n) > 0))
-    kept = _fixed_point(x, r, labels, keep)
+    # from KUBC's pieces: a piece SUBC can load is held by KUBC, and KUBC's fixed point has
+    # already dropped the small pieces that would widen the box
+    kept = _fixed_point(x, r, labels, keep, start=kubc_held(x, r, labels))
     if kept.size == 0:
         big = labels == np.argmax(np.bincount(labels))
         on_lo, on_hi = boundary_faces(x, r)
@@ -151,28 +155,33 @@ def periodic_winding(n, i, j, shift, labels):
 
 
 def bed_box(centers, radii, size=None, kept=None):
-    """The bed's box lengths (3,), in the units of the arguments, whose product is V.
+    """(L (3,), note): the bed's box lengths, whose product is V, in the arguments' units.
 
     ``size`` (3,): the generated bed's recorded box (attrs ``size``, the box its
-    image covers; a periodic bed's periods); checked to hold the extent of all
-    the centres. Without it: the smallest axis-aligned box holding every
-    load-carrying sphere (``kept``, indices; default all), max(x + R) - min(x - R)
-    per axis. Either way a floating piece, kept out, changes no volume.
+    image covers; a periodic bed's periods), used when it holds the extent of
+    the load-carrying centres (``kept``, indices; default all). Otherwise, or
+    without it: the smallest axis-aligned box holding every load-carrying
+    sphere, max(x + R) - min(x - R) per axis; note then says why the recorded
+    size was not used (a bed edited after generation), else it is None. Either
+    way a floating piece, kept out, changes no volume.
     """
     x = np.asarray(centers, dtype=float)
     r = np.asarray(radii, dtype=float)
+    x, r = (x, r) if kept is None else (x[kept], r[kept])
+    spheres = (x + r[:, None]).max(axis=0) - (x - r[:, None]).min(axis=0)
     if size is None:
-        x, r = (x, r) if kept is None else (x[kept], r[kept])
-        return (x + r[:, None]).max(axis=0) - (x - r[:, None]).min(axis=0)
+        return spheres, None
     L = np.asarray(size, dtype=float).reshape(-1)
     if L.shape != (3,) or not np.all(np.isfinite(L) & (L > 0)):
         raise AmfeError(f"the bed's size must be three positive lengths, got {size!r}")
     extent = np.ptp(x, axis=0)
     if np.any(extent > L * (1 + 1e-9)):
-        raise AmfeError(f"the bed's recorded size {L.tolist()} is smaller than the extent of "
-                        f"its particle centres {extent.tolist()}: the attribute does not "
-                        "describe this bed; remove it to measure the bed by its spheres")
-    return L
+        over = 100 * float(np.max(extent / L - 1))
+        return spheres, (f"the bed's recorded size does not hold its load-carrying centres "
+                         f"(their extent exceeds it by up to {over:.3g} %; edited after "
+                         "generation?): V is their spheres' bounding box instead "
+                         "(docs/model.md, section 5)")
+    return L, None
 
 
 def removed_report(x, r, labels, kept_ids, n_input):
@@ -201,6 +210,11 @@ def removed_report(x, r, labels, kept_ids, n_input):
 
 #: Share of the particles above which removing them is a warning.
 WARN_SHARE = 0.01
+
+
+def frame_warnings(frame, bc):
+    """The frame's warnings for the result: the box rule's note, the removed pieces."""
+    return ([frame.box_note] if frame.box_note else []) + removed_warning(frame.removed, bc)
 
 
 def removed_warning(removed, bc):

@@ -37,7 +37,8 @@ class Frame:
     x_j + shift_b * box; both are None otherwise. size (3,) [length_scale]: the
     bed's box, volume = its product [length_scale^3], V of every average;
     parts (n,) int: the kept component (0..k-1) of each particle; removed: the
-    report of :func:`amfe.model.carrying.removed_report`.
+    report of :func:`amfe.model.carrying.removed_report`; box_note: why the
+    recorded size was not V's box (None when it was, or there was none).
     """
 
     centers: np.ndarray
@@ -58,6 +59,7 @@ class Frame:
     size: np.ndarray = None
     parts: np.ndarray = None
     removed: dict = None
+    box_note: str = None
 
     @property
     def volume(self):
@@ -154,7 +156,8 @@ def build_frame(centers, radii, material: Material = STEEL, a_star_cap=None, non
     kept = kept[morton_order(x[kept])]
     parts = np.searchsorted(ids, labels[kept])
     removed = removed_report(x, r, labels, ids, n_input)
-    size_f = L if box is not None else bed_box(centers, radii, size, kept) / length
+    size_f, box_note = (L, None) if box is not None else bed_box(
+        x, r, None if size is None else np.asarray(size, dtype=float) / length, kept)
     new_index = np.full(n_input, -1, np.int64)
     new_index[kept] = np.arange(kept.size)
     both = keep[i]  # a bond lies in the component iff either end does
@@ -180,7 +183,8 @@ def build_frame(centers, radii, material: Material = STEEL, a_star_cap=None, non
     return Frame(centers=x, radii=r, kept=kept, bonds=bonds, k_n=k_n, k_t=k_t,
                  kappa_n=kappa_n, kappa_t=kappa_t, n_input=n_input, n_capped=n_capped,
                  length_scale=length, force_scale=material.E / E * length**2, material=material,
-                 box=L, shift=shift, size=size_f, parts=parts, removed=removed)
+                 box=L, shift=shift, size=size_f, parts=parts, removed=removed,
+                 box_note=box_note)
 
 
 def _carrying(x, r, i, j, shift, box, labels, bc):
