@@ -243,3 +243,23 @@ def test_periodic_pieces_winding_in_too_few_directions_are_refused():
     chain = np.array([[k * S, 5.5 * S, 2 * S] for k in range(4)]) + 0.3e-6
     with pytest.raises(AmfeError, match="winds round the torus in one direction only"):
         build_frame(*bed(slab, chain), box=box)
+
+
+def test_rule1_factor_converts_a_rule1_modulus_exactly():
+    """V_hull / V_box of the largest piece: a rule-1 (hull volume) KUBC modulus times it is
+    the rule-2 one where the kept piece is the same (the surrogate's conversion)."""
+    from amfe.model.carrying import rule1_factor
+    from amfe.io.datasetparts import label_rule
+    n = 4
+    x, r = bed(block(n), [[9 * S, S, S], [9.9 * S, S, S]])     # plus a removed pair
+    hull = ((n - 1) * S) ** 3
+    assert rule1_factor(x, r) == pytest.approx(hull / ((n - 1) * S + 2 * R) ** 3, rel=1e-12)
+    assert rule1_factor(x, r, [11 * S] * 3) == pytest.approx(hull / (11 * S) ** 3, rel=1e-12)
+    fr = build_frame(x, r, size=[11 * S] * 3)
+    k_n = fr.k_n[0] * fr.force_scale / fr.length_scale
+    res = homogenize_bed(x, r, rtol=1e-12, size=[11 * S] * 3)
+    rule1 = k_n / S * n**2 / (n - 1) ** 2                   # today's hull-volume value
+    assert res["properties"]["Ex"] == pytest.approx(rule1 * rule1_factor(x, r, [11 * S] * 3),
+                                                    rel=1e-9)
+    assert label_rule({}) == 1 and label_rule({"format_version": 1}) == 1
+    assert label_rule({"format_version": 2}) == 2

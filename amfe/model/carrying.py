@@ -228,3 +228,24 @@ def removed_warning(removed, bc):
             f"({removed['touching_boundary']} of them touch the boundary; the largest has "
             f"{big['particles']} particles); the constants are those of the rest, in the "
             "bed's whole box (docs/model.md, section 5)"]
+
+
+def rule1_factor(centers, radii, size=None):
+    """V_hull / V_box (float): label rule 1's volume over rule 2's, for a KUBC label.
+
+    Rule 1 (before issue 30) kept the largest bonded component and used the hull
+    of its centres; rule 2 uses the bed's box (:func:`bed_box` with ``size``,
+    the recorded size). Where rule 2 keeps the same piece, every rule-1 modulus
+    times this factor is the rule-2 one exactly (the Poisson ratios do not
+    move): the conversion of a surrogate trained on rule-1 labels.
+    centers (N,3), radii (N,) [m]; size (3,) [m] or None.
+    """
+    from amfe.model.averages import hull_of
+    from amfe.model.bonds import find_pairs, validate_particles
+    x, r = validate_particles(centers, radii)
+    length = float(r.mean())                      # as build_frame finds the bonds
+    i, j = find_pairs(x / length, r / length)
+    labels = component_labels(x.shape[0], i, j)
+    largest = np.flatnonzero(labels == np.argmax(np.bincount(labels)))
+    L = bed_box(x, r, size, largest)[0]
+    return hull_of(x[largest]).volume / float(np.prod(L))

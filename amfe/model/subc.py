@@ -7,8 +7,8 @@ The boundary layer
 ------------------
 B is KUBC's boundary set (:func:`amfe.model.kubc.boundary_particles`: centres
 within one maximum radius of a face of the axis-aligned box of the centres),
-x_p the centres relative to that box's centre x_c, V the convex-hull volume
-of the centres (KUBC's V). Each p in B carries a weight a_p [length^2], a
+x_p the centres relative to that box's centre x_c, V the bed's box (KUBC's V,
+docs/model.md, section 5). Each p in B carries a weight a_p [length^2], a
 share of the outward area of the box.
 
 Weights. First the face shares
@@ -65,10 +65,15 @@ vertex is in B (fully scanned beds); where a hull vertex is not prescribed
 (a track ending short of a face) the ordering is not guaranteed, and
 :func:`energy_gap` measures it.
 
-Not a bracket of the periodic value: with V the hull of the centres a finite
-cluster counts its face bonds fully; on a simple cubic lattice of n^3
-particles both KUBC and SUBC give Ex = (k_n / s) n^2 / (n-1)^2 exactly (the
-chains decouple), above the periodic k_n / s by about 2/n.
+Not a bracket of the periodic value: with V the bed's box a finite cluster
+lacks the bonds that cross the box's faces on the torus; on a simple cubic
+lattice of n^3 particles in its box (n s)^3 both KUBC and SUBC give
+Ex = (k_n / s)(n-1)/n exactly (the chains decouple), 1/n below the periodic
+k_n / s.
+
+Several pieces: each piece reaching all six faces gets its own weights,
+balanced on it (:func:`subc_weights` with ``parts``) and its own pin; the
+argument above holds piece by piece.
 
 The free frame: a pin, not a null space
 ----------------------------------------
