@@ -207,6 +207,8 @@ def _average(frame, groups, sol, bc, a_star_cap, ranks, t_frame, vtu_dir, diagno
                                                        diagnose=diagnose, cross=sol.cross)
     C = C * frame.stress_scale
     S, props = compliance_and_constants(C)
+    for line in frame_warnings(frame, bc):   # removed pieces, the box rule: on the terminal too
+        print(f"amfe: warning: {line}", file=sys.stderr, flush=True)
     t_avg = time.perf_counter() - t0
     result = {
         "properties": {k: float(v) for k, v in props.items()},

@@ -263,3 +263,36 @@ def test_rule1_factor_converts_a_rule1_modulus_exactly():
                                                     rel=1e-9)
     assert label_rule({}) == 1 and label_rule({"format_version": 1}) == 1
     assert label_rule({"format_version": 2}) == 2
+
+
+def test_cli_prints_the_removed_share_and_writes_the_pieces(tmp_path):
+    import json
+    from amfe.io.bedfile import write_bed
+    from amfe.model.bed import Bed
+    from helpers import run_cli
+    x, r = bed(block(4), [[9 * S, S, S], [9.9 * S, S, S]])
+    path = tmp_path / "bed.h5"
+    write_bed(path, Bed(x, r, {}))
+    out = tmp_path / "r.json"
+    proc = run_cli(["homogenize", str(path), "-o", str(out), "--quiet"])
+    assert proc.returncode == 0, proc.stderr
+    assert "amfe: warning: 2 particles (3.0 %" in proc.stderr
+    d = json.loads(out.read_text())
+    assert d["removed"]["components"] == 1 and d["removed"]["largest"][0]["touches_boundary"]
+    assert len(d["warnings"]) == 1 and "carry no load under kubc" in d["warnings"][0]
+
+
+def test_two_interpenetrating_periodic_pieces_each_carry_with_their_own_pin():
+    """Two 3D crosses of chains, the second shifted by half the box: separate pieces that
+    each wind round x, y and z. Each is pinned on its own; the stiffness is twice one
+    cross's (the same box, translation invariance)."""
+    k = np.arange(8) * S
+    z = np.zeros(8)
+    cross = np.unique(np.vstack([np.c_[k, z, z], np.c_[z, k, z], np.c_[z, z, k]]), axis=0)
+    box = [8 * S] * 3
+    one = homogenize_bed(*bed(cross + 0.3e-6), bc="periodic", box=box, rtol=1e-12)
+    two = homogenize_bed(*bed(cross + 0.3e-6, cross + 4 * S + 0.3e-6), bc="periodic", box=box,
+                         rtol=1e-12)
+    assert two["n_removed"] == 0 and one["n_removed"] == 0
+    np.testing.assert_allclose(np.array(two["C"]), 2 * np.array(one["C"]),
+                               rtol=0, atol=1e-9 * np.abs(one["C"]).max())
