@@ -296,3 +296,21 @@ def test_two_interpenetrating_periodic_pieces_each_carry_with_their_own_pin():
     assert two["n_removed"] == 0 and one["n_removed"] == 0
     np.testing.assert_allclose(np.array(two["C"]), 2 * np.array(one["C"]),
                                rtol=0, atol=1e-9 * np.abs(one["C"]).max())
+
+
+def test_energy_ordering_holds_where_kubc_keeps_a_piece_subc_does_not():
+    """A bonded triangle in a pit open at the -z face: KUBC holds it (three prescribed
+    particles off one line) and keeps it, SUBC does not load it (it reaches one face);
+    e C_subc e <= e C_kubc e still (KUBC's extra piece only adds energy)."""
+    x = block(6)
+    idx = np.rint(x / S).astype(int)
+    pit = (idx[:, 0] >= 1) & (idx[:, 0] <= 4) & (idx[:, 1] >= 1) & (idx[:, 1] <= 4) & (idx[:, 2] <= 1)
+    tri = np.array([[2, 2.1, 0], [3, 2.1, 0], [2.5, 2.966, 0]]) * S     # sides S, as the lattice
+    x, r = bed(x[~pit], tri)
+    kubc = homogenize_bed(x, r, rtol=1e-12)
+    subc = homogenize_bed(x, r, bc="subc", rtol=1e-12)
+    alone = homogenize_bed(*bed(block(6)[~pit]), rtol=1e-12)
+    assert kubc["n_removed"] == 0 and subc["n_removed"] == 3
+    assert kubc["volume"] == subc["volume"] == alone["volume"]
+    assert kubc["properties"]["Ex"] > alone["properties"]["Ex"]      # the triangle carries
+    assert energy_gap(np.array(kubc["C"]), np.array(subc["C"])) >= -1e-9
