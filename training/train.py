@@ -262,6 +262,7 @@ def train_model(data_path, cfg, progress=True, log=print):
                                               for n, e in zip(LABEL_NAMES, hist["val_mre"][-1]))
         log(msg)
 
+    from amfe.io.datasetparts import label_rule
     ckpt = {
         "arch": cfg.arch,
         "arch_args": resolved_args(cfg.arch, nets[0], cfg.arch_args),
@@ -283,6 +284,8 @@ def train_model(data_path, cfg, progress=True, log=print):
         "tta": cfg.tta,
         "spread": None,
         "fill_range": calibrate_fill(train_images[:, :n_fill]),
+        # the data set's label rule (docs/model.md, section 5): amfe predict converts rule 1
+        "label_rule": label_rule(info),
         "init": start["record"] if start else None,
         "metrics": {},
     }
