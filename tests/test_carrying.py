@@ -314,3 +314,28 @@ def test_energy_ordering_holds_where_kubc_keeps_a_piece_subc_does_not():
     assert kubc["volume"] == subc["volume"] == alone["volume"]
     assert kubc["properties"]["Ex"] > alone["properties"]["Ex"]      # the triangle carries
     assert energy_gap(np.array(kubc["C"]), np.array(subc["C"])) >= -1e-9
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("bc", ["kubc", "subc"])
+def test_several_pieces_on_two_ranks_match_one(tmp_path, bc):
+    """Two separate blocks under KUBC (two pieces), two joined by a track under SUBC:
+    1 and 2 ranks agree to 1e-9 at rtol 1e-12."""
+    import json
+    from amfe.io.bedfile import write_bed
+    from amfe.model.bed import Bed
+    from helpers import run_cli
+    if bc == "kubc":
+        x, r = bed(block(4), block(4, (7 * S, 0, 0)))
+    else:
+        x, r = bed(block(4), block(4, (7 * S, 0, 0)), [[4 * S, S, S], [5 * S, S, S], [6 * S, S, S]])
+    path = tmp_path / "bed.h5"
+    write_bed(path, Bed(x, r, {}))
+    C = []
+    for ranks in (None, 2):
+        out = tmp_path / f"r{ranks}.json"
+        proc = run_cli(["homogenize", str(path), "--bc", bc, "--rtol", "1e-12", "--quiet",
+                        "-o", str(out)], ranks=ranks)
+        assert proc.returncode == 0, proc.stderr
+        C.append(np.array(json.loads(out.read_text())["C"]))
+    assert np.abs(C[0] - C[1]).max() < 1e-9 * np.abs(C[0]).max()
