@@ -108,10 +108,14 @@ def subc_spanning(x, r, labels):
         return np.flatnonzero(np.all(faces, axis=0) & (np.bincount(labels[mask], minlength=n) > 0))
     # from KUBC's pieces: a piece SUBC can load is held by KUBC, and KUBC's fixed point has
     # already dropped the small pieces that would widen the box
-    kept = _fixed_point(x, r, labels, keep, start=kubc_held(x, r, labels))
-    if kept.size == 0:
-        big = labels == np.argmax(np.bincount(labels))
-        on_lo, on_hi = boundary_faces(x, r)
+    held = kubc_held(x, r, labels)
+    kept = _fixed_point(x, r, labels, keep, start=held)
+    if kept.size == 0:                     # name what the largest held piece misses
+        mask = np.isin(labels, held)
+        big = labels == np.argmax(np.bincount(labels[mask], minlength=labels.max() + 1))
+        on_lo = np.zeros(x.shape, bool)
+        on_hi = np.zeros(x.shape, bool)
+        on_lo[mask], on_hi[mask] = boundary_faces(x[mask], r[mask])
         missing = [s + "xyz"[a] for a in range(3) for s, on in (("-", on_lo), ("+", on_hi))
                    if not on[big, a].any()]
         raise AmfeError(
@@ -122,11 +126,12 @@ def subc_spanning(x, r, labels):
 
 
 def periodic_winding(n, i, j, shift, labels):
-    """Component ids (sorted) that wind round the torus in 2 or 3 directions, their windings.
+    """Component ids (sorted) that wind round the torus in 2 or 3 directions.
 
-    Returns (kept ids, windings (k,3) of the kept components' bonds). AmfeError
-    for a component winding in one direction only, or when the kept windings
-    span fewer than three directions (no macro-stress along the others).
+    i, j (M,) bonds, shift (M,3) their image shifts, labels (n,) components.
+    AmfeError for a component winding in one direction only, or when the kept
+    components' windings span fewer than three directions (no macro-stress
+    along the others).
     """
     from amfe.model.torus import spanning_images, winding_rank
     kept, windings = [], []
