@@ -156,8 +156,10 @@ def build_frame(centers, radii, material: Material = STEEL, a_star_cap=None, non
     kept = kept[morton_order(x[kept])]
     parts = np.searchsorted(ids, labels[kept])
     removed = removed_report(x, r, labels, ids, n_input)
-    size_f, box_note = (L, None) if box is not None else bed_box(
-        x, r, None if size is None else np.asarray(size, dtype=float) / length, kept)
+    size_f, box_note = L, None                       # periodic: the periods
+    if box is None:                                  # in SI, then in frame units
+        size_f, box_note = bed_box(centers, radii, size, kept)
+        size_f = size_f / length
     new_index = np.full(n_input, -1, np.int64)
     new_index[kept] = np.arange(kept.size)
     both = keep[i]  # a bond lies in the component iff either end does
