@@ -43,7 +43,7 @@ def main():
     ap.add_argument("--scale", default="small")
     args = ap.parse_args()
     sur = Surrogate.load()
-    new, old, raw, conv, factor, extra = [], [], [], [], [], []
+    new, old, raw, conv, factor, extra, lost = [], [], [], [], [], [], []
     t0 = time.perf_counter()
     for k in range(args.count):
         bed = generate_bed(**sample_bed_params(args.scale, record_seed(args.seed, k)))
@@ -52,6 +52,7 @@ def main():
         f = rule1_factor(bed.centers, bed.radii, bed.attrs["size"])
         lab = labels_of(res)
         big = largest_piece(bed)
+        lost.append(1 - big.size / bed.n)                    # rule 1's removed share
         if res["counts"]["particles_kept"] == big.size:     # the same kept piece
             o = lab.copy()
             o[:3] /= f
@@ -71,7 +72,7 @@ def main():
         if (k + 1) % 20 == 0:
             print(f"{k + 1} beds, {time.perf_counter() - t0:.0f} s", flush=True)
     new, old, raw, conv = map(np.array, (new, old, raw, conv))
-    factor, extra = np.array(factor), np.array(extra)
+    factor, extra, lost = np.array(factor), np.array(extra), np.array(lost)
     n = len(new)
     print(f"\n{n} `{args.scale}` beds of data-set seed {args.seed}, "
           f"{time.perf_counter() - t0:.0f} s")
@@ -94,6 +95,11 @@ def main():
         print(f"surrogate {name}: mean |error| per label "
               + " ".join(f"{v:.2f}" for v in 100 * err.mean(axis=0))
               + f" %; beds with a constant > 10 % off: {tail.sum()} of {n} ({100 * tail.mean():.1f} %)")
+        for what, sel in (("rule 2 keeps more", changed), ("rule 1 lost > 2 %", lost > 0.02),
+                          ("rule 1 lost <= 2 %", lost <= 0.02)):
+            if sel.any():
+                print(f"    {what}: {tail[sel].sum()} of {sel.sum()} beds "
+                      f"({100 * tail[sel].mean():.0f} %) with a constant > 10 % off")
 
 
 if __name__ == "__main__":
