@@ -95,7 +95,7 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
     >>> bed = amfe.generate_bed(size=(0.1e-3, 0.1e-3, 0.06e-3), seed=1)
     >>> result = amfe.homogenize(bed, rtol=1e-10)
     >>> round(result.Ex / 1e9), round(result.nu_xy, 3)   # Pa -> GPa
-    (729, 0.086)
+    (90, 0.086)
     >>> result.C.shape
     (6, 6)
     """

@@ -13,6 +13,7 @@ from collections import namedtuple
 
 import numpy as np
 
+from amfe.model.carrying import frame_warnings
 from amfe.model.frame import build_frame
 from amfe.model.options import SolveOptions
 from amfe.model.averages import (asymmetry, bagi_strain, compliance_and_constants, hull_of,
@@ -57,11 +58,11 @@ def bagi_average(frame, groups, u, moments, diagnose=False, cross=None):
     strains, stresses, stress_asym = [], [], []
     for k in range(6):
         strains.append(voigt_strain(bagi_strain(hull, u[k][:, :3])))
-        sigma = moments[k] / hull.volume
+        sigma = moments[k] / frame.volume  # V: the bed's box; the strain stays the hull's
         stress_asym.append(asymmetry(sigma))
         stresses.append(voigt(symmetric(sigma)))
     C, c_asym = stiffness(np.array(strains), np.array(stresses))
-    return C, hull.volume, {"stress_asymmetry": float(max(stress_asym)),
+    return C, frame.volume, {"stress_asymmetry": float(max(stress_asym)),
                             "C_asymmetry": float(c_asym), **stats}
 
 
@@ -114,7 +115,9 @@ def homogenize_bed(bed, options=None, comm=None, *, input_error=None):
     writes nothing. Every solve must reach a true relative residual of at most
     :data:`~amfe.solvers.ksp.RESIDUAL_FACTOR` x rtol (or x the rounding floor);
     ``accept_unconverged`` keeps the numbers of one that does not, with a
-    warning. Raises AmfeError on every rank for bad input or a failed solve.
+    warning. The bed's recorded box (``attrs["size"]`` (3,) [m]) is V (else the
+    load-carrying spheres' bounding box; docs/model.md, section 5).
+    Raises AmfeError on every rank for bad input or a failed solve.
     Changed in 0.3.0: it took the arrays and some twenty keyword options and
     returned a dict.
     """
@@ -130,7 +133,8 @@ def homogenize_bed(bed, options=None, comm=None, *, input_error=None):
     log = _progress(mpi.rank)
     frame = build_frame(bed.centers, bed.radii, inp.material, options.a_star_cap,
                         nondimensional=options.nondimensional,
-                        box=inp.box if condition.periodic else None)
+                        box=inp.box if condition.periodic else None, bc=options.bc,
+                        size=bed.attrs.get("size"))
     t_frame = time.perf_counter() - t0
     groups = condition.groups(frame)
     # the same on every rank: rank 0 decides (qhull; docs/benchmarks.md, "Figures quoted ...")
@@ -227,6 +231,8 @@ def _average(solved, options):
         frame, groups, sol.u, sol.moments, diagnose=options.diagnose, cross=sol.cross)
     C = C * frame.stress_scale
     S, props = compliance_and_constants(C)
+    for line in frame_warnings(frame, options.bc):   # removed pieces, the box rule: the terminal
+        LOG.warning(line)
     t_avg = time.perf_counter() - t0
     result = {
         "properties": {k: float(v) for k, v in props.items()},
@@ -235,6 +241,7 @@ def _average(solved, options):
         "volume": float(volume * frame.length_scale**3),
         "n_particles": int(frame.n_input),
         "n_removed": int(frame.n_removed),
+        "removed": frame.removed,
         "n_bonds": int(len(frame.bonds)),
         "bc": options.bc,
         "ranks": int(solved.ranks),
@@ -251,7 +258,7 @@ def _average(solved, options):
             **stats,
         },
         "material": solved.material,
-        "warnings": list(solved.warnings),
+        "warnings": list(solved.warnings) + frame_warnings(frame, options.bc),
     }
     bed = solved.bed
     result = {**homogenize_header(frame, bed.centers, bed.radii, solved.material), **result}

@@ -34,11 +34,12 @@ def run_cli(args, ranks=None, cwd=None, timeout=300):
 
 
 def homogenize_arrays(centers, radii, material=None, *, comm=None, box=None, petsc_args=None,
-                      **options):
+                      size=None, **options):
     """:func:`amfe.solvers.driver.homogenize_bed` on arrays, its result as the JSON dict
     (plus "fields" when asked): the array-level call the tests made before 0.3.0.
 
-    ``solver`` defaults to "gamg" (the old default); box: the periodic box. A bad bed or
+    ``solver`` defaults to "gamg" (the old default); box: the periodic box; size (3,) [m]:
+    the bed's recorded box (attrs "size", V of the averages). A bad bed or
     bad options become the ``input_error`` of the collective check, as in amfe.homogenize.
     """
     from amfe.errors import AmfeError
@@ -50,7 +51,8 @@ def homogenize_arrays(centers, radii, material=None, *, comm=None, box=None, pet
     bed, opts, error = (centers, radii), None, None
     try:
         opts = SolveOptions(material=material, petsc_args=petsc_args, **options)
-        bed = Bed(centers, radii, {} if box is None else {"periodic": box})
+        attrs = {} if box is None else {"periodic": box}
+        bed = Bed(centers, radii, attrs if size is None else {**attrs, "size": size})
     except AmfeError as exc:
         error = exc
     result = homogenize_bed(bed, opts, comm, input_error=error)

@@ -73,7 +73,7 @@ def test_fallback_solves_a_non_finite_prediction(model, tmp_path):
     from amfe.io.bedfile import read_bed
     from helpers import homogenize_arrays
     b = read_bed(bed)
-    ref = homogenize_arrays(b.centers, b.radii, b.material())["properties"]
+    ref = homogenize_arrays(b.centers, b.radii, b.material(), size=b.attrs["size"])["properties"]
     for k in SIX:
         assert math.isfinite(res["properties"][k])
         assert res["properties"][k] == pytest.approx(float(ref[k]), rel=1e-6)

@@ -292,8 +292,8 @@ def test_bed_without_bonds():
 
 
 def test_cluster_too_small_to_span_a_volume():
-    x, r = lattice(3, 1, 1)
-    with pytest.raises(AmfeError, match="only 3 particles"):
+    x, r = lattice(3, 1, 1)      # three in a line: KUBC holds no piece (issue 30's rule)
+    with pytest.raises(AmfeError, match="no bonded piece of the bed is held"):
         homogenize_arrays(x, r)
 
 

@@ -15,7 +15,8 @@ from helpers import cubic_lattice, run_cli
 @pytest.mark.parametrize("n", [3, 4])
 def test_mixed_simple_cubic_lattice_analytic(n):
     # frictionless grips on x faces: n^2 chains of n-1 bonds in series carry the load,
-    # no Poisson coupling: Ex = (k_n / s) n^2 / (n-1)^2 as under KUBC, nu = 0
+    # no Poisson coupling: Ex = (k_n / s) n^2 / (n-1)^2 as under KUBC with the hull volume,
+    # times V_hull / V with V the spheres' box (docs/model.md, section 5), nu = 0
     s = 1.8e-6
     x, r = cubic_lattice(n, spacing=s)
     frame = build_frame(x, r)
@@ -23,7 +24,9 @@ def test_mixed_simple_cubic_lattice_analytic(n):
     res = homogenize_arrays(x, r, bc="mixed", rtol=1e-12)
     assert res["bc"] == "mixed"
     for key in ("Ex", "Ey", "Ez"):
-        assert res["properties"][key] == pytest.approx(k_n / s * n**2 / (n - 1) ** 2, rel=1e-8)
+        assert res["properties"][key] == pytest.approx(
+            k_n / s * n**2 / (n - 1) ** 2 * ((n - 1) * s / ((n - 1) * s + 2 * r[0])) ** 3,
+            rel=1e-8)
     for key in ("nu_yz", "nu_xz", "nu_xy"):
         assert abs(res["properties"][key]) < 1e-8
 

@@ -24,7 +24,7 @@ torch.set_num_threads(1)
 SMALL = (3, 20, 20)
 TINY_ATTRS = {"scale": "tiny", "bed_size": [0.15e-3, 0.15e-3, 0.1e-3],
               "image_cell": [30e-6, 30e-6, 0.1e-3], "layer_thickness": 0.1e-3,
-              "image_spacing": 2.5e-6}
+              "image_spacing": 2.5e-6, "format_version": 2}    # labels under rule 2
 SMALL_ATTRS = {"scale": "small", "bed_size": [0.6e-3, 0.6e-3, 0.3e-3],
                "image_cell": [30e-6, 30e-6, 0.1e-3], "layer_thickness": 0.1e-3,
                "image_spacing": 2.5e-6}

@@ -90,6 +90,12 @@ class Surrogate:
         self.spread_scale = np.asarray(spread.get("scale", np.ones(6)), np.float64)
         self.threshold = spread.get("threshold")
         self.fill_range = ckpt.get("fill_range")
+        # A checkpoint without "label_rule" was trained on label rule 1 (V = hull of the
+        # largest piece's centres); its moduli are converted to rule 2 (V = the bed's box)
+        # per bed in predict_bed (docs/model_card.md, docs/model.md section 5).
+        self.label_rule = int(ckpt.get("label_rule", 1))
+        self.labels = ("label rule 2" if self.label_rule >= 2 else
+                       "trained on label rule 1, converted to rule 2 (moduli x V_hull / V_box)")
 
     @classmethod
     def load(cls, path=None):
@@ -168,7 +174,8 @@ class Surrogate:
         return np.concatenate([parts[k] for k in self.inputs], axis=0), image, times
 
     def predict_bed(self, bed):
-        """Image ``bed`` as the training data was and predict.
+        """Image ``bed`` as the training data was and predict (label rule 2: the moduli
+        of a rule-1 checkpoint are converted with the bed's own volumes).
 
         Returns (result dict, volume-fraction image (layers, H, W), seconds
         {pixelate, bonds (when the model reads bond images), predict}).
@@ -176,6 +183,9 @@ class Surrogate:
         x, image, times = self.inputs_of(bed)
         t2 = time.perf_counter()
         res = self.predict(x[None])
+        if self.label_rule < 2:   # rule-1 moduli -> rule 2; spread is relative, unchanged
+            from amfe.model.carrying import rule1_factor
+            res["mean"][:, :3] *= rule1_factor(bed.centers, bed.radii, bed.attrs.get("size"))
         times["predict"] = time.perf_counter() - t2
         return res, image, times
 

@@ -282,6 +282,7 @@ def train_model(data_path, cfg, progress=True, log=print):
                                               for n, e in zip(LABEL_NAMES, hist["val_mre"][-1]))
         log(msg)
 
+    from amfe.dataset.parts import label_rule
     ckpt = {
         "arch": cfg.arch,
         "arch_args": resolved_args(cfg.arch, nets[0], cfg.arch_args),
@@ -303,6 +304,8 @@ def train_model(data_path, cfg, progress=True, log=print):
         "tta": cfg.tta,
         "spread": None,
         "fill_range": calibrate_fill(train_images[:, :n_fill]),
+        # the data set's label rule (docs/model.md, section 5): amfe predict converts rule 1
+        "label_rule": label_rule(info),
         "init": start["record"] if start else None,
         "metrics": {},
     }

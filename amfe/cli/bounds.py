@@ -16,10 +16,10 @@ GAP_MEANING = (
     "gap = (KUBC - SUBC) / KUBC. KUBC prescribes the boundary's displacements, SUBC its "
     "forces; their energies are ordered, e:C_subc:e <= e:C_kubc:e for every strain e, and so "
     "are the moduli E and G, but not the Poisson ratios, which may fall either side. A small "
-    "gap means the bed is large enough for its boundary not to matter. With amfe's volume "
-    "(the hull of the centres) the two need NOT bracket the periodic value: a finite bed "
-    "counts its face bonds fully, which lifts both (on a cubic lattice n particles wide both "
-    "sit about 2/n above it); the periodic column, where shown, is the material's own "
+    "gap means the bed is large enough for its boundary not to matter. With V the bed's own "
+    "box the two need NOT bracket the periodic value: a finite bed lacks the bonds that "
+    "cross the box's faces on the torus, which lowers both (on a cubic lattice n particles "
+    "wide both sit 1/n below it); the periodic column, where shown, is the material's own "
     "stiffness (docs/model.md, section 9).")
 
 ABOVE_E = ("note: {names} exceed the particles' own E = {E:.4g} GPa. This is not a unit error: "

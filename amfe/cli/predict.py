@@ -135,6 +135,7 @@ def run(args):
         "arch": sur.ckpt["arch"],
         "members": sur.n_members,
         "inputs": list(sur.inputs),
+        "labels": sur.labels,            # the label rule (docs/model.md, section 5)
         "image_shape": list(image.shape),
         "density": float(image.mean(dtype="float64")),
     }

@@ -27,7 +27,7 @@ DATA.h5 layout, one row per record, rows sorted by record index 0..M-1:
     n_particles (M,) int64    particles of the generated bed (-1 if none)
     n_removed   (M,) int64    of them not load-carrying (-1 if not solved)
     n_bonds     (M,) int64    bonds of the load-carrying frame (-1 if not solved)
-    volume      (M,) float64  homogenization volume [m^3] (hull of the kept centres)
+    volume      (M,) float64  homogenization volume [m^3]: format 2 the bed's box, format 1 the hull of the kept centres
     seconds     (M, 3) float64  generate, image, homogenize wall times [s]
     solver      (M,) str      JSON of homogenize_bed's solver record ("" if not solved)
     params/NAME (M,) float64  the bed's generation parameters (amfe.model.scales.PARAM_NAMES)
