@@ -133,7 +133,7 @@ def worker_measure(args, PETSc, comm):
     from amfe.solvers.operator import ConstrainedOperator
     from amfe.solvers.partition import row_ranges
     bed = bed_of(args)
-    frame = build_frame(bed.centers, bed.radii)
+    frame = build_frame(bed.centers, bed.radii, size=bed.attrs.get("size"))
     group = kubc_groups(frame)[0]
     rank, size = comm.getRank(), comm.getSize()
     ranges = row_ranges(frame.n_particles, size)

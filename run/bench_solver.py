@@ -88,7 +88,7 @@ def main():
                 f"{np.mean(s['case_seconds']):10.3f} {s['average_seconds']:6.2f} {total:7.2f} "
                 f"{its:5d} {err:11.2e}")
         if size == 1 and not args.no_direct and len(bed) <= min(args.direct_max, 20_000):
-            frame = build_frame(bed.centers, bed.radii)
+            frame = build_frame(bed.centers, bed.radii, size=bed.attrs.get("size"))
             t0 = time.perf_counter()
             C, sec = kubc_stiffness_scipy(frame)
             wall = time.perf_counter() - t0

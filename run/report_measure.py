@@ -176,7 +176,7 @@ def _scipy_solve(bed):
     from amfe.model.frame import build_frame
     from amfe.model.averages import compliance_and_constants
     from amfe.solvers.scipy_direct import kubc_stiffness_scipy
-    frame = build_frame(bed.centers, bed.radii, bed.material())
+    frame = build_frame(bed.centers, bed.radii, bed.material(), size=bed.attrs.get("size"))
     C, sec = kubc_stiffness_scipy(frame, strain="bagi")
     _, props = compliance_and_constants(C * frame.stress_scale)
     return {"properties": props, "solver": {"setup_seconds": sec["factor"],

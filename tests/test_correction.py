@@ -144,11 +144,11 @@ SCRIPT = r"""
 import json
 from amfe.solvers.petsc import init_petsc
 PETSc = init_petsc()
-from amfe.model.bed import generate_bed
+from amfe.model.bed import Bed, generate_bed
 from amfe.model.options import SolveOptions
 from amfe.solvers.driver import homogenize_bed
-bed = generate_bed(size=(0.4e-3, 0.4e-3, 0.2e-3), seed=1)
-res = homogenize_bed(bed, SolveOptions(solver="gamg")).to_dict()
+bed = generate_bed(size=(0.4e-3, 0.4e-3, 0.2e-3), seed=1)   # as arrays: V as the reference's
+res = homogenize_bed(Bed(bed.centers, bed.radii), SolveOptions(solver="gamg")).to_dict()
 if PETSc.COMM_WORLD.getRank() == 0:
     print("RESULT " + json.dumps({"properties": res["properties"], "solver": {
         "rtol": res["solver"]["rtol"], "correction": res["solver"]["correction"]}}), flush=True)

@@ -12,6 +12,7 @@ import h5py
 import numpy as np
 import pytest
 
+from amfe.dataset.parts import LABEL_RULE_VERSION
 from amfe.dataset.labels import IDENTITY, MAX_TABLE_BYTES, bed_digest, kept_solver
 from amfe.io.bedfile import read_bed
 from amfe.model.averages import compliance_and_constants
@@ -64,7 +65,7 @@ def assert_rebuilt(original, rebuilt, rows=slice(None)):
         assert x[rows].tobytes() == b["params"][name].tobytes(), name
     assert [kept_solver(s) for s in a["solver"][rows]] == list(b["solver"])
     assert np.all(b["iterations"] == -1) and np.all(b["seconds"][:, 2] == 0)   # not kept
-    assert b["attrs"]["from_labels"] and b["attrs"]["label_rule_version"] == 1
+    assert b["attrs"]["from_labels"] and b["attrs"]["label_rule_version"] == LABEL_RULE_VERSION
 
 
 def test_table_layout_and_same_bytes(made, tmp_path):

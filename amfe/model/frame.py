@@ -162,7 +162,7 @@ def build_frame(centers, radii, material: Material = STEEL, a_star_cap=None, non
     removed = removed_report(x, r, labels, ids, n_input)
     size_f, box_note = L, None                       # periodic: the periods
     if box is None:                                  # in SI, then in frame units
-        size_f, box_note = bed_box(centers, radii, size, kept)
+        size_f, box_note = bed_box(centers - origin, radii, size, kept)  # exact (frame_origin)
         size_f = size_f / length
     new_index = np.full(n_input, -1, np.int64)
     new_index[kept] = np.arange(kept.size)
