@@ -16,7 +16,7 @@ from amfe.io.result_meta import describe_input
 def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_options=None,
                a_star_cap=None, material=None, max_it=None, diagnose=False, progress=False,
                vtu_dir=None, solver="auto", accept_unconverged=False, max_memory=None,
-               material_source=None, input_path=None):
+               material_source=None, input_path=None, model="frame", voxel_size=None):
     """Effective elastic constants of a powder bed, as a :class:`~amfe.io.result.Result`.
 
     Parameters
@@ -77,6 +77,12 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
     input_path : str, optional
         The bed file to name in the result's ``input`` block (default: ``bed``
         itself when it is a path).
+    model : {"frame", "voxel"}
+        "frame" (default): the paper's bonded space frame. "voxel": the
+        continuum of the same spheres by voxel finite elements, the frame's
+        reference (docs/model.md, section 10); bc "kubc" or "periodic" only.
+    voxel_size : float, optional
+        The voxel model's voxel side [m] (default: mean radius / 4).
 
     Returns
     -------
@@ -112,6 +118,14 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
     except AmfeError as exc:
         error = exc
 
+    # --- voxel model dispatch (issue 35): its own solver, nothing of the frame's path ---
+    if model != "frame" or voxel_size is not None:
+        if error is not None:
+            raise error
+        return _voxel(centers, radii, material, source, box, bc, model, voxel_size, pcomm,
+                      rtol, max_it, petsc_options, accept_unconverged, progress, vtu_dir,
+                      input_path)
+
     def one(bc, vtu_dir):
         d = homogenize_bed(centers, radii, material, a_star_cap=a_star_cap, rtol=rtol,
                            max_it=max_it, solver=solver, vtu_dir=vtu_dir, comm=pcomm,
@@ -125,6 +139,29 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
         return one(bc, vtu_dir)
     names = ["kubc", "subc"] + (["periodic"] if box is not None else [])
     return {name: one(name, vtu_dir and os.path.join(vtu_dir, name)) for name in names}
+
+
+def _voxel(centers, radii, material, source, box, bc, model, voxel_size, comm, rtol, max_it,
+           petsc_options, accept_unconverged, progress, vtu_dir, input_path):
+    """The voxel model's Result (issue 35; docs/model.md, section 10)."""
+    from amfe.solvers.voxel import homogenize_voxel
+    if model != "voxel":
+        raise AmfeError(f"homogenize: model must be 'frame' or 'voxel', got {model!r}"
+                        + ("" if model != "frame" else " (voxel_size needs model='voxel')"))
+    if bc not in ("kubc", "periodic"):
+        raise AmfeError(f"homogenize: the voxel model solves bc 'kubc' or 'periodic', not {bc!r}")
+    if bc == "periodic" and box is None:
+        from amfe.model.torus import NOT_PERIODIC
+        raise AmfeError(NOT_PERIODIC)
+    if vtu_dir is not None:
+        raise AmfeError("homogenize: the voxel model writes no ParaView files yet (no --vtu)")
+    d = homogenize_voxel(centers, radii, material, voxel_size=voxel_size,
+                         period=box if bc == "periodic" else None, comm=comm, rtol=rtol,
+                         max_it=max_it, ksp_options=petsc_options,
+                         accept_unconverged=accept_unconverged, progress=progress,
+                         material_source=source)
+    describe_input(d, input_path)
+    return Result.from_dict(d)
 
 
 def _inputs(bed, material, given_source):

@@ -31,3 +31,9 @@ def run_cli(args, ranks=None, cwd=None, timeout=300):
         cmd = ["mpirun", "-n", str(ranks), *cmd]
     return subprocess.run(cmd, capture_output=True, text=True, cwd=cwd or ROOT, env=MPI_ENV,
                           timeout=timeout)
+
+
+def run_mpi_script(script, ranks=2, timeout=300):
+    """Run a Python script under `mpirun -n RANKS` from the repository root; CompletedProcess."""
+    return subprocess.run(["mpirun", "-n", str(ranks), sys.executable, str(script)],
+                          capture_output=True, text=True, cwd=ROOT, env=MPI_ENV, timeout=timeout)

@@ -1,0 +1,237 @@
+"""The voxel model's geometry: the union of a bed's spheres on a regular grid, pure numpy.
+
+docs/model.md, section 10 ("Geometry", "Necks", "Load-carrying voxels"). A
+:class:`Grid` covers the box [lo, lo + n h] with n = (nx, ny, nz) voxels of
+sides h (3,) [m]; a voxel is solid when its centre lies inside any sphere
+(:func:`voxelize`). Voxel (ix, iy, iz) is element ix + nx (iy + ny iz) and the
+solid array has shape (nz, ny, nx) (x varies fastest, as the nodes do).
+"""
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+from amfe.errors import AmfeError
+
+NECK_WARN_SHARE = 0.5
+"""Below this share of necks resolved by at least 2 voxels across, a warning."""
+NECK_ERROR_SHARE = 0.2
+"""Below this share, an error: most necks are then one voxel wide or missing,
+and the voxel solid no longer joins the spheres the frame joins."""
+CHUNK_PAIRS = 1 << 21
+"""(sphere, voxel) candidate pairs tested at once in :func:`voxelize` (~100 MB)."""
+
+
+@dataclass(frozen=True)
+class Grid:
+    """A regular voxel grid: lowest corner lo (3,) [m], counts n (3,) int, sides h (3,) [m]."""
+
+    lo: np.ndarray
+    n: np.ndarray
+    h: np.ndarray
+
+    @property
+    def shape(self):
+        """(nz, ny, nx): the shape of a voxel array."""
+        return tuple(int(k) for k in self.n[::-1])
+
+    @property
+    def volume(self):
+        """Volume of the box [m^3]."""
+        return float(np.prod(self.n * self.h))
+
+
+def grid_over(lo, hi, voxel_size):
+    """The grid that fills the box [lo, hi] with voxels no larger than voxel_size [m].
+
+    n_k = ceil(L_k / voxel_size) voxels per axis (at least 1), sides h_k =
+    L_k / n_k: the box is covered exactly (KUBC's faces are its faces) and the
+    voxels are bricks within a factor (n_k + 1) / n_k of cubes.
+    """
+    from amfe.model.material import real_number
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    voxel_size = real_number("the voxel size", voxel_size)
+    if not (np.isfinite(voxel_size) and voxel_size > 0):
+        raise AmfeError(f"the voxel size must be a positive length in m, got {voxel_size!r}")
+    size = hi - lo
+    if not np.all(size > 0):
+        raise AmfeError(f"the voxel model needs a box of positive size, got {size.tolist()} m")
+    n = np.maximum(1, np.ceil(size / voxel_size * (1.0 - 1e-12))).astype(np.int64)
+    return Grid(lo=lo, n=n, h=size / n)
+
+
+def voxelize(centers, radii, grid, periodic=False):
+    """Solid mask (nz, ny, nx) bool: voxel centres inside any sphere.
+
+    centers (N, 3) [m], radii (N,) [m]. Spheres are handled in chunks of
+    :data:`CHUNK_PAIRS` candidate voxels (each sphere's bounding cube), so the
+    memory stays bounded whatever N. ``periodic``: the grid is the period box
+    and voxels wrap round it (else the spheres are clipped to the box).
+    """
+    centers = np.asarray(centers, float)
+    radii = np.asarray(radii, float)
+    solid = np.zeros(grid.shape, bool)
+    if len(radii) == 0:
+        return solid
+    m = np.ceil(2.0 * float(radii.max()) / grid.h).astype(np.int64) + 2   # cube side in voxels
+    off = np.stack(np.meshgrid(*(np.arange(k) for k in m), indexing="ij"), -1).reshape(-1, 3)
+    chunk = max(1, CHUNK_PAIRS // len(off))
+    flat = solid.reshape(-1)
+    for s in range(0, len(radii), chunk):
+        x, r = centers[s:s + chunk], radii[s:s + chunk]
+        first = np.floor((x - r[:, None] - grid.lo) / grid.h - 0.5).astype(np.int64)
+        idx = first[:, None, :] + off[None, :, :]                  # (c, M, 3)
+        d = grid.lo + (idx + 0.5) * grid.h - x[:, None, :]
+        inside = np.einsum("cmk,cmk->cm", d, d) < (r * r)[:, None]
+        if periodic:
+            idx = np.mod(idx, grid.n)
+        else:
+            inside &= np.all((idx >= 0) & (idx < grid.n), axis=2)
+        idx = idx[inside]
+        flat[idx[:, 0] + grid.n[0] * (idx[:, 1] + grid.n[1] * idx[:, 2])] = True
+    return solid
+
+
+def neck_voxels(neck_radii, grid):
+    """Voxels across each neck, 2 a / max(h), for neck radii a (M,) [m]."""
+    return 2.0 * np.asarray(neck_radii, float) / float(np.max(grid.h))
+
+
+def resolved_share(neck_radii, grid, across=2.0):
+    """Share of necks at least ``across`` voxels wide (1.0 without necks)."""
+    n = neck_voxels(neck_radii, grid)
+    return 1.0 if n.size == 0 else float(np.mean(n >= across))
+
+
+def check_necks(share, voxel_size, warn=NECK_WARN_SHARE, error=NECK_ERROR_SHARE):
+    """A warning (str) when share < warn, None when not; AmfeError when share < error."""
+    what = (f"only {100 * share:.0f} % of the necks are at least 2 voxels across at voxel "
+            f"size {voxel_size:.4g} m")
+    if share < error:
+        raise AmfeError(f"{what} (fewer than {100 * error:.0f} %): the voxel solid does not "
+                        "join the spheres the bonds join; give a smaller --voxel-size")
+    if share < warn:
+        return (f"{what} (fewer than {100 * warn:.0f} %): the thinnest necks are under-"
+                "resolved and the voxel model is too soft there; use a smaller voxel size")
+    return None
+
+
+def load_carrying(solid, periodic=False):
+    """(kept mask like solid, pieces removed, voxels removed): the solid pieces that carry load.
+
+    Pieces are face-connected (two voxels sharing only an edge or a vertex
+    would hinge). Non-periodic (KUBC): a piece carries load when it touches
+    the box's boundary, where the displacements are prescribed; the others
+    float and are removed. Periodic: the largest piece on the torus (pieces
+    joined across opposite faces are one) is kept, the others removed.
+    """
+    labels, count = ndimage.label(solid)
+    if count == 0:
+        raise AmfeError("the voxel model has no solid voxel: the spheres miss every voxel "
+                        "centre; give a smaller voxel size")
+    if not periodic:
+        faces = [labels[0], labels[-1], labels[:, 0], labels[:, -1], labels[:, :, 0],
+                 labels[:, :, -1]]
+        touching = np.zeros(count + 1, bool)
+        for f in faces:
+            touching[f.ravel()] = True
+        touching[0] = False
+        keep = touching
+    else:
+        a, b = [], []
+        for axis in range(3):
+            lo, hi = np.take(labels, 0, axis).ravel(), np.take(labels, -1, axis).ravel()
+            both = (lo > 0) & (hi > 0)
+            a.append(lo[both])
+            b.append(hi[both])
+        a, b = np.concatenate(a), np.concatenate(b)
+        graph = coo_matrix((np.ones(a.size), (a, b)), shape=(count + 1, count + 1))
+        _, merged = connected_components(graph, directed=False)
+        sizes = np.bincount(merged[labels[labels > 0]], minlength=merged.max() + 1)
+        keep = merged == np.argmax(sizes)
+        keep[0] = False
+    kept = keep[labels]
+    pieces = int(count - len(np.unique(labels[kept]))) if kept.any() else count
+    if not kept.any():
+        raise AmfeError("no solid piece of the voxel model touches the box's boundary: "
+                        "nothing carries load")
+    return kept, pieces, int(solid.sum() - kept.sum())
+
+
+DEFAULT_VOXELS_PER_RADIUS = 4
+"""Default voxel size: the mean radius over this (docs/model.md, section 10)."""
+
+
+@dataclass
+class VoxelSolid:
+    """The voxel model of a bed before meshing (docs/model.md, section 10).
+
+    grid: :class:`Grid`; solid: (nz, ny, nx) bool, the load-carrying voxels;
+    kept: indices of the particles kept (section 5's largest bonded cluster);
+    n_bonds: bonds among them (n_bonds_input: in the whole bed); neck_share: share of their necks >= 2 voxels
+    across; solid_fraction: load-carrying solid voxels / all voxels;
+    pieces_removed, voxels_removed: the floating pieces taken out;
+    warnings: list of str.
+    """
+
+    grid: Grid
+    solid: np.ndarray
+    kept: np.ndarray
+    n_bonds: int
+    n_bonds_input: int
+    neck_share: float
+    solid_fraction: float
+    pieces_removed: int
+    voxels_removed: int
+    warnings: list
+
+
+def voxel_solid(centers, radii, voxel_size=None, period=None):
+    """The :class:`VoxelSolid` of a bed: centers (N, 3) [m], radii (N,) [m].
+
+    The particles kept are the frame's (docs/model.md, section 5: the largest
+    bonded cluster, on the torus when ``period`` (3,) [m] is given). The box is
+    the bounding box of their centres (KUBC, as the frame's) or the period box
+    [0, L) (periodic). ``voxel_size`` [m] defaults to the mean radius /
+    :data:`DEFAULT_VOXELS_PER_RADIUS`.
+    """
+    from amfe.model.bonds import contact_geometry, find_pairs, validate_particles
+    from amfe.model.frame import largest_component
+    from amfe.model.torus import check_box, find_periodic_pairs, wrap
+
+    centers, radii = validate_particles(centers, radii)
+    if voxel_size is None:
+        voxel_size = float(radii.mean()) / DEFAULT_VOXELS_PER_RADIUS
+    if period is None:
+        i, j = find_pairs(centers, radii)
+        offset = None
+    else:
+        L = check_box(period, radii)
+        centers = wrap(centers, L)
+        i, j, shift = find_periodic_pairs(centers, radii, L)
+        offset = shift * L
+    if i.size == 0:
+        raise AmfeError(f"the bed has no bonds: none of its {len(radii)} particles overlap")
+    a = contact_geometry(centers, radii, i, j, offset).a
+    keep = largest_component(len(radii), i, j)
+    x, r = centers[keep], radii[keep]
+    if period is None:
+        grid = grid_over(x.min(axis=0), x.max(axis=0), voxel_size)
+    else:
+        grid = grid_over(np.zeros(3), L, voxel_size)
+    warnings = []
+    share = resolved_share(a[keep[i]], grid)
+    note = check_necks(share, voxel_size)
+    if note:
+        warnings.append(note)
+    solid = voxelize(x, r, grid, periodic=period is not None)
+    kept_solid, pieces, voxels = load_carrying(solid, periodic=period is not None)
+    if pieces:
+        warnings.append(f"{pieces} solid piece(s) of {voxels} voxels carry no load (they touch "
+                        "no prescribed boundary or are not the largest piece) and were removed")
+    return VoxelSolid(grid=grid, solid=kept_solid, kept=np.flatnonzero(keep),
+                      n_bonds=int(keep[i].sum()), n_bonds_input=int(i.size), neck_share=share,
+                      solid_fraction=float(kept_solid.mean()), pieces_removed=pieces,
+                      voxels_removed=voxels, warnings=warnings)

@@ -1,0 +1,274 @@
+"""homogenize_voxel: the continuum of a bed's spheres by voxel finite elements, on PETSc.
+
+docs/model.md, section 10. The geometry and mesh are pure numpy
+(:mod:`amfe.model.voxel`, :mod:`amfe.model.voxelmesh`, :mod:`amfe.model.hex8`),
+built alike on every rank; each rank owns a contiguous block of active nodes
+(a slab in z) and assembles its rows into an AIJ matrix of block size 3. The
+six unit macro-strains are solved with CG + GAMG (near null space: the six
+rigid-body modes of the node coordinates), one operator and set-up for the
+six cases. KUBC prescribes u = eps (x - x_c) on every active node of the
+box's faces; the periodic condition solves for the periodic part on the torus.
+C comes from the work of the loads, corrected to second order in the solver's
+error (the dual-weighted residual of :mod:`amfe.solvers.correction`).
+
+Units inside: lengths in the first voxel side h_x, stresses in E.
+"""
+import sys
+import time
+
+import numpy as np
+import scipy.sparse as sp
+
+from amfe.errors import AmfeError
+from amfe.model.averages import (asymmetry, compliance_and_constants, dual_corrected,
+                                 unit_strains)
+from amfe.model.hex8 import VERTICES, element_stiffness
+from amfe.model.material import STEEL, SOURCE_DEFAULT
+from amfe.model.voxel import voxel_solid
+from amfe.model.voxelmesh import block_rows, build_mesh, element_loads
+from amfe.io.result_meta import header
+from amfe.solvers.ksp import DEFAULT_RTOL, RESIDUAL_FACTOR, check_solution, make_ksp, petsc_options
+from amfe.solvers.partition import row_ranges
+from amfe.solvers.petsc import init_petsc
+
+EPS = float(np.finfo(float).eps)
+
+
+def homogenize_voxel(centers, radii, material=None, *, voxel_size=None, period=None,
+                     comm=None, rtol=None, max_it=None, ksp_options=None, initial="affine",
+                     accept_unconverged=False, progress=False, material_source=None):
+    """Effective C of the union of a bed's spheres, meshed by voxels of side ``voxel_size``.
+
+    centers (N, 3) [m], radii (N,) [m], the same on every rank; material: a
+    :class:`~amfe.model.material.Material` (E, nu used; default steel);
+    voxel_size [m] (default mean radius / 4); period (3,) [m]: solve the
+    periodic condition on this period box (a periodic bed), else KUBC on the
+    box of the kept centres. rtol: CG's relative tolerance (default 1e-8);
+    initial: "affine" (the applied field, KUBC) or "zero" (the initial guess).
+    Returns the result dict of :func:`amfe.solvers.driver.homogenize_bed`'s
+    shape (properties, C, S [Pa, 1/Pa], volume [m^3], counts, solver,
+    material, warnings, the header) with a ``model`` record (name "voxel",
+    voxel size, voxels, solid fraction, DOFs, neck share, pieces removed).
+    Raises AmfeError on every rank for bad input or a failed solve.
+    """
+    PETSc = init_petsc()
+    comm = PETSc.COMM_WORLD if comm is None else (
+        comm if isinstance(comm, PETSc.Comm) else PETSc.Comm(comm))
+    mpi = comm.tompi4py()
+    source = material_source or (SOURCE_DEFAULT if material is None else "argument")
+    material = material or STEEL
+    log = _logger(mpi.rank, progress)
+    t0 = time.perf_counter()
+    geo = voxel_solid(centers, radii, voxel_size, period)
+    t_geo = time.perf_counter() - t0
+    C, sol, mesh = voxel_stiffness(geo, material, comm, periodic=period is not None, rtol=rtol,
+                                   max_it=max_it, ksp_options=ksp_options, initial=initial,
+                                   accept_unconverged=accept_unconverged, log=log)
+    S, props = compliance_and_constants(C)
+    model = {"name": "voxel", "voxel_size": float(geo.grid.h.max()),
+             "voxel_sides": geo.grid.h.tolist(), "voxels": geo.grid.n.tolist(),
+             "solid_voxels": int(mesh.n_elements), "solid_fraction": geo.solid_fraction,
+             "dofs": 3 * mesh.n_nodes, "nodes": int(mesh.n_nodes),
+             "necks_resolved_share": geo.neck_share, "pieces_removed": geo.pieces_removed,
+             "voxels_removed": geo.voxels_removed, "element": "hex8 (trilinear, 2x2x2 Gauss)",
+             "box": {"min": geo.grid.lo.tolist(),
+                     "max": (geo.grid.lo + geo.grid.n * geo.grid.h).tolist()},
+             "geometry_seconds": t_geo}
+    record = {"E": material.E, "nu": material.nu, "psi": material.psi, "source": source}
+    out = header("homogenize", centers, radii, record)
+    out["counts"].update(particles_kept=int(len(geo.kept)), bonds_kept=geo.n_bonds,
+                         bonds_input=geo.n_bonds_input)
+    out.update({
+        "properties": {k: float(v) for k, v in props.items()},
+        "C": C.tolist(), "S": S.tolist(), "volume": geo.grid.volume,
+        "n_particles": int(len(radii)), "n_removed": int(len(radii) - len(geo.kept)),
+        "n_bonds": geo.n_bonds, "bc": "kubc" if period is None else "periodic",
+        "ranks": int(mpi.size),
+        "solver": {"method": "gamg", "reason": "voxel model: CG + GAMG, rigid-body near null "
+                   "space", "ksp_type": sol["ksp_type"], "pc_type": sol["pc_type"],
+                   "rtol": sol["rtol"], "residual_limit": RESIDUAL_FACTOR * sol["rtol"],
+                   "iterations": sol["iterations"], "residuals": sol["residuals"],
+                   "setup_seconds": sol["setup_seconds"], "solve_seconds": sol["solve_seconds"],
+                   "assembly_seconds": sol["assembly_seconds"], "C_asymmetry": float(asymmetry(C)),
+                   "stress_asymmetry": sol["stress_asymmetry"], **sol["stats"]},
+        "material": record, "warnings": geo.warnings + sol["warnings"], "model": model})
+    return out
+
+
+def voxel_stiffness(geo, material, comm, *, periodic=False, rtol=None, max_it=None,
+                    ksp_options=None, initial="affine", accept_unconverged=False, log=None):
+    """(C (6, 6) [Pa], solve record, mesh) of a :class:`~amfe.model.voxel.VoxelSolid`.
+
+    geo.solid are the voxels meshed (load-carrying already); periodic: the
+    grid is a period box. The other arguments as :func:`homogenize_voxel`.
+    """
+    PETSc = init_petsc()
+    mpi = comm.tompi4py()
+    log = log or (lambda line: None)
+    rtol = DEFAULT_RTOL if rtol is None else rtol
+    if initial not in ("affine", "zero"):
+        raise AmfeError(f"initial must be 'affine' or 'zero', got {initial!r}")
+    mesh = build_mesh(geo.solid, periodic=periodic)
+    log(f"voxels: {geo.grid.n.tolist()} of {geo.grid.h.max():.3g} m, {mesh.n_elements} solid "
+        f"(fraction {geo.solid_fraction:.4f}), {mesh.n_nodes} nodes, {len(geo.kept)} particles; "
+        f"{100 * geo.neck_share:.0f} % of necks >= 2 voxels")
+    h = geo.grid.h / geo.grid.h[0]
+    Ke = element_stiffness(h, 1.0, material.nu)
+    bounds = row_ranges(mesh.n_nodes, mpi.size)
+    r0, r1 = int(bounds[mpi.rank]), int(bounds[mpi.rank + 1])
+    t1 = time.perf_counter()
+    A0 = _assemble(PETSc, comm, mesh, Ke, r0, r1)
+    x_local = mesh.node_ijk(np.arange(r0, r1)) * h          # node coordinates, units h_x
+    volume = float(np.prod(geo.grid.n * h))
+    t_asm = time.perf_counter() - t1
+    cases = _periodic(mesh, Ke, h, r0, r1) if periodic else \
+        _kubc(mesh, x_local, geo.grid.n * h / 2.0, r0, r1)
+    sol = _solve(PETSc, comm, A0, cases, x_local, rtol, max_it, ksp_options, initial,
+                 accept_unconverged, log)
+    W = cases["W0"] - sol["work"] if periodic else sol["work"]
+    W, sol["stats"] = dual_corrected(W, [sol["cross"]], -1)
+    sol["assembly_seconds"], sol["rtol"] = t_asm, rtol
+    return W / volume * material.E, sol, mesh
+
+
+def _logger(rank, progress):
+    start = time.perf_counter()
+
+    def log(line):
+        if progress and rank == 0:
+            print(f"[{time.perf_counter() - start:7.2f} s] {line}", file=sys.stderr, flush=True)
+    return log
+
+
+def _assemble(PETSc, comm, mesh, Ke, r0, r1):
+    """Rows [3 r0, 3 r1) of the stiffness as a distributed AIJ matrix of block size 3."""
+    indptr, cols, blocks = block_rows(mesh, Ke, r0, r1)
+    nloc, n = r1 - r0, mesh.n_nodes
+    csr = sp.bsr_matrix((blocks, cols, indptr), shape=(3 * nloc, 3 * n)).tocsr()
+    it = PETSc.IntType
+    A = PETSc.Mat().createAIJ(size=((3 * nloc, 3 * n), (3 * nloc, 3 * n)), bsize=3,
+                              csr=(csr.indptr.astype(it), csr.indices.astype(it), csr.data),
+                              comm=comm)
+    A.setOption(PETSc.Mat.Option.NO_OFF_PROC_ENTRIES, True)
+    A.assemble()
+    return A
+
+
+def _kubc(mesh, x_local, center, r0, r1):
+    """KUBC's six cases: prescribed local DOFs and their values (6, 3 nloc) and the affine
+    fields (6, 3 nloc) [units h_x], eps_k (x - x_c) on every local node."""
+    boundary = mesh.boundary_nodes()
+    mine = boundary[(boundary >= r0) & (boundary < r1)] - r0
+    dofs = (3 * mine[:, None] + np.arange(3)).ravel()
+    affine = np.array([((x_local - center) @ e.T).ravel() for e in unit_strains()])
+    fixed = np.zeros((6, affine.shape[1]))
+    fixed[:, dofs] = affine[:, dofs]
+    return {"dofs": dofs, "values": fixed, "affine": affine, "forces": None}
+
+
+def _periodic(mesh, Ke, h, r0, r1):
+    """The periodic condition's six cases on the torus (docs/model.md, section 10):
+    loads F_k = -sum_e Ke q_k, q_k = eps_k applied to the element's vertex offsets, node 0's
+    translations pinned (the solution is unique up to a translation), and
+    W0_IJ = n_e q_I . Ke q_J."""
+    local_vertices = VERTICES * h
+    q = np.array([(local_vertices @ e.T).ravel() for e in unit_strains()])   # (6, 24)
+    forces = np.array([-element_loads(mesh, Ke, qk, r0, r1).ravel() for qk in q])
+    # the loads before they cancel between elements (a solid node gets none): the scale of
+    # their rounding error, for the residual's floor
+    gross = np.array([np.sum(element_loads(mesh, np.abs(Ke), np.abs(qk), r0, r1) ** 2)
+                      for qk in q])
+    dofs = np.arange(3) if r0 == 0 and r1 > 0 else np.zeros(0, np.int64)
+    W0 = mesh.n_elements * q @ Ke @ q.T
+    n = 3 * (r1 - r0)
+    return {"dofs": dofs, "values": np.zeros((6, n)), "affine": np.zeros((6, n)),
+            "forces": forces, "W0": W0, "gross_sq": gross}
+
+
+def _solve(PETSc, comm, A0, cases, x_local, rtol, max_it, ksp_options, initial, accept, log):
+    """Solve the six cases on one operator; the work matrix and cross products.
+
+    work[i, j]: KUBC g_i . A0 x_j (the prescribed translations' work against the
+    reactions), periodic F_i . x_j; cross[i, j] = x_i . r_j, r_j the true residual
+    on the free DOFs (the prescribed values set exactly first).
+    """
+    mpi = comm.tompi4py()
+    r0 = A0.getOwnershipRange()[0]
+    dofs = cases["dofs"].astype(PETSc.IntType) + r0
+    A = A0.duplicate(copy=True)
+    A.zeroRowsColumns(dofs, diag=1.0)
+    coords = A.createVecRight()
+    coords.setBlockSize(3)
+    coords.setArray(x_local.ravel())
+    A.setNearNullSpace(PETSc.NullSpace().createRigidBody(coords))
+    t0 = time.perf_counter()
+    with petsc_options(PETSc, ksp_options) as unused:
+        ksp = make_ksp(PETSc, A, rtol=rtol, max_it=max_it)
+        ksp.setInitialGuessNonzero(True)
+        ksp.setUp()
+    setup = time.perf_counter() - t0
+    log(f"GAMG set-up {setup:.2f} s")
+    xs, rs, loads, iterations, residuals, warnings = [], [], [], [], [], []
+    norm_A = A0.norm(PETSc.NormType.FROBENIUS)
+    t1 = time.perf_counter()
+    for k in range(6):
+        g, x, b = A.createVecRight(), A.createVecRight(), A.createVecRight()
+        g.setArray(cases["values"][k])
+        A0.mult(g, b)
+        b.scale(-1.0)
+        if cases["forces"] is not None:
+            b.setArray(b.getArray() + cases["forces"][k])
+        b.setValues(dofs, cases["values"][k][cases["dofs"]])
+        b.assemble()
+        x.setArray(cases["affine"][k] if initial == "affine" else 0.0)
+        ksp.solve(b, x)
+        x.setValues(dofs, cases["values"][k][cases["dofs"]])   # exact prescribed values
+        x.assemble()
+        r = b.duplicate()
+        A.mult(x, r)
+        r.aypx(-1.0, b)                                         # r = b - A x (free rows)
+        bnorm = b.norm()
+        residual = r.norm() / bnorm if bnorm > 0 else 0.0
+        gross = (np.sqrt(mpi.allreduce(cases["gross_sq"][k])) if "gross_sq" in cases
+                 else norm_A * g.norm())
+        floor = EPS * (norm_A * x.norm() + gross) / bnorm if bnorm > 0 else 0.0
+        warning, _ = check_solution(PETSc, ksp, f"voxel load case {k}", residual,
+                                    lambda: (residual, "unpreconditioned", floor), accept=accept)
+        if warning:
+            warnings.append(warning)
+        iterations.append(int(ksp.getIterationNumber()))
+        residuals.append(float(residual))
+        f = A0.createVecLeft()
+        A0.mult(x, f)
+        xs.append(x), rs.append(r), loads.append(f if cases["forces"] is None else None)
+        log(f"case {k}: {iterations[-1]} iterations, true residual {residual:.1e}")
+    solve = time.perf_counter() - t1
+    if cases["forces"] is None:
+        work = np.array([[g_dot(A, cases["values"][i], loads[j]) for j in range(6)]
+                         for i in range(6)])
+        stress_asym = max(_moment_asymmetry(mpi, loads[j], cases, x_local) for j in range(6))
+    else:
+        work = np.array([[g_dot(A, cases["forces"][i], xs[j]) for j in range(6)]
+                         for i in range(6)])
+        stress_asym = 0.0
+    cross = np.array([[xs[i].dot(rs[j]) for j in range(6)] for i in range(6)])
+    return {"work": work, "cross": cross, "iterations": iterations, "residuals": residuals,
+            "setup_seconds": setup, "solve_seconds": solve, "warnings": warnings + (
+                [f"PETSc options never used: {', '.join(unused)}"] if unused else []),
+            "ksp_type": ksp.getType(), "pc_type": ksp.getPC().getType(),
+            "stress_asymmetry": float(stress_asym)}
+
+
+def g_dot(A, local, vec):
+    """Global dot product of a local array (this rank's rows) with a PETSc Vec."""
+    v = A.createVecRight()
+    v.setArray(local)
+    return v.dot(vec)
+
+
+def _moment_asymmetry(mpi, f, cases, x_local):
+    """||M - M^T|| / ||M|| of the reaction moment M = sum_b f_b (x) x_b over the boundary."""
+    nodes = np.unique(cases["dofs"] // 3)
+    F = f.getArray().reshape(-1, 3)[nodes]
+    M = mpi.allreduce(F.T @ x_local[nodes])
+    return asymmetry(M)
