@@ -124,7 +124,7 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
             raise error
         return _voxel(centers, radii, material, source, box, bc, model, voxel_size, pcomm,
                       rtol, max_it, petsc_options, accept_unconverged, progress, vtu_dir,
-                      input_path)
+                      input_path, max_memory)
 
     def one(bc, vtu_dir):
         d = homogenize_bed(centers, radii, material, a_star_cap=a_star_cap, rtol=rtol,
@@ -142,7 +142,7 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
 
 
 def _voxel(centers, radii, material, source, box, bc, model, voxel_size, comm, rtol, max_it,
-           petsc_options, accept_unconverged, progress, vtu_dir, input_path):
+           petsc_options, accept_unconverged, progress, vtu_dir, input_path, max_memory):
     """The voxel model's Result (issue 35; docs/model.md, section 10)."""
     from amfe.solvers.voxel import homogenize_voxel
     if model != "voxel":
@@ -159,7 +159,7 @@ def _voxel(centers, radii, material, source, box, bc, model, voxel_size, comm, r
                          period=box if bc == "periodic" else None, comm=comm, rtol=rtol,
                          max_it=max_it, ksp_options=petsc_options,
                          accept_unconverged=accept_unconverged, progress=progress,
-                         material_source=source)
+                         material_source=source, max_memory=max_memory)
     describe_input(d, input_path)
     return Result.from_dict(d)
 

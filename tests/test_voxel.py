@@ -210,6 +210,15 @@ def test_result_follows_the_schema_and_api_dispatch(bed_result, tmp_path):
         amfe.homogenize(bed, model="beam")
 
 
+def test_memory_estimate_refuses_before_allocating():
+    from amfe.solvers.voxel import homogenize_voxel
+    x, r = solid_lattice()
+    with pytest.raises(AmfeError, match="memory"):       # the grid alone: 8e12 voxels
+        homogenize_voxel(x, r, voxel_size=1e-9)
+    with pytest.raises(AmfeError, match="nodes"):        # the grid fits, the solve does not
+        homogenize_voxel(x, r, voxel_size=0.5e-5, max_memory=200_000)
+
+
 # ----------------------------------------------------------------------------- MPI
 @pytest.mark.mpi
 def test_one_and_two_ranks_agree(tmp_path):

@@ -162,6 +162,18 @@ def load_carrying(solid, periodic=False):
 
 DEFAULT_VOXELS_PER_RADIUS = 4
 """Default voxel size: the mean radius over this (docs/model.md, section 10)."""
+GRID_BYTES = 32
+"""Bytes per voxel of the grid that every rank holds (solid masks, component labels,
+node numbers)."""
+NODE_BYTES = 12_000
+"""Bytes per active node over all ranks: the matrix (about 81 nonzeros a row), its
+constrained copy, GAMG's hierarchy, six cases' vectors and the assembly's temporaries
+(measured 10.0 kB per node on one rank, 18 000 and 45 000 nodes, KUBC)."""
+
+
+def voxel_bytes(voxels, nodes, ranks=1):
+    """Estimated peak bytes over ``ranks`` of a voxel model: grids replicated, the rest shared."""
+    return GRID_BYTES * voxels * ranks + NODE_BYTES * nodes
 
 
 @dataclass
@@ -188,15 +200,20 @@ class VoxelSolid:
     warnings: list
 
 
-def voxel_solid(centers, radii, voxel_size=None, period=None):
+def voxel_solid(centers, radii, voxel_size=None, period=None, box=None, max_memory=None,
+                ranks=1):
     """The :class:`VoxelSolid` of a bed: centers (N, 3) [m], radii (N,) [m].
 
     The particles kept are the frame's (docs/model.md, section 5: the largest
     bonded cluster, on the torus when ``period`` (3,) [m] is given). The box is
     the bounding box of their centres (KUBC, as the frame's) or the period box
     [0, L) (periodic). ``voxel_size`` [m] defaults to the mean radius /
-    :data:`DEFAULT_VOXELS_PER_RADIUS`.
+    :data:`DEFAULT_VOXELS_PER_RADIUS`. ``box`` ((3,), (3,)) [m]: KUBC on this box
+    instead (the spheres clipped to it). ``max_memory`` [bytes] (default: half
+    the machine's): a grid whose estimate (:func:`voxel_bytes`) exceeds it is
+    refused before it is allocated.
     """
+    from amfe.model.memory import check_memory
     from amfe.model.bonds import contact_geometry, find_pairs, validate_particles
     from amfe.model.frame import largest_component
     from amfe.model.torus import check_box, find_periodic_pairs, wrap
@@ -217,10 +234,16 @@ def voxel_solid(centers, radii, voxel_size=None, period=None):
     a = contact_geometry(centers, radii, i, j, offset).a
     keep = largest_component(len(radii), i, j)
     x, r = centers[keep], radii[keep]
-    if period is None:
-        grid = grid_over(x.min(axis=0), x.max(axis=0), voxel_size)
-    else:
+    if period is not None:
         grid = grid_over(np.zeros(3), L, voxel_size)
+    elif box is not None:
+        grid = grid_over(box[0], box[1], voxel_size)
+    else:
+        grid = grid_over(x.min(axis=0), x.max(axis=0), voxel_size)
+    voxels = int(np.prod(grid.n))
+    check_memory(voxel_bytes(voxels, 0, ranks), max_memory,
+                 f"a voxel model of {voxels:.3g} voxels ({'x'.join(map(str, grid.n))}) on "
+                 f"{ranks} rank(s)")
     warnings = []
     share = resolved_share(a[keep[i]], grid)
     note = check_necks(share, voxel_size)
