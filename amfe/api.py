@@ -120,11 +120,9 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
 
     # --- voxel model dispatch (issue 35): its own solver, nothing of the frame's path ---
     if model != "frame" or voxel_size is not None:
-        if error is not None:
-            raise error
         return _voxel(centers, radii, material, source, box, bc, model, voxel_size, pcomm,
                       rtol, max_it, petsc_options, accept_unconverged, progress, vtu_dir,
-                      input_path, max_memory)
+                      input_path, max_memory, solver, error)
 
     def one(bc, vtu_dir):
         d = homogenize_bed(centers, radii, material, a_star_cap=a_star_cap, rtol=rtol,
@@ -142,9 +140,12 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
 
 
 def _voxel(centers, radii, material, source, box, bc, model, voxel_size, comm, rtol, max_it,
-           petsc_options, accept_unconverged, progress, vtu_dir, input_path, max_memory):
+           petsc_options, accept_unconverged, progress, vtu_dir, input_path, max_memory,
+           solver, error):
     """The voxel model's Result (issue 35; docs/model.md, section 10)."""
     from amfe.solvers.voxel import homogenize_voxel
+    if solver not in ("auto", "gamg"):
+        raise AmfeError(f"homogenize: the voxel model solves with CG + GAMG, not {solver!r}")
     if model != "voxel":
         raise AmfeError(f"homogenize: model must be 'frame' or 'voxel', got {model!r}"
                         + ("" if model != "frame" else " (voxel_size needs model='voxel')"))
@@ -159,7 +160,7 @@ def _voxel(centers, radii, material, source, box, bc, model, voxel_size, comm, r
                          period=box if bc == "periodic" else None, comm=comm, rtol=rtol,
                          max_it=max_it, ksp_options=petsc_options,
                          accept_unconverged=accept_unconverged, progress=progress,
-                         material_source=source, max_memory=max_memory)
+                         material_source=source, max_memory=max_memory, input_error=error)
     describe_input(d, input_path)
     return Result.from_dict(d)
 

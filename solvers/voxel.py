@@ -24,10 +24,13 @@ from amfe.model.averages import (asymmetry, compliance_and_constants, dual_corre
                                  unit_strains)
 from amfe.model.hex8 import VERTICES, element_stiffness
 from amfe.model.material import STEEL, SOURCE_DEFAULT
+from amfe.model.bonds import validate_particles
 from amfe.model.memory import check_memory
 from amfe.model.voxel import voxel_bytes, voxel_solid
 from amfe.model.voxelmesh import block_rows, build_mesh, element_loads
 from amfe.io.result_meta import header
+from amfe.solvers.consistency import agree_across_ranks, digest
+from amfe.solvers.inputs import check_rtol
 from amfe.solvers.ksp import RESIDUAL_FACTOR, check_solution, make_ksp, petsc_options
 from amfe.solvers.partition import row_ranges
 from amfe.solvers.petsc import init_petsc
@@ -43,7 +46,7 @@ periodic bed at 3 um voxels, in 8 and 11 iterations against 21 and 26
 def homogenize_voxel(centers, radii, material=None, *, voxel_size=None, period=None,
                      comm=None, rtol=None, max_it=None, ksp_options=None, initial="affine",
                      accept_unconverged=False, progress=False, material_source=None,
-                     box=None, max_memory=None):
+                     box=None, max_memory=None, input_error=None):
     """Effective C of the union of a bed's spheres, meshed by voxels of side ``voxel_size``.
 
     centers (N, 3) [m], radii (N,) [m], the same on every rank; material: a
@@ -56,6 +59,9 @@ def homogenize_voxel(centers, radii, material=None, *, voxel_size=None, period=N
     box ((3,), (3,)) [m]: KUBC on this box instead of the centres' (the spheres
     clipped to it). max_memory [bytes]: refuse a model estimated to need more
     (default: half the machine's memory), before allocating its grid.
+    input_error: an AmfeError the caller met preparing this rank's input;
+    the ranks' inputs are compared first (one collective), so a bad or
+    differing input is the same error on every rank, never a hang.
     Returns the result dict of :func:`amfe.solvers.driver.homogenize_bed`'s
     shape (properties, C, S [Pa, 1/Pa], volume [m^3], counts, solver,
     material, warnings, the header) with a ``model`` record (name "voxel",
@@ -68,6 +74,21 @@ def homogenize_voxel(centers, radii, material=None, *, voxel_size=None, period=N
     mpi = comm.tompi4py()
     source = material_source or (SOURCE_DEFAULT if material is None else "argument")
     material = material or STEEL
+    raw, error = (centers, radii), input_error
+    try:
+        if error is not None:
+            raise error
+        centers, radii = validate_particles(centers, radii)
+        if rtol is not None:
+            check_rtol(rtol)
+        if initial not in ("affine", "zero"):
+            raise AmfeError(f"initial must be 'affine' or 'zero', got {initial!r}")
+    except AmfeError as exc:
+        error = exc
+    options = (voxel_size, digest(period), digest(box), rtol, max_it, initial,
+               sorted((ksp_options or {}).items()))
+    agree_across_ranks(mpi, {"centers": raw[0], "radii": raw[1], "material": repr(material),
+                             "options": repr(options)}, error)
     log = _logger(mpi.rank, progress)
     t0 = time.perf_counter()
     geo = voxel_solid(centers, radii, voxel_size, period, box=box, max_memory=max_memory,
@@ -120,8 +141,6 @@ def voxel_stiffness(geo, material, comm, *, periodic=False, rtol=None, max_it=No
     mpi = comm.tompi4py()
     log = log or (lambda line: None)
     rtol = VOXEL_RTOL if rtol is None else rtol
-    if initial not in ("affine", "zero"):
-        raise AmfeError(f"initial must be 'affine' or 'zero', got {initial!r}")
     mesh = build_mesh(geo.solid, periodic=periodic)
     voxels = int(np.prod(geo.grid.n))
     check_memory(voxel_bytes(voxels, mesh.n_nodes, mpi.size), max_memory,

@@ -235,10 +235,18 @@ def test_one_and_two_ranks_agree(tmp_path):
         "        r = homogenize_voxel(bed.centers, bed.radii, voxel_size=5e-6, period=period,\n"
         "                             comm=comm, rtol=1e-10)\n"
         "        out[f'{name}{r[\"ranks\"]}'] = r['C']\n"
+        "from amfe.errors import AmfeError\n"
+        "try:\n"   # a rank-dependent bed: the same error on both ranks, no hang
+        "    homogenize_voxel(bed.centers, bed.radii * (1 + 1e-3 * MPI.COMM_WORLD.rank))\n"
+        "except AmfeError as exc:\n"
+        "    out['error'] = str(exc)\n"
+        "out['errors'] = MPI.COMM_WORLD.allgather('error' in out)\n"
         "if MPI.COMM_WORLD.rank == 0: print(json.dumps(out))\n")
     proc = run_mpi_script(script)
     assert proc.returncode == 0, proc.stderr
-    out = {k: np.array(v) for k, v in json.loads(proc.stdout.strip().splitlines()[-1]).items()}
+    out = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert out.pop("errors") == [True, True] and "different inputs" in out.pop("error")
+    out = {k: np.array(v) for k, v in out.items()}
     for name in ("kubc", "periodic"):
         scale = np.abs(out[f"{name}1"]).max()
         assert np.abs(out[f"{name}2"] - out[f"{name}1"]).max() <= 1e-8 * scale
