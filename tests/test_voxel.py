@@ -208,6 +208,15 @@ def test_result_follows_the_schema_and_api_dispatch(bed_result, tmp_path):
         amfe.homogenize(bed, model="voxel", bc="subc")
     with pytest.raises(AmfeError, match="model must be"):
         amfe.homogenize(bed, model="beam")
+    with pytest.raises(AmfeError, match="CG \\+ GAMG"):
+        amfe.homogenize(bed, model="voxel", solver="cholesky")
+    with pytest.raises(AmfeError, match="ParaView"):
+        amfe.homogenize(bed, model="voxel", vtu_dir=str(tmp_path / "vtu"))
+    with pytest.raises(AmfeError, match="not periodic"):
+        amfe.homogenize(bed, model="voxel", bc="periodic")
+    bad = dict(bed_result, model={**bed_result["model"], "solid_fraction": 1.5})
+    with pytest.raises(AmfeError, match="model"):
+        validate(bad)
 
 
 def test_memory_estimate_refuses_before_allocating():
