@@ -176,6 +176,56 @@ def test_floating_piece_changes_nothing_once_removed():
     assert np.abs(Cs[0] - Cs[1]).max() <= 1e-10 * STEEL_E
 
 
+def scipy_voxel_C(geo, periodic, E=STEEL_E, nu=STEEL_NU):
+    """C [Pa] of a VoxelSolid by scipy's sparse LU on the element-by-element matrix: KUBC
+    from the reactions' work, periodic from W0 - F . w (docs/model.md, section 10)."""
+    from amfe.model.averages import unit_strains
+    from scipy.sparse.linalg import splu
+    h = geo.grid.h / geo.grid.h[0]
+    Ke = element_stiffness(h, 1.0, nu)
+    K, mesh = direct_assembly(geo.solid, Ke, periodic)
+    x = mesh.node_ijk(np.arange(mesh.n_nodes)) * h
+    V = np.prod(geo.grid.n * h)
+    n = K.shape[0]
+    if not periodic:
+        fixed = (3 * mesh.boundary_nodes()[:, None] + np.arange(3)).ravel()
+        g = np.array([((x - geo.grid.n * h / 2) @ e.T).ravel() for e in unit_strains()])
+        g[:, np.setdiff1d(np.arange(n), fixed)] = 0.0
+        free = np.setdiff1d(np.arange(n), fixed)
+        u = g.copy()
+        u[:, free] = splu(K[free][:, free].tocsc()).solve(-(K[free][:, fixed] @ g[:, fixed].T)).T
+        return g @ (K @ u.T) / V * E
+    q = np.array([((VERTICES * h) @ e.T).ravel() for e in unit_strains()])
+    F = np.zeros((6, n))
+    for iz, iy, ix in zip(*np.nonzero(geo.solid)):
+        v = np.mod(np.array([ix, iy, iz]) + VERTICES, mesh.n)
+        ids = mesh.node_id[v[:, 0] + mesh.m[0] * (v[:, 1] + mesh.m[1] * v[:, 2])]
+        dofs = (3 * ids[:, None] + np.arange(3)).ravel()
+        F[:, dofs] -= (Ke @ q.T).T
+    free = np.arange(3, n)                     # node 0's translations pinned
+    w = np.zeros((6, n))
+    w[:, free] = splu(K[free][:, free].tocsc()).solve(F[:, free].T.copy()).T
+    W0 = geo.solid.sum() * q @ Ke @ q.T
+    return (W0 - F @ w.T) / V * E
+
+
+@pytest.mark.parametrize("periodic", [False, True])
+def test_petsc_solve_equals_an_independent_scipy_solve(periodic):
+    from amfe.solvers.petsc import init_petsc
+    from amfe.solvers.voxel import voxel_stiffness
+    bed = generate_bed(size=(60e-6, 60e-6, 50e-6), seed=2, periodic=True)
+    geo = voxel_solid(bed.centers, bed.radii, 5e-6, bed.attrs["periodic"] if periodic else None)
+    C = voxel_stiffness(geo, Material(), init_petsc().COMM_SELF, periodic=periodic,
+                        rtol=1e-10)[0]
+    want = scipy_voxel_C(geo, periodic)
+    assert np.abs(C - want).max() <= 1e-8 * np.abs(want).max()
+    # a loose solve: the second-order correction leaves a small fraction of its own size
+    C, sol, _ = voxel_stiffness(geo, Material(), init_petsc().COMM_SELF, periodic=periodic,
+                                rtol=1e-4)
+    error = np.abs(C - want).max() / np.abs(want).max()
+    assert error < 0.05 * sol["stats"]["correction"] and error < 1e-6
+
+
 @pytest.fixture(scope="module")
 def bed_result():
     from amfe.solvers.voxel import homogenize_voxel
