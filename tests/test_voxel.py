@@ -107,18 +107,24 @@ def test_neck_resolution_warning_and_error():
 
 
 # ----------------------------------------------------------------------------- mesh
+def element_dofs(mesh):
+    """(n_solid, 24) DOFs of every solid element, element by element (x fastest)."""
+    out = []
+    for iz, iy, ix in zip(*np.nonzero(mesh.solid)):
+        v = np.array([ix, iy, iz]) + VERTICES
+        v = np.mod(v, mesh.n) if mesh.periodic else v
+        ids = mesh.node_id[v[:, 0] + mesh.m[0] * (v[:, 1] + mesh.m[1] * v[:, 2])]
+        out.append((3 * ids[:, None] + np.arange(3)).ravel())
+    return np.array(out)
+
+
 def direct_assembly(solid, K, periodic):
     """The stiffness summed element by element (scipy), node numbering of build_mesh."""
     mesh = build_mesh(solid, periodic)
-    rows, cols, vals = [], [], []
-    for iz, iy, ix in zip(*np.nonzero(solid)):
-        v = np.array([ix, iy, iz]) + VERTICES
-        v = np.mod(v, mesh.n) if periodic else v
-        ids = mesh.node_id[v[:, 0] + mesh.m[0] * (v[:, 1] + mesh.m[1] * v[:, 2])]
-        dofs = (3 * ids[:, None] + np.arange(3)).ravel()
-        rows.append(np.repeat(dofs, 24)), cols.append(np.tile(dofs, 24)), vals.append(K.ravel())
+    dofs = element_dofs(mesh)
     n = 3 * mesh.n_nodes
-    return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+    return sp.csr_matrix((np.tile(K.ravel(), len(dofs)), (np.repeat(dofs, 24, axis=1).ravel(),
+                                                          np.tile(dofs, 24).ravel())),
                          shape=(n, n)), mesh
 
 
@@ -177,13 +183,15 @@ def test_floating_piece_changes_nothing_once_removed():
 
 
 def scipy_voxel_C(geo, periodic, E=STEEL_E, nu=STEEL_NU):
-    """C [Pa] of a VoxelSolid by scipy's sparse LU on the element-by-element matrix: KUBC
-    from the reactions' work, periodic from W0 - F . w (docs/model.md, section 10)."""
+    """C [Pa] of a VoxelSolid by scipy's sparse LU on the element-by-element matrix, twice:
+    from the work (KUBC: the reactions'; periodic: W0 - F . w) and from the volume
+    average of the element stresses over the box (docs/model.md, section 10)."""
     from amfe.model.averages import unit_strains
     from scipy.sparse.linalg import splu
     h = geo.grid.h / geo.grid.h[0]
     Ke = element_stiffness(h, 1.0, nu)
     K, mesh = direct_assembly(geo.solid, Ke, periodic)
+    dofs = element_dofs(mesh)
     x = mesh.node_ijk(np.arange(mesh.n_nodes)) * h
     V = np.prod(geo.grid.n * h)
     n = K.shape[0]
@@ -194,19 +202,18 @@ def scipy_voxel_C(geo, periodic, E=STEEL_E, nu=STEEL_NU):
         free = np.setdiff1d(np.arange(n), fixed)
         u = g.copy()
         u[:, free] = splu(K[free][:, free].tocsc()).solve(-(K[free][:, fixed] @ g[:, fixed].T)).T
-        return g @ (K @ u.T) / V * E
-    q = np.array([((VERTICES * h) @ e.T).ravel() for e in unit_strains()])
-    F = np.zeros((6, n))
-    for iz, iy, ix in zip(*np.nonzero(geo.solid)):
-        v = np.mod(np.array([ix, iy, iz]) + VERTICES, mesh.n)
-        ids = mesh.node_id[v[:, 0] + mesh.m[0] * (v[:, 1] + mesh.m[1] * v[:, 2])]
-        dofs = (3 * ids[:, None] + np.arange(3)).ravel()
-        F[:, dofs] -= (Ke @ q.T).T
-    free = np.arange(3, n)                     # node 0's translations pinned
-    w = np.zeros((6, n))
-    w[:, free] = splu(K[free][:, free].tocsc()).solve(F[:, free].T.copy()).T
-    W0 = geo.solid.sum() * q @ Ke @ q.T
-    return (W0 - F @ w.T) / V * E
+        work, elements = g @ (K @ u.T), u[:, dofs]                 # (6, n_e, 24)
+    else:
+        q = np.array([((VERTICES * h) @ e.T).ravel() for e in unit_strains()])
+        F = np.zeros((6, n))
+        np.subtract.at(F, (slice(None), dofs), (Ke @ q.T).T[:, None, :])
+        free = np.arange(3, n)                 # node 0's translations pinned
+        w = np.zeros((6, n))
+        w[:, free] = splu(K[free][:, free].tocsc()).solve(F[:, free].T.copy()).T
+        work = len(dofs) * q @ Ke @ q.T - F @ w.T
+        elements = w[:, dofs] + q[:, None, :]
+    strain = np.einsum("ij,kej->ki", mean_strain_matrix(h), elements) * np.prod(h) / V
+    return work / V * E, (isotropic_D(1.0, nu) @ strain.T) * E
 
 
 @pytest.mark.parametrize("periodic", [False, True])
@@ -217,8 +224,9 @@ def test_petsc_solve_equals_an_independent_scipy_solve(periodic):
     geo = voxel_solid(bed.centers, bed.radii, 5e-6, bed.attrs["periodic"] if periodic else None)
     C = voxel_stiffness(geo, Material(), init_petsc().COMM_SELF, periodic=periodic,
                         rtol=1e-10)[0]
-    want = scipy_voxel_C(geo, periodic)
+    want, averaged = scipy_voxel_C(geo, periodic)
     assert np.abs(C - want).max() <= 1e-8 * np.abs(want).max()
+    assert np.abs(averaged - want).max() <= 1e-10 * np.abs(want).max()  # the same C
     # a loose solve: the second-order correction leaves a small fraction of its own size
     C, sol, _ = voxel_stiffness(geo, Material(), init_petsc().COMM_SELF, periodic=periodic,
                                 rtol=1e-4)
