@@ -6,7 +6,7 @@ The flow is bed -> frame -> solve -> average -> properties:
 >>> bed = amfe.generate_bed(size=(0.1e-3, 0.1e-3, 0.06e-3), seed=1)   # metres
 >>> result = amfe.homogenize(bed)
 >>> f"{result.Ex / 1e9:.0f} GPa"
-'729 GPa'
+'90 GPa'
 
 The face (imported lazily: ``import amfe`` pulls in neither PETSc nor torch):
 
@@ -15,10 +15,17 @@ The face (imported lazily: ``import amfe`` pulls in neither PETSc nor torch):
 - :func:`read_bed`, :func:`write_bed`: bed files (:mod:`amfe.io`).
 - :func:`homogenize` -> :class:`Result` (with :class:`Fields`): the PETSc
   solve of the six load cases and the Bagi averages; :func:`homogenize_bed`
-  is the array-level function under it (:mod:`amfe.solvers`).
+  is the function under it (:mod:`amfe.solvers`). Changed in 0.3.0:
+  ``homogenize_bed(bed, options, comm=None)`` takes a checked :class:`Bed` and
+  one :class:`SolveOptions` and returns a :class:`Result` (it took arrays and
+  keyword options and returned a dict).
 - :class:`Surrogate`: the CNN that predicts the same constants from a bed's
   images (:mod:`amfe.training`).
 - :class:`AmfeError`: every error meant for a user.
+
+Under mpirun, an exception that no one catches on one rank of a script ends every
+rank (MPI_Abort after the traceback; :func:`amfe.io.mpi.abort_on_uncaught`) instead of
+leaving the others waiting in amfe's next collective.
 
 Layers, bottom to top (README, Layout): amfe.errors/vocab, amfe.model,
 amfe.io, amfe.solvers, amfe.dataset, amfe.training, then this face and
@@ -26,7 +33,10 @@ amfe.cli. docs/model.md holds the physics and the conventions.
 """
 import importlib
 
+from amfe.io.mpi import abort_on_uncaught
 from amfe.version import __version__
+
+abort_on_uncaught()   # under mpirun, an uncaught exception on one rank ends every rank
 
 _FACE = {
     "Bed": "amfe.model.bed", "generate_bed": "amfe.model.bed",
@@ -34,7 +44,7 @@ _FACE = {
     "STEEL": "amfe.model.material",
     "read_bed": "amfe.io.bedfile", "write_bed": "amfe.io.bedfile",
     "homogenize": "amfe.api", "Result": "amfe.io.result", "Fields": "amfe.io.result",
-    "homogenize_bed": "amfe.solvers.driver",
+    "homogenize_bed": "amfe.solvers.driver", "SolveOptions": "amfe.model.options",
     "Surrogate": "amfe.training.predict",
     "AmfeError": "amfe.errors",
 }

@@ -6,11 +6,16 @@ broadcast), the frame built, the load cases solved with PETSc, and the Bagi
 averages turned into the constants.
 """
 import os
+from dataclasses import replace
 
 from amfe.errors import AmfeError
-from amfe.io.mpi import on_root
-from amfe.io.result import Result
+from amfe.io.console import messages
+from amfe.io.mpi import on_root, same_on_every_rank
+from amfe.io.result import Result  # noqa: F401 - the type homogenize returns
 from amfe.io.result_meta import describe_input
+from amfe.io.vtu import write_fields_vtu
+from amfe.model.options import (BC_NAMES, SolveOptions, check_choice, check_flag,
+                                check_petsc_options)
 
 
 def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_options=None,
@@ -57,7 +62,7 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
     diagnose, progress : bool
         Add per-case solver diagnostics; print progress lines to stderr.
     vtu_dir : str, optional
-        Write the ParaView files there: one .vtp per load case and cases.pvd
+        Write the ParaView files there: one .vtu per load case, cases.json and cases.pvd
         (docs/viewing.md); with bc="all", one subdirectory per condition.
     solver : {"auto", "gamg", "cholesky"}
         How to solve: ``"auto"`` picks per bed the cheapest method whose
@@ -96,91 +101,115 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
     >>> bed = amfe.generate_bed(size=(0.1e-3, 0.1e-3, 0.06e-3), seed=1)
     >>> result = amfe.homogenize(bed, rtol=1e-10)
     >>> round(result.Ex / 1e9), round(result.nu_xy, 3)   # Pa -> GPa
-    (729, 0.086)
+    (90, 0.086)
     >>> result.C.shape
     (6, 6)
     """
-    from amfe.solvers.driver import homogenize_bed
-    from amfe.solvers.petsc import init_petsc
+    from amfe.solvers.driver import homogenize_bed, petsc_comm
 
-    PETSc = init_petsc()
-    pcomm = PETSc.COMM_WORLD if comm is None else (
-        comm if isinstance(comm, PETSc.Comm) else PETSc.Comm(comm))
+    check_flag("progress", progress)
+    for name, value in (("vtu_dir", vtu_dir), ("input_path", input_path)):
+        if value is not None and not isinstance(value, (str, os.PathLike)):
+            raise AmfeError(f"homogenize: {name} must be a path (str) or None, got "
+                            f"{type(value).__name__} {value!r}")
+    if material_source is not None and not isinstance(material_source, str):
+        raise AmfeError(f"homogenize: material_source must be a str, got {material_source!r}")
+    check_choice("bc", bc, BC_NAMES + ("all",))
+    pcomm = petsc_comm(comm)
     mpi = pcomm.tompi4py()
-    if isinstance(bed, (str, os.PathLike)):
-        input_path = bed if input_path is None else input_path
-        from amfe.io.bedfile import read_bed
-        bed = on_root(mpi, read_bed, bed, max_memory=max_memory)
-    centers = radii = source = error = box = None
+    # Collective, before the first collective that depends on them: a path on one rank and
+    # a Bed on another would pair on_root's bcast with the input check's allgather.
+    same_on_every_rank(mpi, {"bed": repr(os.fspath(bed)) if isinstance(bed, (str, os.PathLike))
+                             else "an amfe.Bed or arrays", "max_memory": repr(max_memory)})
+    options = error = None
     try:  # a failure here on one rank only must still reach the collective check
-        centers, radii, material, source, box = _inputs(bed, material,
-                                                        material_source or "argument")
+        options = SolveOptions(
+            rtol=rtol, solver=solver, max_it=max_it, a_star_cap=a_star_cap,
+            ksp_options=check_petsc_options("petsc_options", petsc_options),
+            accept_unconverged=accept_unconverged, max_memory=max_memory, diagnose=diagnose,
+            fields=check_flag("fields", fields) or ("root" if vtu_dir is not None else False))
+        if isinstance(bed, (str, os.PathLike)):
+            input_path = bed if input_path is None else input_path
+            from amfe.io.bedfile import read_bed
+            bed = on_root(mpi, read_bed, bed, max_memory=options.max_memory)
+        bed, material, source = _inputs(bed, material, material_source or "argument")
+        options = replace(options, material=material, material_source=source)
     except AmfeError as exc:
         error = exc
 
     # --- voxel model dispatch (issue 35): its own solver, nothing of the frame's path ---
     if model != "frame" or voxel_size is not None:
-        return _voxel(centers, radii, material, source, box, bc, model, voxel_size, pcomm,
-                      rtol, max_it, petsc_options, accept_unconverged, progress, vtu_dir,
-                      input_path, max_memory, solver, error)
+        return _voxel(bed, options, error, pcomm,
+                      dict(bc=bc, model=model, voxel_size=voxel_size, progress=progress,
+                           vtu_dir=vtu_dir, input_path=input_path))
 
     def one(bc, vtu_dir):
-        d = homogenize_bed(centers, radii, material, a_star_cap=a_star_cap, rtol=rtol,
-                           max_it=max_it, solver=solver, vtu_dir=vtu_dir, comm=pcomm,
-                           ksp_options=petsc_options, bc=bc, diagnose=diagnose,
-                           progress=progress, fields=fields, box=box,
-                           accept_unconverged=accept_unconverged, max_memory=max_memory,
-                           material_source=source, input_error=error)
-        describe_input(d, input_path)
-        return Result.from_dict(d, fields=d.pop("fields", None))
+        with messages(progress):
+            result = homogenize_bed(bed, options and replace(options, bc=bc), pcomm,
+                                    input_error=error)
+        describe_input(result.extra, input_path)
+        if vtu_dir is not None:
+            paths = on_root(mpi, write_fields_vtu, vtu_dir, result.fields)
+            result.extra["vtk"] = {"collection": paths[-1], "files": paths[:-1]}
+            if not fields:
+                result.fields = None
+        return result
     if bc != "all":
         return one(bc, vtu_dir)
-    names = ["kubc", "subc"] + (["periodic"] if box is not None else [])
+    names = ["kubc", "subc"] + (["periodic"] if error is None and "periodic" in bed.attrs else [])
     return {name: one(name, vtu_dir and os.path.join(vtu_dir, name)) for name in names}
 
 
-def _voxel(centers, radii, material, source, box, bc, model, voxel_size, comm, rtol, max_it,
-           petsc_options, accept_unconverged, progress, vtu_dir, input_path, max_memory,
-           solver, error):
-    """The voxel model's Result (issue 35; docs/model.md, section 10)."""
+def _voxel(bed, options, error, comm, spec):
+    """The voxel model's Result (issue 35; docs/model.md, section 10).
+
+    spec: the face's bc, model, voxel_size, progress, vtu_dir and input_path."""
     from amfe.solvers.voxel import homogenize_voxel
-    if solver not in ("auto", "gamg"):
-        raise AmfeError(f"homogenize: the voxel model solves with CG + GAMG, not {solver!r}")
+    bc, model = spec["bc"], spec["model"]
+    centers = radii = material = source = box = None
+    if error is None:
+        centers, radii, box = bed.centers, bed.radii, bed.attrs.get("periodic")
+        material, source = options.material, options.material_source
+        if options.solver not in ("auto", "gamg"):
+            raise AmfeError("homogenize: the voxel model solves with CG + GAMG, not "
+                            f"{options.solver!r}")
     if model != "voxel":
         raise AmfeError(f"homogenize: model must be 'frame' or 'voxel', got {model!r}"
                         + ("" if model != "frame" else " (voxel_size needs model='voxel')"))
     if bc not in ("kubc", "periodic"):
         raise AmfeError(f"homogenize: the voxel model solves bc 'kubc' or 'periodic', not {bc!r}")
-    if bc == "periodic" and box is None:
+    if bc == "periodic" and error is None and box is None:
         from amfe.model.torus import NOT_PERIODIC
         raise AmfeError(NOT_PERIODIC)
-    if vtu_dir is not None:
+    if spec["vtu_dir"] is not None:
         raise AmfeError("homogenize: the voxel model writes no ParaView files yet (no --vtu)")
-    d = homogenize_voxel(centers, radii, material, voxel_size=voxel_size,
-                         period=box if bc == "periodic" else None, comm=comm, rtol=rtol,
-                         max_it=max_it, ksp_options=petsc_options,
-                         accept_unconverged=accept_unconverged, progress=progress,
-                         material_source=source, max_memory=max_memory, input_error=error)
-    describe_input(d, input_path)
+    with messages(spec["progress"]):
+        d = homogenize_voxel(centers, radii, material, voxel_size=spec["voxel_size"],
+                             period=box if bc == "periodic" else None, comm=comm,
+                             rtol=getattr(options, "rtol", None),
+                             max_it=getattr(options, "max_it", None),
+                             ksp_options=getattr(options, "ksp_options", None),
+                             accept_unconverged=getattr(options, "accept_unconverged", False),
+                             progress=spec["progress"], material_source=source,
+                             max_memory=getattr(options, "max_memory", None), input_error=error)
+    describe_input(d, spec["input_path"])
     return Result.from_dict(d)
 
 
 def _inputs(bed, material, given_source):
-    """(centers, radii, Material, its source, periodic box or None) of the arguments."""
+    """(Bed, Material, its source) of the arguments: the bed checked, the material resolved."""
     from amfe.model.bed import Bed
     from amfe.model.material import Material, resolve_material
 
-    if isinstance(bed, Bed):
-        centers, radii, attrs = bed.centers, bed.radii, bed.attrs
-    elif isinstance(bed, (tuple, list)) and len(bed) == 2:
-        (centers, radii), attrs = bed, {}
-    else:
+    if isinstance(bed, (tuple, list)) and len(bed) == 2:
+        bed = Bed(*bed)
+    elif not isinstance(bed, Bed):
         raise AmfeError("homogenize: bed must be an amfe.Bed, a bed file's path, or "
                         f"(centers, radii); got {type(bed).__name__}")
     if isinstance(material, Material):
-        return centers, radii, material, given_source, attrs.get("periodic")
+        return bed, material, given_source
     if material is not None and not isinstance(material, dict):
         raise AmfeError("homogenize: material must be an amfe.Material or a dict of E, nu, "
                         f"psi; got {type(material).__name__}")
-    material, record = resolve_material(attrs, material, given_source=given_source)
-    return centers, radii, material, record["source"], attrs.get("periodic")
+    material, record = resolve_material(bed.attrs, material, given_source=given_source)
+    return bed, material, record["source"]

@@ -1,2 +1,2 @@
 """amfe's version (one place: pyproject reads it from here)."""
-__version__ = "0.2.0"
+__version__ = "0.3.0"

@@ -43,5 +43,5 @@ print(f"5. largest |u| in case xx: {abs(f.displacement[0]).max():.3g} m per unit
 
 # %% 6. Write the JSON result and the ParaView files (open cases.pvd in ParaView).
 result.to_json(out / "result.json")
-paths = result.write_vtp(out / "vtu")
+paths = result.write_vtu(out / "vtu")
 print(f"6. wrote {out / 'result.json'} and {paths[-1]}")

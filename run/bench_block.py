@@ -64,6 +64,7 @@ PATHS = {  # name: (PETSc options, rtol (None: --rtol, else amfe's default))
 def worker_path(args, PETSc, comm):
     """End to end on one path; rank 0 gets the result summary."""
     from amfe.solvers.driver import homogenize_bed
+    from amfe.model.options import SolveOptions
     mpi = comm.tompi4py()
     given, rtol = PATHS[args.worker]
     options = {**given, **petsc_dict(args)}
@@ -74,8 +75,8 @@ def worker_path(args, PETSc, comm):
         t0, c0 = time.perf_counter(), time.process_time()
         bed = bed_of(args)
         t_gen = time.perf_counter() - t0
-        res = homogenize_bed(bed.centers, bed.radii, rtol=rtol, comm=comm,
-                             ksp_options=options)
+        res = homogenize_bed(bed, SolveOptions(solver="gamg", rtol=rtol, ksp_options=options),
+                             comm).to_dict()
         comm.barrier()
         total = time.perf_counter() - t0
         cpu = max(mpi.allgather(time.process_time() - c0))
@@ -143,9 +144,9 @@ def worker_measure(args, PETSc, comm):
             continue
         options = petsc_dict(args)
         if path != "loop":  # its hierarchy, but with the SBAIJ copy for the timings
-            options = with_block_defaults(PETSc, options)
-        with petsc_options(PETSc, {**options, "amfe_block": "no"}):
-            op = ConstrainedOperator(PETSc, frame, comm, r0, r1, local_block_rows(frame, r0, r1),
+            options = with_block_defaults(options)
+        with petsc_options({**options, "amfe_block": "no"}):
+            op = ConstrainedOperator(frame, comm, r0, r1, local_block_rows(frame, r0, r1),
                                      group, rtol=args.rtol or 1e-8)
         m = op.A.getLocalSize()[0]
         X, Y = np.random.default_rng(rank).random((m, 6)), np.empty((m, 6))
@@ -167,7 +168,7 @@ def products(PETSc, comm, op, X, Y):
     for name, M, backend in (("maij", A, "maij"), ("aij_dense", A, "dense"),
                              ("sbaij_dense", S, "dense")):
         try:
-            prod = block_product(PETSc, M, 6, backend)
+            prod = block_product(M, 6, backend)
             out["t_" + name] = timed(comm, lambda: prod.mult(X, Y), 3)
             prod.destroy()
         except PETSc.Error:
@@ -181,7 +182,7 @@ def products(PETSc, comm, op, X, Y):
 def hierarchy(PETSc, comm, op, X, Y, k=6):
     """A block V-cycle's and a PCApply's seconds; the bytes a V-cycle and a product must move."""
     from amfe.solvers.blockcycle import BlockVCycle
-    V = BlockVCycle(PETSc, op.ksp.getPC(), k)
+    V = BlockVCycle(op.ksp.getPC(), k)
     pc, b, x = op.ksp.getPC(), op._b[0], op._b[0].duplicate()
     out = {"t_vcycle": timed(comm, lambda: V.apply(X, Y), 3),
            "t_pcapply": timed(comm, lambda: pc.apply(b, x), 3)}

@@ -17,7 +17,7 @@ variant, outside what the training data saw:
 Each bed is the record of ``amfe.dataset.record.make_record`` (the same
 generation, image and PETSc homogenisation as `amfe dataset`, one rank),
 its data-set seed 100 + variant number. The file has the data-set layout
-of amfe.io.datasetfile (images, labels, C, density, index, seed, status, reason,
+of amfe.dataset.datafile (images, labels, C, density, index, seed, status, reason,
 params/*, bond_images), plus ``variant`` (M,) strings; its root attributes are those of a
 `small` data set (so the shipped model accepts its images) and ``variants``.
 Finished records are kept in OUTPUT.parts/ and reused when the script is
@@ -35,7 +35,7 @@ import numpy as np
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
-from amfe.io.datasetparts import STATUS_OK, done_indices, read_part, write_part  # noqa: E402
+from amfe.dataset.parts import STATUS_OK, done_indices, read_part, write_part  # noqa: E402
 from amfe.vocab import LABEL_NAMES  # noqa: E402
 from amfe.model.scales import MM, PARAM_NAMES, SCALES  # noqa: E402
 

@@ -2,6 +2,8 @@
 # The surrogate's data sets (docs/datasets.md, "The large data set"): 1 000 new held-out
 # `small` beds (data-set seed 4), then the training set (seed 3, 20 000 beds by default).
 # Survives a kill: run the same command again and it resumes where it stopped.
+# Each finished data set's labels are appended to the label tables in labels/ as a new
+# shard (docs/datasets.md, "Label tables"): commit them, they are what survives the machine.
 #
 #   bash run/make_surrogate_data.sh [DIR] [TRAIN_COUNT]      (default DIR: ../data)
 #
@@ -37,7 +39,21 @@ make() {  # make OUTPUT COUNT SEED
     done
 }
 
+export_labels() {  # export_labels DATA: a shard in labels/ of the records its shards lack
+    local msg
+    mkdir -p "$root/labels"
+    if msg="$("$root/.venv/bin/amfe" dataset --export-labels "$1" -o "$root/labels" 2>&1)"; then
+        echo "$msg"
+    elif grep -q "nothing to export" <<<"$msg"; then
+        echo "make_surrogate_data: the labels of $1 are in $root/labels already" >&2
+    else
+        echo "$msg" >&2; return 1
+    fi
+}
+
 t0=$(date +%s)
 make "$dir/heldout_seed4_1000.h5" 1000 4 || exit $?
+export_labels "$dir/heldout_seed4_1000.h5" || exit $?
 make "$dir/train_seed3_${train}.h5" "$train" 3 || exit $?
+export_labels "$dir/train_seed3_${train}.h5" || exit $?
 echo "make_surrogate_data: done in $(( $(date +%s) - t0 )) s on $(nproc) cores ($(uname -n))"

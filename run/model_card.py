@@ -117,6 +117,14 @@ def main(argv=None):
     w("")
     w("## What it is")
     w("")
+    w("- Labels: " + ("label rule 2 (docs/model.md, section 5)." if ck.get("label_rule", 1) >= 2
+                      else "trained on label rule 1, converted. Its training labels are "
+                      "rule 1's (the largest bonded piece, V = the hull of its centres); "
+                      "`amfe predict` converts each bed's moduli to rule 2 (the load-carrying "
+                      "pieces, V = the bed's box) by V_hull / V_box of that bed "
+                      "(`training/predict.py`, exact where rule 2 keeps the same piece; the "
+                      "Poisson ratios do not move). The held-out errors below are on rule-1 "
+                      "labels; against rule-2 labels see docs/datasets.md, \"Label rules\"."))
     w(f"- {len(ck['members'])} members of the multi-scale net (`training/multiscale.py`, "
       f"arguments {ck['arch_args']}), {ck['n_parameters']:,} parameters each, seeds "
       f"{ck['member_seeds']}; {os.path.getsize(args.model) / 1e6:.2f} MB of plain tensors "

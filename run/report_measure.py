@@ -81,8 +81,10 @@ def pareto_bed(quick):
 
 def _solve(bed, comm, **kw):
     from amfe.solvers.driver import homogenize_bed
+    from amfe.model.options import SolveOptions
     t0 = time.perf_counter()
-    r = homogenize_bed(bed.centers, bed.radii, bed.material(), comm=comm, **kw)
+    kw.setdefault("solver", "gamg")
+    r = homogenize_bed(bed, SolveOptions(material=bed.material(), **kw), comm).to_dict()
     r["wall"] = time.perf_counter() - t0
     return r
 
@@ -213,7 +215,7 @@ def _matvec_seconds(PETSc, bed, comm, repeats=20):
     from amfe.solvers.partition import row_ranges
     frame = build_frame(bed.centers, bed.radii, bed.material())
     rr = row_ranges(frame.n_particles, comm.getSize())
-    A = assemble_stiffness(PETSc, frame, comm, int(rr[comm.getRank()]),
+    A = assemble_stiffness(frame, comm, int(rr[comm.getRank()]),
                            int(rr[comm.getRank() + 1]))
     x, y = A.createVecs()
     x.set(1.0)

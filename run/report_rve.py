@@ -75,6 +75,7 @@ def worker(items, comm, log):
     from amfe.model.bed import generate_bed
     from amfe.model.scanpath import ScanPath
     from amfe.solvers.driver import homogenize_bed
+    from amfe.model.options import SolveOptions
     rows = []
     for kind, side, seed in items:
         scan = None if kind == "full" else ScanPath(**RVE_SCAN)
@@ -89,8 +90,8 @@ def worker(items, comm, log):
             layers = int(round((z.max() - z.min()) / (2 * bed.attrs["r0"] * (2 / 3) ** 0.5))) + 1
             for bc in bcs:
                 t0 = time.perf_counter()
-                r = homogenize_bed(bed.centers, bed.radii, bed.material(), comm=comm, bc=bc,
-                                   box=box)
+                r = homogenize_bed(bed, SolveOptions(solver="gamg", bc=bc,
+                                                     material=bed.material()), comm).to_dict()
                 row = {"bed": kind, "side_mm": side, "seed": seed, "bc": bc,
                        "ranks": comm.getSize(), "n_particles": r["n_particles"],
                        "n_bonds": r["n_bonds"], "properties": r["properties"],

@@ -262,6 +262,7 @@ def noise_floor(work, n_beds=12, n_copies=3, log=print):
     from amfe.dataset.images import pixelate
     from amfe.model.scales import get_scale, record_seed, sample_bed_params
     from amfe.solvers.driver import homogenize_bed
+    from amfe.model.options import SolveOptions
 
     sc = get_scale("small")
     original = bedmod.scanned_mask
@@ -276,7 +277,8 @@ def noise_floor(work, n_beds=12, n_copies=3, log=print):
                 bed = bedmod.generate_bed(**dict(params, seed=params["seed"] + 1000 * (j + 1)))
                 img = pixelate(bed, cell=sc.cell, layer_thickness=sc.layer_thickness,
                                box=((0.0, 0.0, 0.0), sc.size), spacing=sc.image_spacing)
-                props = homogenize_bed(bed.centers, bed.radii, bed.material())["properties"]
+                props = homogenize_bed(bed, SolveOptions(solver="gamg", material=bed.material())
+                                       ).properties
                 labels.append([props[n] for n in LABEL_NAMES])
                 dens.append(float(img.mean()))
         labels = np.array(labels)

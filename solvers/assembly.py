@@ -19,6 +19,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from amfe.model.element import element_blocks
+from amfe.solvers.petsclib import PETSc
 
 CHUNK = 1 << 16
 """Bonds per call of element_blocks (three 19 MB blocks and its temporaries)."""
@@ -100,7 +101,7 @@ def local_block_rows(frame, r0, r1):
     return indptr, cols, blocks
 
 
-def aij_from_blocks(PETSc, comm, n, r0, r1, indptr, cols, blocks):
+def aij_from_blocks(comm, n, r0, r1, indptr, cols, blocks):
     """Rows [6 r0, 6 r1) of a (6n, 6n) AIJ matrix with block size 6, from block CSR.
 
     indptr, cols, blocks: as :func:`local_block_rows` gives them (the two
@@ -133,7 +134,7 @@ def aij_from_blocks(PETSc, comm, n, r0, r1, indptr, cols, blocks):
     return A
 
 
-def sbaij_operator(PETSc, comm, n, r0, r1, indptr, cols, blocks, fixed):
+def sbaij_operator(comm, n, r0, r1, indptr, cols, blocks, fixed):
     """The constrained operator as SBAIJ (upper 6x6 blocks), straight from block CSR.
 
     indptr, cols, blocks: as :func:`local_block_rows` gives them (the two parts).
@@ -164,9 +165,9 @@ def sbaij_operator(PETSc, comm, n, r0, r1, indptr, cols, blocks, fixed):
     return S
 
 
-def assemble_stiffness(PETSc, frame, comm, r0, r1):
+def assemble_stiffness(frame, comm, r0, r1):
     """The global stiffness as a distributed PETSc AIJ matrix with block size 6.
 
     Rank owns particles [r0, r1), i.e. rows [6 r0, 6 r1).
     """
-    return aij_from_blocks(PETSc, comm, frame.n_particles, r0, r1, *local_block_rows(frame, r0, r1))
+    return aij_from_blocks(comm, frame.n_particles, r0, r1, *local_block_rows(frame, r0, r1))

@@ -36,13 +36,14 @@ import numpy as np
 
 from amfe.errors import AmfeError
 from amfe.solvers.maij import block_product, set_chebyshev_targets
+from amfe.solvers.petsclib import PETSc
 
 
 class BlockUnsupported(AmfeError):
     """The preconditioner is not one the block V-cycle reproduces (use one at a time)."""
 
 
-def view_text(PETSc, obj):
+def view_text(obj):
     """The ASCII view of a PETSc object, as a string on every rank (collective)."""
     mpi = obj.getComm().tompi4py()
     name = None
@@ -64,7 +65,7 @@ def view_text(PETSc, obj):
 _NUM = r"([-+.\deE]+)"
 
 
-def level_smoothers(PETSc, pc):
+def level_smoothers(pc):
     """[(emin, emax)] Chebyshev targets of levels 1..L-1, from the PC's view.
 
     Raises BlockUnsupported unless the PC is a multiplicative V-cycle (one per
@@ -73,8 +74,10 @@ def level_smoothers(PETSc, pc):
     """
     if pc.getType() not in ("gamg", "mg"):
         raise BlockUnsupported(f"the preconditioner is {pc.getType()}, not GAMG")
-    text = view_text(PETSc, pc)
     nlev = pc.getMGLevels()
+    if nlev < 2:   # -pc_gamg_threshold 0.5 on a small frame: no V-cycle to run on a block
+        raise BlockUnsupported(f"GAMG built {nlev} level: its coarse solve is the whole solve")
+    text = view_text(pc)
     if not re.search(rf"type is MULTIPLICATIVE, levels={nlev} cycles=v", text) or \
             not re.search(r"Cycles per PCApply=1\b", text):
         raise BlockUnsupported("the multigrid cycle is not one multiplicative V-cycle")
@@ -114,7 +117,7 @@ class CoarseSolve:
 class _Level:
     """One smoothed level: its k-column products, Jacobi, Chebyshev coefficients, work blocks."""
 
-    def __init__(self, PETSc, pc, l, k, targets, backend):
+    def __init__(self, pc, l, k, targets, backend):
         smoother = pc.getMGSmoother(l)
         M = smoother.getOperators()[1]
         d = M.getDiagonal()
@@ -125,10 +128,10 @@ class _Level:
         self.degree = int(smoother.getTolerances()[3])
         self.rows = M.getSize()[0]
         self.nnz = M.getInfo(PETSc.Mat.InfoType.GLOBAL_SUM)["nz_used"]
-        self.A = block_product(PETSc, M, k, backend)
+        self.A = block_product(M, k, backend)
         P = pc.getMGInterpolation(l)
         self.p_nnz = P.getInfo(PETSc.Mat.InfoType.GLOBAL_SUM)["nz_used"]
-        self.P = block_product(PETSc, P, k, backend)
+        self.P = block_product(P, k, backend)
         m = M.getLocalSize()[0]
         self.R, self.D, self.T = (np.zeros((m, k)) for _ in range(3))
 
@@ -180,8 +183,8 @@ class BlockVCycle:
     reproduce. Collective on the PC's communicator.
     """
 
-    def __init__(self, PETSc, pc, k, backend="auto", pin=False):
-        targets = level_smoothers(PETSc, pc)
+    def __init__(self, pc, k, backend="auto", pin=False):
+        targets = level_smoothers(pc)
         self.pc, self.k = pc, k
         self.coarse = CoarseSolve(pc.getMGCoarseSolve())
         m0 = self.coarse.b.getLocalSize()
@@ -189,7 +192,7 @@ class BlockVCycle:
         for l, t in enumerate(targets, start=1):
             if pin:
                 set_chebyshev_targets(pc.getMGSmoother(l), *t)
-            self.levels.append(_Level(PETSc, pc, l, k, t, backend))
+            self.levels.append(_Level(pc, l, k, t, backend))
         # (B, X) blocks of each coarser level's correction; the finest level uses the caller's
         self._blocks = [(np.zeros((m0, k)), np.zeros((m0, k)))]
         self._blocks += [(np.zeros_like(lev.R), np.zeros_like(lev.R)) for lev in self.levels[:-1]]

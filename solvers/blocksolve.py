@@ -24,6 +24,7 @@ import numpy as np
 
 from amfe.errors import AmfeError
 from amfe.solvers.blockcycle import BlockUnsupported, BlockVCycle
+from amfe.solvers.petsclib import PETSc
 
 # KSPConvergedReason values (PETSc 3.18)
 RTOL, ATOL, ITS, DTOL, INDEF_PC, NANORINF, INDEF_MAT = 2, 3, -3, -4, -8, -9, -10
@@ -36,15 +37,11 @@ PETSc's LU shifts, a W-cycle or another smoother make 1e-3 and more."""
 
 
 BLOCK_DEFAULTS = {"pc_gamg_agg_nsmooths": "0", "mg_levels_ksp_max_it": "1"}
-"""PETSc options the block path sets unless given (docs/benchmarks.md, "Six
-right-hand sides at once"). Unsmoothed aggregation: GAMG's set-up 2.4-4x
-cheaper (2.9x on the paper's bed) with less memory, for about twice the
-iterations, which the block path makes cheap: end to end never slower in
-four alternated pairs on 46 800 particles, and as fast on `small` beds.
-Chebyshev of degree 1 on every level (PETSc's default is 2): a V-cycle
-reads the fine matrix about 2.2 times instead of 4.2, for about 1.3x the
-iterations; end to end 0.77x on a `small` bed, 0.86x on 46 800 particles
-and 0.82x on the paper's bed (idle machine, same run)."""
+"""PETSc options the block path sets unless given: unsmoothed aggregation (a cheaper
+GAMG set-up with less memory, for more iterations, which the block path makes
+cheap) and Chebyshev of degree 1 on every level (PETSc's default is 2: a V-cycle
+then reads the fine matrix fewer times). The measurements that chose them are in
+docs/benchmarks.md, "Figures quoted in the code", and "Six right-hand sides at once"."""
 
 
 def galerkin_algorithm(n_ranks):
@@ -54,14 +51,14 @@ def galerkin_algorithm(n_ranks):
     ("scalable", a sparse accumulator per row) spends most of SUBC's set-up in
     them. Forming R = P^T first ("rap", serial matrices) or a dense row
     accumulator ("nonscalable", parallel ones; an array the length of the
-    coarse grid) halve it: 12 480 particles, 1.6-1.9 -> 0.7-0.95 s on one
-    rank, 1.17 -> 0.70 s on two, the same iterations and constants
-    (docs/benchmarks.md, "SUBC's set-up"). The unsmoothed defaults gain nothing.
+    coarse grid) halve it, with the same iterations and constants
+    (docs/benchmarks.md, "SUBC's set-up" and "Figures quoted in the code"). The
+    unsmoothed defaults gain nothing.
     """
     return "rap" if n_ranks == 1 else "nonscalable"
 
 
-def with_block_defaults(PETSc, ksp_options, smoothed=False, n_ranks=1):
+def with_block_defaults(ksp_options, smoothed=False, n_ranks=1):
     """``ksp_options`` plus the :data:`BLOCK_DEFAULTS` set neither there nor in the database.
 
     smoothed: the group's ``smoothed_aggregation`` (a frame held at one particle
@@ -92,7 +89,7 @@ def block_path_applies(ksp, n_cases, option, diagnose):
             and ksp.getPC().getType() in ("gamg", "mg"))
 
 
-def block_path_expected(PETSc, n_cases, option, diagnose):
+def block_path_expected(n_cases, option, diagnose):
     """:func:`block_path_applies` before the KSP exists, from the options database.
 
     The operator then skips its SBAIJ copy (the block products use AIJ; a
@@ -172,7 +169,7 @@ class BlockCG:
         return self.reason == 0
 
 
-def solve_block(PETSc, ksp, bs, X0, backend="auto", info=None, prescribed=None):
+def solve_block(ksp, bs, X0, backend="auto", info=None, prescribed=None):
     """Solve A x_j = b_j for every case j with k CGs sharing one block V-cycle.
 
     ksp: a set-up KSP (CG with GAMG); bs: k right-hand side Vecs; X0: None or
@@ -190,11 +187,11 @@ def solve_block(PETSc, ksp, bs, X0, backend="auto", info=None, prescribed=None):
     t0 = time.perf_counter()
     k = len(bs)
     try:
-        V = BlockVCycle(PETSc, ksp.getPC(), k, backend)
+        V = BlockVCycle(ksp.getPC(), k, backend)
     except BlockUnsupported:
         return None
     try:
-        cg = _iterate(PETSc, ksp, V, bs, X0)
+        cg = _iterate(ksp, V, bs, X0)
         if cg is None:
             return None
         if prescribed is not None:
@@ -219,7 +216,7 @@ def solve_block(PETSc, ksp, bs, X0, backend="auto", info=None, prescribed=None):
     return out
 
 
-def _iterate(PETSc, ksp, V, bs, X0):
+def _iterate(ksp, V, bs, X0):
     """KSPSolve_CG for every right-hand side at once; None if V-cycle != PCApply.
 
     Eight (m, k) blocks live while iterating: X, R, Z, P, Q and the V-cycle's

@@ -20,6 +20,8 @@ The contract is the label's accuracy, not the method: every constant within
 factorisation (:func:`solve_features`, a few milliseconds), never from the
 particle count alone, and always picks GAMG when the matrix spans several ranks.
 """
+from dataclasses import dataclass
+
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import reverse_cuthill_mckee
@@ -28,6 +30,7 @@ from amfe.errors import AmfeError
 from amfe.model.memory import direct_bytes
 from amfe.solvers.correction import CORRECTED_RTOL
 from amfe.solvers.ksp import DEFAULT_RTOL
+from amfe.solvers.petsclib import PETSc
 
 METHODS = ("auto", "gamg", "cholesky")
 
@@ -52,7 +55,7 @@ already factorises in 3-5x GAMG's time (docs/report.md, section 1)."""
 USER_METHOD_OPTIONS = ("ksp_type", "pc_type", "pc_factor_mat_solver_type")
 
 
-def cholesky_package(PETSc):
+def cholesky_package():
     """"cholmod" when PETSc has SuiteSparse, else "mumps", else None."""
     for name, pkg in (("cholmod", "suitesparse"), ("mumps", "mumps")):
         if PETSc.Sys.hasExternalPackage(pkg):
@@ -83,8 +86,19 @@ def solve_features(frame):
             "fill_ratio": (profile + n) / float(len(b.i) + n)}
 
 
+@dataclass(frozen=True)
+class Problem:
+    """What the operator is, for :func:`choose_solver`: singular (the constrained
+    operator keeps rigid modes, the mixed conditions, which a factorisation cannot
+    take); corrected (the condition's reaction stress takes the second-order
+    correction, :mod:`amfe.solvers.correction`)."""
+
+    singular: bool = False
+    corrected: bool = False
+
+
 def choose_solver(features, nranks, requested="auto", rtol=None, package="cholmod",
-                  user_options=(), singular=False, check_memory=None, corrected=False):
+                  user_options=(), problem=Problem(), check_memory=None):
     """(method, reason, rtol, ksp_options) for one bed.
 
     features: the dict of :func:`solve_features` (or a callable that returns
@@ -93,21 +107,19 @@ def choose_solver(features, nranks, requested="auto", rtol=None, package="cholmo
     method's default; GAMG only); package: the factorisation package, None
     when PETSc has none; user_options: the PETSc options the user set (one of
     :data:`USER_METHOD_OPTIONS` among them makes auto keep the iterative path
-    those options configure); singular: the constrained operator keeps rigid
-    modes (the mixed conditions), which a factorisation cannot take;
+    those options configure); problem: a :class:`Problem` (singular, corrected);
     check_memory(estimate [bytes], what): raises AmfeError when an estimate
     is over the memory limit (:func:`amfe.model.memory.direct_bytes` of the
-    factorisation): auto then takes GAMG, ``cholesky`` is refused;
-    corrected: the condition's reaction stress takes the second-order
-    correction (:mod:`amfe.solvers.correction`), whose default rtol
-    :data:`~amfe.solvers.correction.CORRECTED_RTOL` then serves ``gamg`` and
-    ``auto`` alike. The returned rtol is None for Cholesky.
+    factorisation): auto then takes GAMG, ``cholesky`` is refused. A corrected
+    problem's default rtol :data:`~amfe.solvers.correction.CORRECTED_RTOL` serves
+    ``gamg`` and ``auto`` alike. The returned rtol is None for Cholesky.
     """
     if requested not in METHODS:
         raise AmfeError(f"unknown solver {requested!r}; choose one of {', '.join(METHODS)}")
     direct = {"ksp_type": "preonly", "pc_type": "cholesky",
               "pc_factor_mat_solver_type": package, "amfe_operator_type": "aij"}
-    if rtol is None and corrected:
+    singular = problem.singular
+    if rtol is None and problem.corrected:
         rtol = CORRECTED_RTOL
     if requested == "gamg":
         return "gamg", "asked for (--solver gamg)", DEFAULT_RTOL if rtol is None else rtol, {}

@@ -7,23 +7,26 @@ load-case groups and its average (docs/model.md, sections 5 and 9): KUBC and
 mixed take C from the Bagi hull strain and the reaction stress, SUBC from
 S = (1/V) F . U, periodic from the energy's dot products.
 """
-import sys
+import logging
 import time
 from collections import namedtuple
 
 import numpy as np
 
+from amfe.model.carrying import frame_warnings
 from amfe.model.frame import build_frame
+from amfe.model.options import SolveOptions
 from amfe.model.averages import (asymmetry, bagi_strain, compliance_and_constants, hull_of,
                              stiffness, symmetric, voigt, voigt_strain)
-from amfe.model.material import SOURCE_DEFAULT
+from amfe.errors import AmfeError
 from amfe.io.mpi import on_root
 from amfe.io.fields import frame_fields
 from amfe.io.result_meta import homogenize_header
-from amfe.io.vtp import write_fields_vtp
+from amfe.io.result import Result
 from amfe.solvers.correction import (moment_corrections, never, relative_size,
                                      second_order_kubc, second_order_loads)
-from amfe.solvers.choice import USER_METHOD_OPTIONS, choose_solver, cholesky_package, solve_features
+from amfe.solvers.choice import (USER_METHOD_OPTIONS, Problem, choose_solver, cholesky_package,
+                                 solve_features)
 from amfe.solvers.inputs import checked_inputs
 from amfe.solvers.ksp import DEFAULT_RTOL, RESIDUAL_FACTOR
 from amfe.model.kubc import kubc_groups
@@ -32,6 +35,10 @@ from amfe.model.mixed import mixed_groups
 from amfe.model.periodic import periodic_average, periodic_groups
 from amfe.model.subc import subc_average, subc_groups
 from amfe.solvers.petsc import init_petsc, unused_options_warning
+from amfe.solvers.petsclib import PETSc
+
+
+LOG = logging.getLogger("amfe.solvers")
 
 
 def bagi_average(frame, groups, u, moments, diagnose=False, cross=None):
@@ -51,11 +58,11 @@ def bagi_average(frame, groups, u, moments, diagnose=False, cross=None):
     strains, stresses, stress_asym = [], [], []
     for k in range(6):
         strains.append(voigt_strain(bagi_strain(hull, u[k][:, :3])))
-        sigma = moments[k] / hull.volume
+        sigma = moments[k] / frame.volume  # V: the bed's box; the strain stays the hull's
         stress_asym.append(asymmetry(sigma))
         stresses.append(voigt(symmetric(sigma)))
     C, c_asym = stiffness(np.array(strains), np.array(stresses))
-    return C, hull.volume, {"stress_asymmetry": float(max(stress_asym)),
+    return C, frame.volume, {"stress_asymmetry": float(max(stress_asym)),
                             "C_asymmetry": float(c_asym), **stats}
 
 
@@ -69,113 +76,123 @@ BOUNDARY_CONDITIONS = {"kubc": Condition(kubc_groups, bagi_average, False, secon
                                              second_order_loads)}
 
 
-def homogenize_bed(centers, radii, material=None, *, a_star_cap=None, rtol=None,
-                   max_it=None, vtu_dir=None, comm=None, petsc_args=None, ksp_options=None,
-                   nondimensional=True, bc="kubc", diagnose=False, progress=False, fields=False,
-                   solver="gamg", box=None, accept_unconverged=False, max_memory=None,
-                   material_source=None, input_error=None):
-    """Effective elastic constants of a bed of bonded spheres.
+def homogenize_bed(bed, options=None, comm=None, *, input_error=None):
+    """Effective elastic constants of a bed of bonded spheres, as a :class:`Result`.
 
-    bc: "kubc" (default; six unit macro-strains on the boundary, one operator),
-    "mixed" (the paper's figure-2 experiments, six operators; see
-    :mod:`amfe.model.mixed`), "subc" (six unit macro-stresses as boundary
-    loads, :mod:`amfe.model.subc`) or "periodic" (needs ``box`` (3,) [m], the
-    periods of a periodic bed; :mod:`amfe.model.periodic`). diagnose: add a
-    ``diagnostics`` list (per case: iterations, true residual, eigenvalue
-    estimates of the preconditioned operator and their ratio, GAMG levels and
-    complexities).
+    bed: a checked :class:`~amfe.model.bed.Bed` (centres (N, 3) [m], radii (N,)
+    [m]; ``attrs["periodic"]``, the box (3,) [m] of a periodic bed, for
+    bc="periodic"). options: a :class:`~amfe.model.options.SolveOptions`
+    (default: its defaults), checked when it was made: bc "kubc" (six unit
+    macro-strains on the boundary, one operator), "mixed" (the paper's
+    figure-2 experiments, :mod:`amfe.model.mixed`), "subc" (six unit
+    macro-stresses as boundary loads, :mod:`amfe.model.subc`) or "periodic"
+    (:mod:`amfe.model.periodic`); its material (None: the bed's, else steel).
+    comm: a PETSc or mpi4py communicator (default COMM_WORLD); every rank
+    passes a bit-identical bed and options: checked in one collective before
+    anything else, a difference is an AmfeError on every rank
+    (:mod:`amfe.solvers.inputs`). ``input_error``: an AmfeError the caller met
+    preparing this rank's bed or options (then ``bed`` and ``options`` may be
+    None), raised on every rank after the ranks are compared (so that no rank
+    waits in a collective).
 
-    centers (N,3) [m], radii (N,) [m]; every rank of ``comm`` (a PETSc or
-    mpi4py communicator, default COMM_WORLD) passes bit-identical arrays,
-    material and options: checked in one collective before anything else,
-    a difference is an AmfeError on every rank (:mod:`amfe.solvers.inputs`).
-    material: a :class:`~amfe.model.material.Material` (default: steel);
-    material_source: where it came from, for the result (default "default
-    (steel)" without a material, else "argument").
-    Returns the result dict of docs/model.md, section 6 (the same on every rank):
-    properties (SI: Pa and -), C and S (6x6, Voigt xx, yy, zz, yz, xz, xy,
-    engineering shear; Pa and 1/Pa), volume [m^3], n_particles (input),
-    n_removed, n_bonds, bc, ranks, solver (ksp_type, pc_type, rtol,
-    residual_limit, iterations [6], setup_seconds, solve_seconds, plus
-    residuals and the condition's checks, docs/model.md section 9), material
-    (E, nu, psi, source) and warnings (list of str: accepted unconverged
-    solves, PETSc options never used); with ``a_star_cap``, also n_capped. With
-    ``vtu_dir``, rank 0 writes the ParaView files there (one .vtp per load case and
-    cases.pvd; docs/viewing.md). The dict starts with the header of
-    :func:`amfe.io.result_meta.homogenize_header` (input hash, material, box, counts, ...).
-    ``ksp_options`` (dict) sets PETSc options for this solve only, e.g.
-    {"ksp_type": "preonly", "pc_type": "cholesky"}; ``nondimensional=False``
-    assembles in SI units (for the benchmark that shows why scaling matters).
-    ``progress=True`` prints one line per phase and load case to stderr on rank 0.
-    ``fields=True`` adds "fields": a :class:`~amfe.io.result.Fields` (every rank).
-    ``solver``: "gamg" (CG + GAMG, rtol default 1e-8), "cholesky" (one rank) or
-    "auto", the cheapest method that keeps the constants within 1e-5 of a tight
-    reference (:mod:`amfe.solvers.choice`); the choice and its reason go into
-    the result's ``solver`` record (method, reason).
-    Every solve must reach a true relative residual of at most
+    Returns the :class:`~amfe.io.result.Result` of docs/model.md, section 6 (the
+    same on every rank), whose ``to_dict()`` starts with the header of
+    :func:`amfe.io.result_meta.homogenize_header`: properties (SI: Pa and -), C
+    and S (6x6, Voigt xx, yy, zz, yz, xz, xy, engineering shear; Pa and 1/Pa),
+    volume [m^3], counts, bc, ranks, solver (ksp_type, pc_type, rtol,
+    residual_limit, iterations [6], times, residuals and the condition's checks,
+    docs/model.md section 9; method and reason of the solver choice,
+    :mod:`amfe.solvers.choice`), material (E, nu, psi, source) and warnings (list
+    of str: accepted unconverged solves, PETSc options never used); with
+    ``a_star_cap``, n_capped; with ``diagnose``, diagnostics (per case:
+    iterations, true residual, eigenvalue estimates, GAMG levels and
+    complexities). ``fields=True``: ``result.fields``, a
+    :class:`~amfe.io.result.Fields` on every rank ("root": on rank 0 only, for
+    the files the caller writes).
+
+    Progress (one line per phase and load case) and warnings leave through the
+    ``logging`` logger "amfe.solvers", on rank 0 only; this function prints and
+    writes nothing. Every solve must reach a true relative residual of at most
     :data:`~amfe.solvers.ksp.RESIDUAL_FACTOR` x rtol (or x the rounding floor);
-    ``accept_unconverged=True`` keeps the numbers of one that does not, with a
-    warning. ``max_memory``: bytes the solve may take over all ranks (default:
-    half the memory of the machines the ranks run on); a larger estimate is
-    refused before any work. ``input_error``: an AmfeError the caller met
-    preparing this rank's input, raised on every rank after the ranks are
-    compared (so that no rank waits in a collective).
+    ``accept_unconverged`` keeps the numbers of one that does not, with a
+    warning. The bed's recorded box (``attrs["size"]`` (3,) [m]) is V (else the
+    load-carrying spheres' bounding box; docs/model.md, section 5).
     Raises AmfeError on every rank for bad input or a failed solve.
+    Changed in 0.3.0: it took the arrays and some twenty keyword options and
+    returned a dict.
     """
-    PETSc = init_petsc(petsc_args)
-    if comm is None:
-        comm = PETSc.COMM_WORLD
-    elif not isinstance(comm, PETSc.Comm):
-        comm = PETSc.Comm(comm)  # an mpi4py communicator, e.g. a batch group
+    if options is None and input_error is None:
+        options = SolveOptions()
+    # per-call PETSc options go into the database (PETSc itself was initialised on import)
+    init_petsc(options.petsc_args if isinstance(options, SolveOptions) else None)
+    comm = petsc_comm(comm)
     mpi = comm.tompi4py()
-    source = material_source or (SOURCE_DEFAULT if material is None else "argument")
-    centers, radii, material, check_memory = checked_inputs(
-        PETSc, mpi, centers, radii, material, bcs=BOUNDARY_CONDITIONS, bc=bc, rtol=rtol,
-        max_it=max_it, a_star_cap=a_star_cap, ksp_options=ksp_options, max_memory=max_memory,
-        input_error=input_error, box=box, nondimensional=nondimensional,
-        diagnose=diagnose, accept_unconverged=accept_unconverged, solver=solver)
+    inp = checked_inputs(mpi, bed, options, BOUNDARY_CONDITIONS, input_error)
+    options, condition = inp.options, BOUNDARY_CONDITIONS[inp.options.bc]
     t0 = time.perf_counter()
-    log = _stderr_log(mpi.rank) if progress else None
-    frame = build_frame(centers, radii, material, a_star_cap, nondimensional=nondimensional,
-                        box=box if BOUNDARY_CONDITIONS[bc].periodic else None)
+    log = _progress(mpi.rank)
+    frame = build_frame(bed.centers, bed.radii, inp.material, options.a_star_cap,
+                        nondimensional=options.nondimensional,
+                        box=inp.box if condition.periodic else None, bc=options.bc,
+                        size=bed.attrs.get("size"))
     t_frame = time.perf_counter() - t0
-    groups = BOUNDARY_CONDITIONS[bc].groups(frame)
-    # the same on every rank: rank 0 decides (qhull, ~0.06 s on 300 000 centres)
-    corrected = correction_wanted(PETSc, ksp_options) and mpi.bcast(
-        BOUNDARY_CONDITIONS[bc].second_order(frame, groups) if mpi.rank == 0 else None)
-    if log:
-        log(f"frame: {frame.n_particles} load-carrying particles ({frame.n_removed} removed), "
-            f"{len(frame.bonds)} bonds in {t_frame:.2f} s; {bc}, {mpi.size} rank(s)")
-    method, reason, rtol, options = choose_solver(
-        lambda: solve_features(frame), mpi.size, solver, rtol, cholesky_package(PETSc),
+    groups = condition.groups(frame)
+    # the same on every rank: rank 0 decides (qhull; docs/benchmarks.md, "Figures quoted ...")
+    corrected = correction_wanted(options.ksp_options) and mpi.bcast(
+        condition.second_order(frame, groups) if mpi.rank == 0 else None)
+    log(f"frame: {frame.n_particles} load-carrying particles ({frame.n_removed} removed), "
+        f"{len(frame.bonds)} bonds in {t_frame:.2f} s; {options.bc}, {mpi.size} rank(s)")
+    method, reason, rtol, chosen = choose_solver(
+        lambda: solve_features(frame), mpi.size, options.solver, options.rtol,
+        cholesky_package(),
         [k for k in USER_METHOD_OPTIONS
-         if PETSc.Options().hasName(k) or k in (ksp_options or {})],
-        singular=any(g.null_modes is not None for g in groups), check_memory=check_memory,
-        corrected=corrected)
-    if log:
-        log(f"solver: {method} ({reason})")
-    sol = solve_load_cases(PETSc, frame, comm, groups, rtol=DEFAULT_RTOL if rtol is None else rtol,
-                           max_it=max_it, log=log, ksp_options={**options, **(ksp_options or {})},
-                           diagnose=diagnose, accept_unconverged=accept_unconverged)
+         if PETSc.Options().hasName(k) or k in options.ksp_options],
+        Problem(singular=any(g.null_modes is not None for g in groups), corrected=corrected),
+        check_memory=inp.check_memory)
+    log(f"solver: {method} ({reason})")
+    sol = solve_load_cases(frame, comm, groups, rtol=DEFAULT_RTOL if rtol is None else rtol,
+                           max_it=options.max_it, log=log,
+                           ksp_options={**chosen, **options.ksp_options},
+                           diagnose=options.diagnose,
+                           accept_unconverged=options.accept_unconverged)
     warnings = sol.warnings
     if warnings and mpi.rank == 0:
         missed = [c for c in sol.cases if c.warning]
-        print(f"amfe: warning: {len(missed)} load case(s) missed the convergence contract "
-              f"(true relative residual <= {RESIDUAL_FACTOR:g} x rtol) and were kept as asked "
-              "(accept_unconverged): " + ", ".join(f"{c.name} {c.residual:.1e}" for c in missed),
-              file=sys.stderr, flush=True)
+        LOG.warning(f"{len(missed)} load case(s) missed the convergence contract "
+                    f"(true relative residual <= {RESIDUAL_FACTOR:g} x rtol) and were kept as "
+                    "asked (accept_unconverged): "
+                    + ", ".join(f"{c.name} {c.residual:.1e}" for c in missed))
     # of the per-solve options, only the caller's count (not those the solver choice adds)
-    unused = unused_options_warning(PETSc, mpi.rank, [
-        n for n in sol.unused_options if n.lstrip("-") in {k.lstrip("-") for k in ksp_options or {}}])
-    record = {"E": material.E, "nu": material.nu, "psi": material.psi, "source": source}
-    result = on_root(mpi, _average, frame, groups, sol, bc, a_star_cap, mpi.size, t_frame,
-                     vtu_dir, diagnose, fields, record, warnings + ([unused] if unused else []),
-                     (centers, radii))
-    result["solver"].update(method=method, reason=reason, requested=solver)
-    return result
+    mine = {k.lstrip("-") for k in options.ksp_options}
+    unused = unused_options_warning(mpi.rank,
+                                    [n for n in sol.unused_options if n.lstrip("-") in mine])
+    solved = Solved(frame, groups, sol, t_frame, mpi.size, inp.record,
+                    warnings + ([unused] if unused else []), bed)
+    d = on_root(mpi, _average, solved, options)
+    d["solver"].update(method=method, reason=reason, requested=options.solver)
+    fields = None
+    if options.fields == "root":
+        fields = _fields(solved, options.bc) if mpi.rank == 0 else None
+    elif options.fields:
+        fields = on_root(mpi, _fields, solved, options.bc)
+    return Result.from_dict(d, fields=fields)
 
 
-def correction_wanted(PETSc, ksp_options):
+def petsc_comm(comm):
+    """The PETSc communicator of ``comm``: None (COMM_WORLD), a PETSc or an mpi4py one (e.g. a
+    batch group's); AmfeError naming comm for anything else."""
+    if comm is None:
+        return PETSc.COMM_WORLD
+    if isinstance(comm, PETSc.Comm):
+        return comm
+    try:
+        return PETSc.Comm(comm)
+    except TypeError:
+        raise AmfeError(f"comm must be an mpi4py or PETSc communicator, got "
+                        f"{type(comm).__name__} {comm!r}") from None
+
+
+def correction_wanted(ksp_options):
     """-amfe_correction (per solve or on the command line; default yes) is not "no".
 
     ``ksp_options`` keys may carry PETSc's dash, as the operator accepts them
@@ -186,24 +203,36 @@ def correction_wanted(PETSc, ksp_options):
             else PETSc.Options().getString("amfe_correction", "yes")) != "no"
 
 
-def _stderr_log(rank):
-    start = time.perf_counter()
-
+def _progress(rank):
+    """log(line): one progress line to the logger, on rank 0 only (the face decides what
+    prints, :func:`amfe.api.homogenize`)."""
     def log(line):
         if rank == 0:
-            print(f"[{time.perf_counter() - start:7.2f} s] {line}", file=sys.stderr, flush=True)
+            LOG.info(line)
     return log
 
 
-def _average(frame, groups, sol, bc, a_star_cap, ranks, t_frame, vtu_dir, diagnose, fields,
-             material, warnings, bed):
-    """Rank 0: the condition's averages, C, S, constants, the result dict (and the ParaView
-    files). ``bed``: (centers, radii), the input arrays."""
+#: What the solve gives the averages (rank 0): the frame, its groups, the solutions, the
+#: frame's time [s], the rank count, the material record, the warnings and the input bed.
+Solved = namedtuple("Solved", "frame groups sol t_frame ranks material warnings bed")
+
+
+def _fields(solved, bc):
+    """Rank 0: the per-case fields (:func:`amfe.io.fields.frame_fields`)."""
+    return frame_fields(solved.frame, solved.sol.u, solved.groups, bc,
+                        centers=solved.bed.centers, radii=solved.bed.radii)
+
+
+def _average(solved, options):
+    """Rank 0: the condition's averages, C, S, constants: the result dict."""
+    frame, groups, sol = solved.frame, solved.groups, solved.sol
     t0 = time.perf_counter()
-    C, volume, stats = BOUNDARY_CONDITIONS[bc].average(frame, groups, sol.u, sol.moments,
-                                                       diagnose=diagnose, cross=sol.cross)
+    C, volume, stats = BOUNDARY_CONDITIONS[options.bc].average(
+        frame, groups, sol.u, sol.moments, diagnose=options.diagnose, cross=sol.cross)
     C = C * frame.stress_scale
     S, props = compliance_and_constants(C)
+    for line in frame_warnings(frame, options.bc):   # removed pieces, the box rule: the terminal
+        LOG.warning(line)
     t_avg = time.perf_counter() - t0
     result = {
         "properties": {k: float(v) for k, v in props.items()},
@@ -212,9 +241,10 @@ def _average(frame, groups, sol, bc, a_star_cap, ranks, t_frame, vtu_dir, diagno
         "volume": float(volume * frame.length_scale**3),
         "n_particles": int(frame.n_input),
         "n_removed": int(frame.n_removed),
+        "removed": frame.removed,
         "n_bonds": int(len(frame.bonds)),
-        "bc": bc,
-        "ranks": int(ranks),
+        "bc": options.bc,
+        "ranks": int(solved.ranks),
         "solver": {
             "ksp_type": sol.setups[0].ksp_type, "pc_type": sol.setups[0].pc_type,
             "rtol": sol.setups[0].rtol, "residual_limit": RESIDUAL_FACTOR * sol.setups[0].rtol,
@@ -222,27 +252,20 @@ def _average(frame, groups, sol, bc, a_star_cap, ranks, t_frame, vtu_dir, diagno
             "iterations": sol.iterations,
             "setup_seconds": sol.setup_seconds, "solve_seconds": sol.solve_seconds,
             "case_seconds": [c.seconds for c in sol.cases],
-            "frame_seconds": t_frame, "assembly_seconds": sol.assembly_seconds,
+            "frame_seconds": solved.t_frame, "assembly_seconds": sol.assembly_seconds,
             "average_seconds": t_avg,
             "residuals": sol.residuals,
             **stats,
         },
-        "material": material,
-        "warnings": list(warnings),
+        "material": solved.material,
+        "warnings": list(solved.warnings) + frame_warnings(frame, options.bc),
     }
-    result = {**homogenize_header(frame, bed[0], bed[1], material), **result}
+    bed = solved.bed
+    result = {**homogenize_header(frame, bed.centers, bed.radii, solved.material), **result}
     if sol.notes:
         result["solver"]["notes"] = sol.notes
-    if a_star_cap is not None:
+    if options.a_star_cap is not None:
         result["n_capped"] = int(frame.n_capped)
-    if diagnose:
+    if options.diagnose:
         result["diagnostics"] = sol.diagnostics()
-    if fields or vtu_dir is not None:
-        f = frame_fields(frame, sol.u, groups, bc, centers=bed[0], radii=bed[1])
-    if fields:
-        result["fields"] = f
-    if vtu_dir is not None:
-        paths = write_fields_vtp(vtu_dir, f)
-        result["vtk"] = {"collection": paths[-1], "files": paths[:-1]}
     return result
-

@@ -1,10 +1,12 @@
 """KSP/PC set-up and the convergence check every solve goes through."""
 from contextlib import contextmanager
+from dataclasses import dataclass
 
 import math
 
 from amfe.errors import AmfeError
 from amfe.solvers.petsc import unused_options
+from amfe.solvers.petsclib import PETSc
 
 DEFAULT_RTOL = 1e-8
 """Relative residual tolerance of the CG solves. The constants come from
@@ -47,7 +49,22 @@ iterations, and the constants of ordinary beds move by up to 4e-8 where the
 stopping iteration moves."""
 
 
-def make_ksp(PETSc, A, P=None, rtol=DEFAULT_RTOL, ksp_type="cg", pc_type="gamg", max_it=None):
+
+@dataclass(frozen=True)
+class CaseSettings:
+    """How every load case of a group is solved: rtol (CG's relative tolerance), max_it
+    (iteration limit or None), ksp_options (PETSc options of these solves only, {name:
+    value} or None), diagnose (eigenvalue estimates and GAMG complexities),
+    accept_unconverged (keep a solve that misses the contract, with a warning)."""
+
+    rtol: float
+    max_it: int = None
+    ksp_options: dict = None
+    diagnose: bool = False
+    accept_unconverged: bool = False
+
+
+def make_ksp(A, P=None, rtol=DEFAULT_RTOL, ksp_type="cg", pc_type="gamg", max_it=None):
     """A KSP with operator A and preconditioner matrix P (default A).
 
     CG + GAMG by default; the PETSc options database overrides. (CG keeps
@@ -66,7 +83,7 @@ def make_ksp(PETSc, A, P=None, rtol=DEFAULT_RTOL, ksp_type="cg", pc_type="gamg",
 
 
 @contextmanager
-def petsc_options(PETSc, options=None):
+def petsc_options(options=None):
     """Temporarily set PETSc options ({"pc_type": "cholesky", "ksp_monitor": None}).
 
     Yields a list that, when the block ends, holds the options given here
@@ -81,7 +98,7 @@ def petsc_options(PETSc, options=None):
     try:
         yield unused
     finally:
-        unused += unused_options(PETSc, options)
+        unused += unused_options(options)
         for k, v in saved.items():
             if v is None:
                 db.delValue(k)
@@ -89,7 +106,7 @@ def petsc_options(PETSc, options=None):
                 db.setValue(k, v)
 
 
-def reason_name(PETSc, reason):
+def reason_name(reason):
     names = {getattr(PETSc.KSP.ConvergedReason, n): n
              for n in dir(PETSc.KSP.ConvergedReason) if n.isupper()}
     return names.get(reason, str(reason))
@@ -103,7 +120,7 @@ ACCEPT_HINT = ("; to keep the numbers anyway, with a warning in the result, pass
                "--accept-unconverged (accept_unconverged=True in Python)")
 
 
-def check_solution(PETSc, ksp, label, residual, pc_residual, accept=False):
+def check_solution(ksp, label, residual, pc_residual, accept=False):
     """Hold a finished solve to the convergence contract (:data:`RESIDUAL_FACTOR`).
 
     residual: the true relative residual ||b - A x|| / ||b||; pc_residual: a
@@ -121,11 +138,11 @@ def check_solution(PETSc, ksp, label, residual, pc_residual, accept=False):
     rtol, atol, dtol, max_it = ksp.getTolerances()
     its, how = ksp.getIterationNumber(), f"{ksp.getType().upper()} solve with {ksp.getPC().getType()}"
     if reason == PETSc.KSP.ConvergedReason.DIVERGED_INDEFINITE_PC or not math.isfinite(residual):
-        check_converged(PETSc, ksp, label)
+        check_converged(ksp, label)
         raise AmfeError(f"{label}: the {how} gave a non-finite solution (true residual "
                         f"{residual}) after {its} iterations; check the bed and the options")
     if reason <= 0:
-        message = converged_message(PETSc, ksp, label) + f"; true relative residual {residual:.2e}"
+        message = converged_message(ksp, label) + f"; true relative residual {residual:.2e}"
     elif residual <= RESIDUAL_FACTOR * rtol:
         return None, None
     else:
@@ -135,7 +152,7 @@ def check_solution(PETSc, ksp, label, residual, pc_residual, accept=False):
             return None, (f"{label}: true relative residual {residual:.1e} "
                           f"({residual / rtol:.3g} x rtol), {in_norm:.1e} in the {norm} norm the "
                           f"KSP tests; rounding floor eps ||A|| ||x|| / ||b|| = {floor:.1e}")
-        message = (f"{label}: the {how} stopped ({reason_name(PETSc, reason)} after {its} "
+        message = (f"{label}: the {how} stopped ({reason_name(reason)} after {its} "
                    f"iterations) with the true relative residual ||b - A x|| / ||b|| at "
                    f"{residual:.2e} ({in_norm:.2e} in the {norm} norm), above "
                    f"{RESIDUAL_FACTOR:g} x rtol = {RESIDUAL_FACTOR * rtol:.1e} (atol {atol:g}, "
@@ -147,22 +164,22 @@ def check_solution(PETSc, ksp, label, residual, pc_residual, accept=False):
     raise AmfeError(message + ACCEPT_HINT)
 
 
-def converged_message(PETSc, ksp, label):
+def converged_message(ksp, label):
     """What a KSP that stopped without converging says about itself."""
     reason = ksp.getConvergedReason()
     rtol, atol, dtol, max_it = ksp.getTolerances()
     return (f"{label}: the {ksp.getType().upper()} solve with {ksp.getPC().getType()} did not "
-            f"converge: {reason_name(PETSc, reason)} after {ksp.getIterationNumber()} iterations, "
+            f"converge: {reason_name(reason)} after {ksp.getIterationNumber()} iterations, "
             f"residual norm {ksp.getResidualNorm():.3e} (rtol {rtol:g}, max_it {max_it}). The "
             "frame may be ill-conditioned or a near-mechanism; try -ksp_monitor_true_residual, a "
             "direct solver (-ksp_type preonly -pc_type cholesky), or check the bed")
 
 
-def check_converged(PETSc, ksp, label):
+def check_converged(ksp, label):
     """Raise AmfeError (on every rank alike: the reason is collective) unless converged."""
     reason = ksp.getConvergedReason()
     if reason > 0:
         return
     indefinite = reason == PETSc.KSP.ConvergedReason.DIVERGED_INDEFINITE_PC
     raise (IndefinitePreconditioner if indefinite else AmfeError)(
-        converged_message(PETSc, ksp, label) + ".")
+        converged_message(ksp, label) + ".")

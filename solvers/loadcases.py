@@ -6,17 +6,18 @@ and one preconditioner set-up (:class:`amfe.solvers.operator.ConstrainedOperator
 then one solve per case. The result is a :class:`LoadCaseSolutions`.
 """
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from amfe.errors import AmfeError
 from amfe.model.averages import box_center
 from amfe.solvers.assembly import local_block_rows, small_pages
-from amfe.solvers.ksp import IndefinitePreconditioner
+from amfe.solvers.ksp import CaseSettings, IndefinitePreconditioner
 from amfe.solvers.operator import ConstrainedOperator
 from amfe.solvers.partition import row_ranges
 from amfe.solvers.petsc import READ_AT_FINALIZE
+from amfe.solvers.petsclib import PETSc
 
 # GAMG's Chebyshev smoothers scale by an estimate of the largest eigenvalue of
 # D^-1 A from 10 Krylov steps. Very stiff bonds among the prescribed particles
@@ -94,17 +95,17 @@ class LoadCaseSolutions:
                 for c, g in zip(self.cases, self.group_of_case)]
 
 
-def solve_load_cases(PETSc, frame, comm, groups, *, rtol, max_it=None, ksp_options=None,
-                     diagnose=False, center=None, log=None, accept_unconverged=False):
+def solve_load_cases(frame, comm, groups, *, center=None, log=None, **settings):
     """Solve every group of load cases on ``frame``; returns :class:`LoadCaseSolutions`.
 
-    ``log``: called with a progress line per operator and per case (on every
+    ``settings``: the fields of :class:`~amfe.solvers.ksp.CaseSettings` (rtol, max_it,
+    ksp_options, diagnose, accept_unconverged). ``log``: called with a progress line per operator and per case (on every
     rank; the caller decides who prints). Raises AmfeError on every rank,
     also for a solve that misses the convergence contract
     (:func:`amfe.solvers.ksp.check_solution`) unless ``accept_unconverged``.
     """
-    opts = dict(rtol=rtol, max_it=max_it, diagnose=diagnose, log=log,
-                accept_unconverged=accept_unconverged)
+    settings = CaseSettings(**settings)
+    ksp_options = settings.ksp_options
     size, rank = comm.getSize(), comm.getRank()
     ranges = row_ranges(frame.n_particles, size)
     r0, r1 = int(ranges[rank]), int(ranges[rank + 1])
@@ -125,8 +126,8 @@ def solve_load_cases(PETSc, frame, comm, groups, *, rtol, max_it=None, ksp_optio
     for g, group in enumerate(groups):
         last = g == len(groups) - 1
         try:
-            c, rec = _solve_group(PETSc, frame, comm, r0, r1, block_rows(last), group, center,
-                                  ksp_options, **opts)
+            c, rec = _solve_group(frame, comm, (r0, r1), block_rows(last), group, center,
+                                  settings, log)
         except PETSc.Error as exc:
             # e.g. an option PETSc cannot use (-pc_type unknown); PETSc printed the details
             given = sorted(set(PETSc.Options().getAll()) - READ_AT_FINALIZE
@@ -142,8 +143,9 @@ def solve_load_cases(PETSc, frame, comm, groups, *, rtol, max_it=None, ksp_optio
             notes.append(f"cases {', '.join(group.names)}: {str(exc).split(':')[0]} met an "
                          "indefinite preconditioner; set up again with "
                          "-pc_gamg_esteig_ksp_max_it 50 -mg_levels_esteig_ksp_max_it 50")
-            c, rec = _solve_group(PETSc, frame, comm, r0, r1, block_rows(last), group, center,
-                                  {**(ksp_options or {}), **ROBUST_ESTEIG}, **opts)
+            robust = replace(settings, ksp_options={**(ksp_options or {}), **ROBUST_ESTEIG})
+            c, rec = _solve_group(frame, comm, (r0, r1), block_rows(last), group, center,
+                                  robust, log)
         for case in c:
             us.append(case.u)
             case.u = None
@@ -158,14 +160,13 @@ def solve_load_cases(PETSc, frame, comm, groups, *, rtol, max_it=None, ksp_optio
                              block_seconds=block_seconds, notes=notes)
 
 
-def _solve_group(PETSc, frame, comm, r0, r1, rows, group, center, ksp_options, *,
-                 rtol, max_it, diagnose, log, accept_unconverged):
-    """rows: ([block rows], release or None): with release, the operator drops the
-    block rows (about a third of the matrix's memory) once its matrices are made."""
+def _solve_group(frame, comm, part, rows, group, center, settings, log):
+    """part: this rank's particle rows (r0, r1); rows: ([block rows], release or None):
+    with release, the operator drops the block rows (about a third of the matrix's
+    memory) once its matrices are made; settings: a CaseSettings."""
     held, release = rows
-    op = ConstrainedOperator(PETSc, frame, comm, r0, r1, held[0], group, rtol=rtol,
-                             max_it=max_it, ksp_options=ksp_options, diagnose=diagnose,
-                             accept_unconverged=accept_unconverged, release=release)
+    op = ConstrainedOperator(frame, comm, *part, held[0], group, release=release,
+                             **vars(settings))
     try:
         rec = op.record
         if log:

@@ -21,6 +21,7 @@ import re
 import numpy as np
 
 from amfe.errors import AmfeError
+from amfe.solvers.petsclib import PETSc
 
 _LIB = None
 
@@ -66,7 +67,7 @@ class MaijProduct:
     blocks (n, k) for :meth:`mult` and (m, k) for :meth:`mult_transpose`.
     """
 
-    def __init__(self, PETSc, M, k):
+    def __init__(self, M, k):
         lib = petsc_library()
         if lib is None or PETSc.IntType != np.int32:
             raise AmfeError("MatCreateMAIJ is not reachable through ctypes (32-bit PetscInt)")
@@ -115,7 +116,7 @@ class DenseProduct:
     Pure petsc4py (the fallback): native for AIJ in 3.18, one copy in and out.
     """
 
-    def __init__(self, PETSc, M, k):
+    def __init__(self, M, k):
         (m, m_global), (n, n_global) = M.getSizes()
         comm = M.getComm()
         self.M = M
@@ -144,7 +145,7 @@ class DenseProduct:
                 D.destroy()
 
 
-def block_product(PETSc, M, k, backend="auto"):
+def block_product(M, k, backend="auto"):
     """A k-column product object for M: ``.mult(X, Y)``, ``.mult_transpose(X, Y)``.
 
     backend: "maij" (fails unless MAIJ works), "dense", or "auto" (MAIJ for an
@@ -154,10 +155,10 @@ def block_product(PETSc, M, k, backend="auto"):
         raise AmfeError(f"unknown block product backend {backend!r}; choose auto, maij or dense")
     if backend != "dense" and M.getType() in ("seqaij", "mpiaij"):
         try:
-            return MaijProduct(PETSc, M, k)
+            return MaijProduct(M, k)
         except AmfeError:
             if backend == "maij":
                 raise
     elif backend == "maij":
         raise AmfeError(f"MAIJ needs an AIJ matrix, not {M.getType()}")
-    return DenseProduct(PETSc, M, k)
+    return DenseProduct(M, k)

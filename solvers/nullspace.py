@@ -2,19 +2,20 @@
 import numpy as np
 
 from amfe.model.loadcase import rigid_body_modes
+from amfe.solvers.petsclib import PETSc
 
 
-def near_nullspace(PETSc, A, local_points, center):
+def near_nullspace(A, local_points, center):
     """An orthonormal PETSc NullSpace of the six rigid-body modes on A's row layout.
 
     local_points (nloc,3): this rank's node coordinates (the rows A owns);
     center (3,): the same rotation centre on every rank (the global centroid,
     which keeps the modes well conditioned).
     """
-    return orthonormal_nullspace(PETSc, A, rigid_body_modes(local_points, center))
+    return orthonormal_nullspace(A, rigid_body_modes(local_points, center))
 
 
-def orthonormal_nullspace(PETSc, A, local_modes):
+def orthonormal_nullspace(A, local_modes):
     """A PETSc NullSpace spanned by ``local_modes`` (m, nloc*6 or m, nloc, 6) on A's rows.
 
     Orthonormalised by modified Gram-Schmidt with global dot products.

@@ -11,7 +11,8 @@ rows of the constrained particles' translations (docs/model.md, section 5).
 
 CG multiplies with a symmetric-block (SBAIJ) copy of the constrained matrix:
 CG and the fine-level smoother are bound by MatMult's memory traffic, and the
-upper 6x6 blocks with one index per block move about a third of AIJ's bytes.
+upper 6x6 blocks with one index per block move fewer bytes than AIJ
+(docs/benchmarks.md, "Figures quoted in the code").
 GAMG is built from the AIJ matrix (it cannot use (S)BAIJ in PETSc 3.18). The
 PETSc option -amfe_operator_type aij turns the copy off; the block path
 (:meth:`ConstrainedOperator.solve_all`) needs none, as its products use AIJ.
@@ -27,8 +28,9 @@ from amfe.solvers.assembly import aij_from_blocks, sbaij_operator
 from amfe.solvers.blocksolve import (block_path_applies, block_path_expected, solve_block,
                                      with_block_defaults)
 from amfe.solvers.correction import takes_correction
-from amfe.solvers.ksp import check_solution, make_ksp, petsc_options
+from amfe.solvers.ksp import CaseSettings, check_solution, make_ksp, petsc_options
 from amfe.solvers.nullspace import near_nullspace, orthonormal_nullspace
+from amfe.solvers.petsclib import PETSc
 
 
 AMFE_OPTIONS = ("amfe_operator_type", "amfe_block", "amfe_correction")
@@ -91,14 +93,15 @@ class ConstrainedOperator:
     matrices are made (None: the caller keeps them).
     """
 
-    def __init__(self, PETSc, frame, comm, r0, r1, block_rows, group, *, rtol, max_it=None,
-                 ksp_options=None, diagnose=False, accept_unconverged=False, release=None):
-        self.PETSc, self.comm, self.r0, self.r1 = PETSc, comm, r0, r1
+    def __init__(self, frame, comm, r0, r1, block_rows, group, *, release=None, **settings):
+        s = CaseSettings(**settings)   # rtol, max_it, ksp_options, diagnose, accept_unconverged
+        rtol, max_it, ksp_options, diagnose = s.rtol, s.max_it, s.ksp_options, s.diagnose
+        self.comm, self.r0, self.r1 = comm, r0, r1
         self.frame, self.group, self.diagnose = frame, group, diagnose
-        self.accept_unconverged = accept_unconverged
+        self.accept_unconverged = s.accept_unconverged
         n, nloc = frame.n_particles, r1 - r0
         t0 = time.perf_counter()
-        A = aij_from_blocks(PETSc, comm, n, r0, r1, *block_rows)
+        A = aij_from_blocks(comm, n, r0, r1, *block_rows)
         fixed_loc = group.fixed[r0:r1]
         dofs = (np.flatnonzero(fixed_loc.ravel()) + 6 * r0).astype(PETSc.IntType)
         self.held = np.flatnonzero(fixed_loc.any(axis=1)) + r0  # particles with a reaction
@@ -106,9 +109,58 @@ class ConstrainedOperator:
         self._isrow = PETSc.IS().createGeneral(rdofs, comm=comm)
         self._iscol = PETSc.IS().createStride(6 * nloc, first=6 * r0, step=1, comm=comm)
         self.A_r = A.createSubMatrix(self._isrow, self._iscol)  # unconstrained rows: reactions
-        # Lift every case's prescribed values into its right-hand side while A
-        # is still unconstrained (b = -A x0 on the free rows), plus any applied
-        # forces (SUBC, periodic; their entries on fixed rows are overwritten below).
+        self._constrain(A, group, fixed_loc, dofs)
+        x = frame.centers
+        A.setNearNullSpace(near_nullspace(A, x[r0:r1], x.mean(axis=0)))
+        with petsc_options(ksp_options):  # a direct solve sets amfe_operator_type aij
+            aij_only = PETSc.Options().getString("amfe_operator_type", "sbaij") == "aij"
+            self.block_option = PETSc.Options().getString("amfe_block", "yes")
+            self.correct_option = PETSc.Options().getString("amfe_correction", "yes")
+            block = block_path_expected(len(group.values), self.block_option, diagnose)
+        if self.correct_option not in ("yes", "no"):  # refused before the set-up's cost
+            raise AmfeError(f"-amfe_correction {self.correct_option!r}: give yes (the "
+                            "second-order averages, the default) or no")
+        if block:  # the block path multiplies with AIJ only, and has its GAMG defaults
+            smoothed = group.smoothed_aggregation and rtol <= group.smoothed_rtol_max
+            ksp_options = with_block_defaults(ksp_options, smoothed,
+                                              comm.getSize())
+        A_op = A if aij_only or block else sbaij_operator(comm, n, r0, r1, *block_rows,
+                                                          fixed=group.fixed)
+        if release is not None:  # the caller's last reference: GAMG's set-up reuses the memory
+            release()
+        del block_rows
+        self.nullspace = None
+        if group.null_modes is not None:
+            self.nullspace = orthonormal_nullspace(A, group.null_modes[:, r0:r1])
+            A.setNullSpace(self.nullspace)
+            A_op.setNullSpace(self.nullspace)
+        self.A, self.A_op = A, A_op
+        t_assembly = time.perf_counter() - t0
+        with petsc_options(ksp_options) as unused:
+            for name in AMFE_OPTIONS:  # read above, in another setting of the options: mark them used
+                PETSc.Options().getString(name, "")
+            ksp = make_ksp(A_op, A, rtol=rtol, max_it=max_it)
+            if diagnose:
+                ksp.setComputeEigenvalues(True)
+            t0 = time.perf_counter()
+            ksp.setUp()
+            t_setup = time.perf_counter() - t0
+        self.ksp = ksp
+        self.record = SetupRecord(t_assembly, t_setup, ksp.getType(), ksp.getPC().getType(),
+                                  float(ksp.getTolerances()[0]), norm_name(ksp),
+                                  pc_complexity(ksp) if diagnose else {}, unused)
+        self._r = A.createVecLeft()
+        self._f = self.A_r.createVecLeft()
+        self._scatter, self._u0 = PETSc.Scatter.toZero(self._r)
+
+    def _constrain(self, A, group, fixed_loc, dofs):
+        """Impose the prescribed DOFs ``dofs`` on A, with every case's right-hand side.
+
+        Lift every case's prescribed values into its right-hand side while A
+        is still unconstrained (b = -A x0 on the free rows), plus any applied
+        forces (SUBC, periodic; their entries on fixed rows are overwritten below).
+        """
+        r0, r1 = self.r0, self.r1
         self._x0, self._b = [], []
         for k, values in enumerate(group.values):
             x0 = A.createVecRight()
@@ -134,48 +186,6 @@ class ConstrainedOperator:
         diag.destroy()
         for x0, b in zip(self._x0, self._b):
             b.getArray()[self._local_dofs] = self._dvals * x0.getArray()[self._local_dofs]
-        x = frame.centers
-        A.setNearNullSpace(near_nullspace(PETSc, A, x[r0:r1], x.mean(axis=0)))
-        with petsc_options(PETSc, ksp_options):  # a direct solve sets amfe_operator_type aij
-            aij_only = PETSc.Options().getString("amfe_operator_type", "sbaij") == "aij"
-            self.block_option = PETSc.Options().getString("amfe_block", "yes")
-            self.correct_option = PETSc.Options().getString("amfe_correction", "yes")
-            block = block_path_expected(PETSc, len(group.values), self.block_option, diagnose)
-        if self.correct_option not in ("yes", "no"):  # refused before the set-up's cost
-            raise AmfeError(f"-amfe_correction {self.correct_option!r}: give yes (the "
-                            "second-order averages, the default) or no")
-        if block:  # the block path multiplies with AIJ only, and has its GAMG defaults
-            smoothed = group.smoothed_aggregation and rtol <= group.smoothed_rtol_max
-            ksp_options = with_block_defaults(PETSc, ksp_options, smoothed,
-                                              comm.getSize())
-        A_op = A if aij_only or block else sbaij_operator(PETSc, comm, n, r0, r1, *block_rows,
-                                                          fixed=group.fixed)
-        if release is not None:  # the caller's last reference: GAMG's set-up reuses the memory
-            release()
-        del block_rows
-        self.nullspace = None
-        if group.null_modes is not None:
-            self.nullspace = orthonormal_nullspace(PETSc, A, group.null_modes[:, r0:r1])
-            A.setNullSpace(self.nullspace)
-            A_op.setNullSpace(self.nullspace)
-        self.A, self.A_op = A, A_op
-        t_assembly = time.perf_counter() - t0
-        with petsc_options(PETSc, ksp_options) as unused:
-            for name in AMFE_OPTIONS:  # read above, in another setting of the options: mark them used
-                PETSc.Options().getString(name, "")
-            ksp = make_ksp(PETSc, A_op, A, rtol=rtol, max_it=max_it)
-            if diagnose:
-                ksp.setComputeEigenvalues(True)
-            t0 = time.perf_counter()
-            ksp.setUp()
-            t_setup = time.perf_counter() - t0
-        self.ksp = ksp
-        self.record = SetupRecord(t_assembly, t_setup, ksp.getType(), ksp.getPC().getType(),
-                                  float(ksp.getTolerances()[0]), norm_name(PETSc, ksp),
-                                  pc_complexity(PETSc, ksp) if diagnose else {}, unused)
-        self._r = A.createVecLeft()
-        self._f = self.A_r.createVecLeft()
-        self._scatter, self._u0 = PETSc.Scatter.toZero(self._r)
 
     def solve(self, k, center, guess=None, gather=True, keep=None):
         """Solve the group's case ``k``; returns a :class:`CaseSolution`.
@@ -185,7 +195,7 @@ class ConstrainedOperator:
         keep: a list that receives copies of (x, b - A x) (for :meth:`solve_all`'s
         correction; the caller destroys them).
         """
-        PETSc, ksp, r0, r1 = self.PETSc, self.ksp, self.r0, self.r1
+        ksp, r0, r1 = self.ksp, self.r0, self.r1
         name, b = self.group.names[k], self._b[k]
         u = self.A.createVecRight()
         # (a direct solve, KSP preonly, takes no initial guess)
@@ -202,7 +212,7 @@ class ConstrainedOperator:
         self._r.aypx(-1.0, b)
         bnorm = b.norm()  # zero when a case prescribes nothing but zeros
         residual = float(self._r.norm() / bnorm if bnorm > 0 else self._r.norm())
-        warning, note = check_solution(PETSc, ksp, f"load case {name}", residual,
+        warning, note = check_solution(ksp, f"load case {name}", residual,
                                        lambda: self._residual_in_ksp_norm(b),
                                        accept=self.accept_unconverged)
         eig = {}
@@ -235,7 +245,7 @@ class ConstrainedOperator:
             X0 = None if guesses is None else [g[r0:r1].ravel() for g in guesses]
             fixed = (self._local_dofs,
                      np.stack([x.getArray()[self._local_dofs] for x in self._x0], axis=1))
-            cols = solve_block(self.PETSc, self.ksp, self._b, X0, info=info, prescribed=fixed)
+            cols = solve_block(self.ksp, self._b, X0, info=info, prescribed=fixed)
         if cols is None:
             keep = [] if correct else None
             out = [self.solve(k, center, None if guesses is None else guesses[k], gather, keep)
@@ -249,7 +259,7 @@ class ConstrainedOperator:
         self.record.path = "block"
         checks = {}  # the contract of solve(); an indefinite preconditioner first (the retry)
         for k in sorted(range(len(cols)), key=lambda k: not cols[k].indefinite):
-            checks[k] = check_solution(self.PETSc, cols[k].ksp, f"load case {names[k]}",
+            checks[k] = check_solution(cols[k].ksp, f"load case {names[k]}",
                                        cols[k].residual, lambda: self._column_norm(k, cols[k].u),
                                        accept=self.accept_unconverged)
         out = []
@@ -279,8 +289,8 @@ class ConstrainedOperator:
         moment = self.comm.tompi4py().allreduce(local)
         u_root = None
         if gather:
-            self._scatter.scatter(u, self._u0, addv=self.PETSc.InsertMode.INSERT,
-                                  mode=self.PETSc.ScatterMode.FORWARD)
+            self._scatter.scatter(u, self._u0, addv=PETSc.InsertMode.INSERT,
+                                  mode=PETSc.ScatterMode.FORWARD)
             if self.comm.getRank() == 0:
                 u_root = self._u0.getArray().reshape(-1, 6).copy()
         return moment, u_root
@@ -294,8 +304,8 @@ class ConstrainedOperator:
         eps ||A||_F ||x|| / ||b||: no solve in double precision can promise
         a smaller relative residual.
         """
-        PETSc, pc, r = self.PETSc, self.ksp.getPC(), self._r
-        norm = norm_name(PETSc, self.ksp)
+        pc, r = self.ksp.getPC(), self._r
+        norm = norm_name(self.ksp)
         bnorm = b.norm() or 1.0  # zero when the case prescribes only zeros
         floor = (np.finfo(float).eps * self.A.norm(PETSc.NormType.FROBENIUS)
                  * (self.ksp.getSolution() if x is None else x).norm() / bnorm)
@@ -324,14 +334,14 @@ class ConstrainedOperator:
                 obj.destroy()
 
 
-def norm_name(PETSc, ksp):
+def norm_name(ksp):
     """The residual norm ``ksp`` tests: "unpreconditioned", "preconditioned", "natural", "none"."""
     names = {getattr(PETSc.KSP.NormType, n): n.lower() for n in
              ("NONE", "PRECONDITIONED", "UNPRECONDITIONED", "NATURAL")}
     return names.get(ksp.getNormType(), str(ksp.getNormType()))
 
 
-def pc_complexity(PETSc, ksp):
+def pc_complexity(ksp):
     """GAMG/MG grid and operator complexity and level sizes (empty for other PCs)."""
     pc = ksp.getPC()
     if pc.getType() not in ("gamg", "mg"):

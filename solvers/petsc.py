@@ -1,5 +1,9 @@
 """PETSc start-up: initialise petsc4py once, with command-line options if given."""
+import logging
+import os
 import sys
+
+from amfe.errors import AmfeError
 
 
 def init_petsc(argv=None):
@@ -10,10 +14,15 @@ def init_petsc(argv=None):
     initialised they are added to its options database instead.
     """
     argv = list(argv or [])
+    check_startup_options(argv)
     if "petsc4py.PETSc" not in sys.modules:
         import petsc4py
-        petsc4py.init([sys.argv[0] if sys.argv and sys.argv[0] else "amfe"] + argv)
-        _keep_python_sigpipe()
+        try:
+            petsc4py.init([sys.argv[0] if sys.argv and sys.argv[0] else "amfe"] + argv)
+        except Exception as exc:   # petsc4py.PETSc.Error: PetscInitialize failed (every rank)
+            raise AmfeError(f"PETSc could not start with the options {' '.join(argv)} "
+                            f"({exc}); check them against the PETSc manual") from None
+        _keep_python_signals()
         from petsc4py import PETSc
         return PETSc
     from petsc4py import PETSc
@@ -23,15 +32,49 @@ def init_petsc(argv=None):
     return PETSc
 
 
-def _keep_python_sigpipe():
-    """Undo PETSc's SIGPIPE handler: it turns a closed stdout pipe (`amfe ... | head`) into a
-    PETSc error and MPI_Abort. With Python's SIG_IGN the write raises BrokenPipeError, which
-    the command line ends quietly (amfe.cli.interrupt)."""
+# Options amfe refuses before PETSc starts, with why.
+REFUSED_OPTIONS = {
+    "fp_trap": "it makes every floating-point exception fatal, and amfe's numpy code relies on "
+               "IEEE infinities and NaN where they are checked (PETSc would abort the run with "
+               "its error banner); -fp_trap is for debugging PETSc itself",
+}
+
+
+def check_startup_options(argv):
+    """AmfeError for a PETSc option amfe cannot run with (:data:`REFUSED_OPTIONS`) or an
+    ``-options_file`` that cannot be read (PetscInitialize would fail with error 83 and a
+    traceback). argv: the PETSc options, as for :func:`init_petsc`."""
+    for name, value in option_pairs(argv):
+        if name in REFUSED_OPTIONS and value.lower() not in ("0", "false", "no", "off"):
+            raise AmfeError(f"-{name} is not supported: {REFUSED_OPTIONS[name]}")
+        if name in ("options_file", "options_file_yaml"):
+            if not value:
+                raise AmfeError(f"-{name} needs a file name")
+            if not os.path.isfile(value) or not os.access(value, os.R_OK):
+                why = ("does not exist" if not os.path.exists(value) else
+                       "is a directory" if os.path.isdir(value) else "cannot be read")
+                raise AmfeError(f"-{name} {value}: the file {why}")
+
+
+def _keep_python_signals():
+    """Undo PETSc's handlers of the signals Python handles.
+
+    SIGPIPE: PETSc turns a closed stdout pipe (`amfe ... | head`) into a PETSc
+    error and MPI_Abort; with Python's SIG_IGN the write raises BrokenPipeError,
+    which the command line ends quietly. SIGHUP, SIGQUIT (and SIGINT, SIGTERM):
+    PETSc prints "Caught signal" and calls MPI_Abort with its banner; the
+    command line's handlers end the run with one line (amfe.cli.interrupt),
+    and elsewhere the signal does what it did before PETSc started.
+    """
     import signal
-    try:
-        signal.signal(signal.SIGPIPE, signal.SIG_IGN)
-    except ValueError:   # not the main thread: leave it
-        pass
+    for sig in (signal.SIGPIPE, signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT):
+        handler = signal.getsignal(sig)   # Python's own record, which PETSc did not change
+        if handler is None:   # set outside Python: leave it
+            continue
+        try:
+            signal.signal(sig, handler)
+        except ValueError:   # not the main thread: leave it
+            return
 
 
 def option_pairs(argv):
@@ -100,29 +143,31 @@ def option_used(name):
     return bool(flag.value)
 
 
-def unused_options(PETSc, names=None):
+def unused_options(names=None):
     """The options of the database (or of ``names``) that PETSc never read, as "-name".
 
     Call it after the solves: an option read only by an object never
     created (-pc_hypre_* with GAMG) or misspelt (-ksp_rtoll) is unused.
     Options read only at PetscFinalize (-options_left) are left out.
     """
+    PETSc = init_petsc()   # this module initialises PETSc: it does not import it at the top
     names = list(PETSc.Options().getAll()) if names is None else list(names)
     return [f"-{n}" for n in names
             if n.lstrip("-") not in READ_AT_FINALIZE and option_used(n.lstrip("-")) is False]
 
 
-def unused_options_warning(PETSc, rank, extra=()):
+def unused_options_warning(rank, extra=()):
     """One line naming the options never used (with ``extra``, names already found unused
-    elsewhere), or None. Rank 0 prints it to stderr the first time these names come up in
-    this process (a data set's hundred solves warn once); every rank returns it for the JSON.
+    elsewhere), or None. Rank 0 logs it as a warning (logger "amfe.solvers") the first time
+    these names come up in this process (a data set's hundred solves warn once); every rank
+    returns it for the JSON.
     """
-    names = sorted(set(unused_options(PETSc)) | set(extra))
+    names = sorted(set(unused_options()) | set(extra))
     if not names:
         return None
     line = (f"PETSc options never used: {' '.join(names)} (misspelt, or meant for a solver "
             "or preconditioner that was not used); they had no effect")
     if rank == 0 and not set(names) <= _warned:
-        print(f"amfe: warning: {line}", file=sys.stderr, flush=True)
+        logging.getLogger("amfe.solvers").warning(line)
     _warned.update(names)
     return line

@@ -56,7 +56,7 @@ def kubc_stiffness_scipy(frame, strain="applied"):
     U[free] = lu.solve(-(Kfp @ U[pres]))
     t3 = time.perf_counter()
     F = (K @ U)[pres]
-    volume = hull_of(x).volume
+    volume = frame.volume  # the bed's box (docs/model.md, section 5)
     C = np.array([voigt(bagi_stress(F[:, k].reshape(-1, 3), x[bnd], xc, volume))
                   for k in range(6)]).T
     if strain == "bagi":

@@ -37,3 +37,32 @@ def run_mpi_script(script, ranks=2, timeout=300):
     """Run a Python script under `mpirun -n RANKS` from the repository root; CompletedProcess."""
     return subprocess.run(["mpirun", "-n", str(ranks), sys.executable, str(script)],
                           capture_output=True, text=True, cwd=ROOT, env=MPI_ENV, timeout=timeout)
+
+
+def homogenize_arrays(centers, radii, material=None, *, comm=None, box=None, petsc_args=None,
+                      size=None, **options):
+    """:func:`amfe.solvers.driver.homogenize_bed` on arrays, its result as the JSON dict
+    (plus "fields" when asked): the array-level call the tests made before 0.3.0.
+
+    ``solver`` defaults to "gamg" (the old default); box: the periodic box; size (3,) [m]:
+    the bed's recorded box (attrs "size", V of the averages). A bad bed or
+    bad options become the ``input_error`` of the collective check, as in amfe.homogenize.
+    """
+    from amfe.errors import AmfeError
+    from amfe.model.bed import Bed
+    from amfe.model.options import SolveOptions
+    from amfe.solvers.driver import homogenize_bed
+
+    options.setdefault("solver", "gamg")
+    bed, opts, error = (centers, radii), None, None
+    try:
+        opts = SolveOptions(material=material, petsc_args=petsc_args, **options)
+        attrs = {} if box is None else {"periodic": box}
+        bed = Bed(centers, radii, attrs if size is None else {**attrs, "size": size})
+    except AmfeError as exc:
+        error = exc
+    result = homogenize_bed(bed, opts, comm, input_error=error)
+    d = result.to_dict()
+    if result.fields is not None:
+        d["fields"] = result.fields
+    return d

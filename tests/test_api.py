@@ -9,7 +9,7 @@ import pytest
 
 import amfe
 from amfe.io.result import SCHEMA_VERSION, Result
-from amfe.io.vtp import read_case
+from amfe.io.vtu import read_case
 from amfe.vocab import CASE_NAMES, CONSTANT_NAMES
 from helpers import MPI_ENV, ROOT, run_cli
 
@@ -36,9 +36,13 @@ def test_path_bed_and_cli_give_the_same_answer(bed_path, with_fields, tmp_path):
     proc = run_cli(["homogenize", str(bed_path), "-o", str(out), "--rtol", "1e-10", "--quiet"])
     assert proc.returncode == 0, proc.stderr
     cli = json.loads(out.read_text())
-    for r in (from_bed, from_arrays):
-        np.testing.assert_array_equal(r.C, with_fields.C)
-        assert r.properties == with_fields.properties
+    np.testing.assert_array_equal(from_bed.C, with_fields.C)
+    assert from_bed.properties == with_fields.properties
+    # arrays carry no recorded size: V is the spheres' box, the kept set the same, so C V
+    # (the reaction moments) agrees (docs/model.md, section 5)
+    assert from_arrays.volume < from_bed.volume == pytest.approx(np.prod(SIZE), rel=1e-12)
+    np.testing.assert_allclose(from_arrays.C * from_arrays.volume,
+                               with_fields.C * with_fields.volume, rtol=1e-12, atol=0)
     np.testing.assert_allclose(np.array(cli["C"]), with_fields.C, rtol=1e-12, atol=0)
     for k in CONSTANT_NAMES:
         assert cli["properties"][k] == pytest.approx(with_fields.properties[k], rel=1e-12)
@@ -70,13 +74,13 @@ def test_fields_equal_what_the_vtu_holds(with_fields, bed_path, tmp_path):
     bed = amfe.read_bed(bed_path)
     np.testing.assert_array_equal(f.centers, bed.centers[f.particle_id])
     # The files written from the API and those the CLI writes hold the same arrays.
-    paths = r.write_vtp(tmp_path / "api")
+    paths = r.write_vtu(tmp_path / "api")
     proc = run_cli(["homogenize", str(bed_path), "--vtu", str(tmp_path / "cli"),
                     "--rtol", "1e-10", "--quiet"])
     assert proc.returncode == 0, proc.stderr
     for k, name in enumerate(CASE_NAMES):
         mesh = read_case(paths[k])
-        cli = read_case(tmp_path / "cli" / f"case_{name}.vtp")
+        cli = read_case(tmp_path / "cli" / f"case_{name}.vtu")
         np.testing.assert_array_equal(mesh["points"], f.centers)
         np.testing.assert_array_equal(mesh["point_data"]["displacement_m"], f.displacement[k])
         np.testing.assert_array_equal(mesh["point_data"]["rotation_rad"], f.rotation[k])

@@ -151,3 +151,37 @@ def test_not_hdf5(tmp_path):
         read_bed(path)
     with pytest.raises(AmfeError, match="directory"):
         read_bed(tmp_path)
+
+
+def test_a_bed_with_flipped_bytes_is_an_error_or_the_same_bed(tmp_path, bed):
+    """64 flipped bytes (issue 31) gave `RuntimeError: Unable to get link info`, KeyError,
+    ValueError or TypeError tracebacks from h5py. Now every damaged file is one AmfeError, or,
+    where only unused bytes or values were hit, a bed that passes the checks."""
+    path = tmp_path / "bed.h5"
+    write_bed(path, Bed(bed.centers[:60], bed.radii[:60]))
+    raw = path.read_bytes()
+    errors = 0
+    for seed in range(120):
+        damaged = bytearray(raw)
+        for k in np.random.default_rng(seed).choice(len(raw), 64, replace=False):
+            damaged[k] ^= 0xFF
+        path.write_bytes(damaged)
+        try:
+            back = read_bed(path)
+        except AmfeError as exc:
+            errors += 1
+            assert str(path) in str(exc)
+            continue
+        assert back.centers.shape == (60, 3)
+    assert errors >= 100   # most of the file is metadata: nearly every flip is detected
+
+
+def test_external_links_to_a_missing_file(tmp_path):
+    """HDF5 external links to a file that is gone gave a KeyError traceback."""
+    path = tmp_path / "linked.h5"
+    with h5py.File(path, "w") as f:
+        f["particles/centers"] = h5py.ExternalLink(str(tmp_path / "gone.h5"), "/c")
+        f["particles/radii"] = h5py.ExternalLink(str(tmp_path / "gone.h5"), "/r")
+    with pytest.raises(AmfeError, match=r"linked.h5: it is damaged or links to a file that is "
+                                        r"missing \(.*gone.h5"):
+        read_bed(path)

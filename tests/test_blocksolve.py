@@ -39,8 +39,8 @@ COMM = PETSc.COMM_WORLD
 def operator(frame, group, rtol=1e-12, **options):
     """A ConstrainedOperator of ``group`` on one rank, made under these PETSc options."""
     n = frame.n_particles
-    with petsc_options(PETSc, options):
-        return ConstrainedOperator(PETSc, frame, COMM, 0, n, local_block_rows(frame, 0, n),
+    with petsc_options(options):
+        return ConstrainedOperator(frame, COMM, 0, n, local_block_rows(frame, 0, n),
                                    group, rtol=rtol)
 
 
@@ -106,7 +106,7 @@ def test_block_vcycle_is_gamgs_vcycle_column_by_column():
     B = np.random.default_rng(0).standard_normal((op.A.getLocalSize()[0], 6))
     b, z = op.A.createVecs()
     for backend in ("maij", "dense"):
-        V = BlockVCycle(PETSc, pc, 6, backend, pin=True)  # PETSc's smoothers get our targets
+        V = BlockVCycle(pc, 6, backend, pin=True)  # PETSc's smoothers get our targets
         Z = V.apply(B, np.empty_like(B))
         for j in range(6):
             b.setArray(B[:, j])
@@ -164,7 +164,7 @@ def test_block_path_with_a_null_space():
 def test_block_path_on_the_analytic_cubic_lattice():
     n, s = 5, 1.8e-6
     frame = build_frame(*cubic_lattice(n, spacing=s))
-    sol = solve_load_cases(PETSc, frame, COMM, kubc_groups(frame), rtol=1e-12)
+    sol = solve_load_cases(frame, COMM, kubc_groups(frame), rtol=1e-12)
     assert sol.setups[0].path == "block"
     # C11 = k_n n^2 / (s (n-1)^2) (as test_solver); stress = moment / volume, unit strain
     c11 = frame.k_n[0] / s * n**2 / (n - 1) ** 2 * frame.length_scale
@@ -192,7 +192,7 @@ def test_block_path_is_the_default_and_falls_back(options, path):
 def test_block_path_defaults_to_unsmoothed_aggregation_unless_told(options, steps):
     frame = tiny_bed()
     op = operator(frame, kubc_groups(frame)[0], **options)
-    assert f"Number smoothing steps {steps}\n" in view_text(PETSc, op.ksp.getPC())
+    assert f"Number smoothing steps {steps}\n" in view_text(op.ksp.getPC())
     op.destroy()
 
 
@@ -227,13 +227,15 @@ from amfe.errors import AmfeError
 from amfe.model.frame import build_frame
 from amfe.model.kubc import kubc_groups
 from amfe.model.scales import bed_for
+from amfe.model.options import SolveOptions
 from amfe.solvers.driver import homogenize_bed
 from amfe.solvers.loadcases import solve_load_cases
 comm = PETSc.COMM_WORLD
 mpi = comm.tompi4py()
 bed = bed_for("tiny", 1)
 out = {"rank": mpi.rank}
-res = {b: homogenize_bed(bed.centers, bed.radii, rtol=1e-10, ksp_options={"amfe_block": b})
+res = {b: homogenize_bed(bed, SolveOptions(solver="gamg", rtol=1e-10,
+                                           ksp_options={"amfe_block": b})).to_dict()
        for b in ("no", "yes")}
 C0, C1 = (np.array(res[b]["C"]) for b in ("no", "yes"))
 out["C_diff"] = float(np.abs(C1 - C0).max() / np.abs(C0).max())
@@ -244,14 +246,14 @@ if "forced" in sys.argv:
     # five cases start from their converged solutions; yz starts from zero and gets 3 steps
     frame = build_frame(bed.centers, bed.radii)
     group = kubc_groups(frame)[0]
-    u = mpi.bcast(solve_load_cases(PETSc, frame, comm, [group], rtol=1e-13).u, root=0)
+    u = mpi.bcast(solve_load_cases(frame, comm, [group], rtol=1e-13).u, root=0)
     group.guesses = [u[k] if k != 3 else np.zeros_like(u[k]) for k in range(6)]
     try:
-        solve_load_cases(PETSc, frame, comm, [group], rtol=1e-8, max_it=3)
+        solve_load_cases(frame, comm, [group], rtol=1e-8, max_it=3)
         out["error"] = None
     except AmfeError as exc:
         out["error"] = str(exc)
-    sol = solve_load_cases(PETSc, frame, comm, [group], rtol=1e-8, max_it=3,
+    sol = solve_load_cases(frame, comm, [group], rtol=1e-8, max_it=3,
                            accept_unconverged=True)
     out.update(path=sol.setups[0].path, residuals=sol.residuals,
                warned=[c.name for c in sol.cases if c.warning])

@@ -4,6 +4,7 @@ import math
 import numpy as np
 import pytest
 
+from amfe.model.bed import Bed
 from amfe.model.bonds import bond_springs, contact_geometry, find_bonds, find_pairs
 from amfe.errors import AmfeError
 from amfe.model.material import Material
@@ -71,8 +72,9 @@ def test_sphere_inside_sphere():
     ([[0, 0, 0], [1, 0, 0]], [1, 1, 1], "shape"),
 ])
 def test_bad_particles(centers, radii, match):
+    # checked once, where a bed is made (issue 29), not again by find_bonds
     with pytest.raises(AmfeError, match=match):
-        find_bonds(np.array(centers, float), np.array(radii, float))
+        Bed(np.array(centers, float), np.array(radii, float))
 
 
 def _pair_with_a_star(s):
@@ -100,3 +102,35 @@ def test_a_star_cap_counts_and_bounds():
     assert k_n[0] == pytest.approx(ref[0][0], rel=1e-9)
     with pytest.raises(AmfeError, match="cap must lie in"):
         bond_springs(b, Material(), a_star_cap=0.995)
+
+
+def test_a_pile_of_coincident_centres_is_refused_in_linear_memory():
+    """300 000 particles on one point (issue 31): the KD-tree listed every pair (3 000 of them
+    took 0.8 GB, 300 000 never finished) before the first was refused. Now each is paired with
+    the first of its pile, and the check stays within a few arrays of N."""
+    import tracemalloc
+
+    n = 300_000
+    x = np.zeros((n, 3))
+    tracemalloc.start()
+    try:
+        with pytest.raises(AmfeError, match=r"^299999 pairs of particles have coincident centres: "
+                                            r"\(0, 1\), \(0, 2\), \(0, 3\)"):
+            find_bonds(x, np.ones(n))
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 40 * n * 8   # 40 float64 per particle; the pairs alone were 4.5e10 x 16 B
+
+
+def test_coincident_centres_among_a_valid_bed_and_across_cells():
+    """Two piles in a bed: both named; a near pair split by a grid cell still refused."""
+    x = np.array([[0.0, 0, 0], [1.5, 0, 0], [3.0, 0, 0], [1.5, 0, 0], [3.0, 0, 0], [0, 1.5, 0]])
+    with pytest.raises(AmfeError, match=r"^2 pairs .*: \(1, 3\), \(2, 4\)\."):
+        find_bonds(x, np.ones(6))
+    h = 1e-12   # the grid: COINCIDENT x the largest radius (1)
+    a, b = 5.0 - 2e-15, 5.0 + 2e-15   # 4e-15 apart, on either side of a cell boundary
+    assert np.floor(a / h) != np.floor(b / h)
+    x = np.array([[0.0, 0, 0], [1.5, 0, 0], [a, 0, 0], [b, 0, 0], [3.5, 0, 0]])
+    with pytest.raises(AmfeError, match=r"^1 pairs .*: \(2, 3\)\."):
+        find_bonds(x, np.ones(5))

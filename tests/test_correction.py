@@ -19,7 +19,7 @@ from amfe.model.subc import subc_groups
 from amfe.model.torus import periodic_box
 from amfe.solvers.correction import (CORRECTED_RTOL, moment_corrections, second_order_kubc,
                                      second_order_loads)
-from amfe.solvers.driver import homogenize_bed
+from helpers import homogenize_arrays
 
 from helpers import MPI_ENV, ROOT
 
@@ -46,7 +46,7 @@ def error(res, ref):
 @pytest.fixture(scope="module")
 def box():
     bed = box_bed()
-    return bed.centers, bed.radii, homogenize_bed(bed.centers, bed.radii, solver="cholesky")
+    return bed.centers, bed.radii, homogenize_arrays(bed.centers, bed.radii, solver="cholesky")
 
 
 def test_corrections_meet_their_definition():
@@ -77,7 +77,7 @@ def test_corrected_constants_are_second_order_in_the_residual(box):
     err = {}
     for rtol in (1e-3, 1e-4, 1e-5):
         for corr in ("yes", "no"):
-            res = homogenize_bed(x, r, solver="gamg", rtol=rtol,
+            res = homogenize_arrays(x, r, solver="gamg", rtol=rtol,
                                  ksp_options={"amfe_correction": corr})
             err[rtol, corr] = error(res, ref)
     for rtol in (1e-3, 1e-4, 1e-5):  # the correction removes the first-order error
@@ -89,32 +89,32 @@ def test_corrected_constants_are_second_order_in_the_residual(box):
 
 def test_default_rtol_follows_the_order_of_the_answer(box):
     x, r, ref = box
-    res = homogenize_bed(x, r, solver="gamg")
+    res = homogenize_arrays(x, r, solver="gamg")
     s = res["solver"]
     assert s["rtol"] == CORRECTED_RTOL and 0 < s["correction"] < 1e-3
     assert error(res, ref) < 1e-6
-    plain = homogenize_bed(x, r, solver="gamg", ksp_options={"amfe_correction": "no"})
+    plain = homogenize_arrays(x, r, solver="gamg", ksp_options={"amfe_correction": "no"})
     assert plain["solver"]["rtol"] == 1e-8 and "correction" not in plain["solver"]
     assert max(s["iterations"]) < 0.75 * max(plain["solver"]["iterations"])
     assert error(res, ref) < 2 * error(plain, ref)  # as accurate as before, or better
     xc, rc = round_bed()
-    rnd = homogenize_bed(xc, rc, solver="gamg")
+    rnd = homogenize_arrays(xc, rc, solver="gamg")
     assert rnd["solver"]["rtol"] == 1e-8 and rnd["solver"]["correction"] > 0
-    assert error(rnd, homogenize_bed(xc, rc, solver="cholesky")) < 1e-6
+    assert error(rnd, homogenize_arrays(xc, rc, solver="cholesky")) < 1e-6
 
 
 def test_the_option_with_petscs_dash_sets_the_default_rtol_too(box):
     # the operator strips the dash; the default rtol must follow the same value, or the
     # uncorrected stress would run at the corrected rtol 1e-5
     x, r, _ = box
-    res = homogenize_bed(x, r, solver="gamg", ksp_options={"-amfe_correction": "no"})
+    res = homogenize_arrays(x, r, solver="gamg", ksp_options={"-amfe_correction": "no"})
     assert res["solver"]["rtol"] == 1e-8 and "correction" not in res["solver"]
 
 
 def test_both_paths_are_corrected_alike(box):
     x, r, ref = box
     for block in ("yes", "no"):
-        res = homogenize_bed(x, r, solver="gamg", rtol=1e-5, ksp_options={"amfe_block": block})
+        res = homogenize_arrays(x, r, solver="gamg", rtol=1e-5, ksp_options={"amfe_block": block})
         assert error(res, ref) < 1e-6, block
         assert res["solver"]["correction"] > 0
 
@@ -122,7 +122,7 @@ def test_both_paths_are_corrected_alike(box):
 def test_a_bad_correction_option_is_refused(box):
     x, r, _ = box
     with pytest.raises(AmfeError, match="-amfe_correction 'maybe': give yes"):
-        homogenize_bed(x, r, solver="gamg", ksp_options={"amfe_correction": "maybe"})
+        homogenize_arrays(x, r, solver="gamg", ksp_options={"amfe_correction": "maybe"})
 
 
 @pytest.mark.parametrize("bc", ["subc", "periodic"])
@@ -130,12 +130,12 @@ def test_the_loads_work_is_second_order_too(bc):
     # SUBC (S = F . U / V) and the periodic condition (C = (W0 - F . U) / V): + D, - D
     bed = generate_bed((150e-6, 150e-6, 100e-6), seed=4, periodic=True)
     kw = dict(bc=bc, box=periodic_box(bed) if bc == "periodic" else None, solver="gamg")
-    ref = homogenize_bed(bed.centers, bed.radii, rtol=1e-12, **kw)
-    err = {c: error(homogenize_bed(bed.centers, bed.radii, rtol=1e-4,
+    ref = homogenize_arrays(bed.centers, bed.radii, rtol=1e-12, **kw)
+    err = {c: error(homogenize_arrays(bed.centers, bed.radii, rtol=1e-4,
                                    ksp_options={"amfe_correction": c}, **kw), ref)
            for c in ("yes", "no")}
     assert err["yes"] < 0.03 * err["no"], err
-    res = homogenize_bed(bed.centers, bed.radii, **kw)
+    res = homogenize_arrays(bed.centers, bed.radii, **kw)
     assert res["solver"]["rtol"] == CORRECTED_RTOL and res["solver"]["correction"] > 0
     assert error(res, ref) < 1e-6
 
@@ -145,9 +145,10 @@ import json
 from amfe.solvers.petsc import init_petsc
 PETSc = init_petsc()
 from amfe.model.bed import generate_bed
+from amfe.model.options import SolveOptions
 from amfe.solvers.driver import homogenize_bed
 bed = generate_bed(size=(0.4e-3, 0.4e-3, 0.2e-3), seed=1)
-res = homogenize_bed(bed.centers, bed.radii, solver="gamg")
+res = homogenize_bed(bed, SolveOptions(solver="gamg")).to_dict()
 if PETSc.COMM_WORLD.getRank() == 0:
     print("RESULT " + json.dumps({"properties": res["properties"], "solver": {
         "rtol": res["solver"]["rtol"], "correction": res["solver"]["correction"]}}), flush=True)
@@ -173,7 +174,7 @@ def test_tori_take_unsmoothed_aggregation_at_the_corrected_default(monkeypatch):
     its = {}
     for smoothed_from, rtol in ((0, None), (10**9, None), (0, 1e-8), (10**9, 1e-8)):
         monkeypatch.setattr(periodic, "SMOOTHED_FROM", smoothed_from)
-        res = homogenize_bed(bed.centers, bed.radii, bc="periodic", box=periodic_box(bed),
+        res = homogenize_arrays(bed.centers, bed.radii, bc="periodic", box=periodic_box(bed),
                              solver="gamg", rtol=rtol)
         its[smoothed_from, rtol] = res["solver"]["iterations"]
     assert its[0, None] == its[10**9, None]  # rtol 1e-5: unsmoothed, whatever the size

@@ -23,7 +23,7 @@ from amfe.io.bedfile import read_bed
 from amfe.cli import main
 from amfe.dataset.lock import DatasetLock
 from amfe.errors import AmfeError
-from amfe.io.datasetparts import PARAMS_JSON, parts_dir
+from amfe.dataset.parts import PARAMS_JSON, parts_dir
 from amfe.vocab import LABEL_NAMES
 from amfe.model.scales import (PARAM_NAMES, SCALES, bed_for, param_record, record_seed,
                          sample_bed_params)

@@ -21,14 +21,14 @@ import h5py
 import numpy as np
 import pytest
 
-import amfe.io.datasetparts as datasetparts
+import amfe.dataset.parts as datasetparts
 from amfe.cli import main
 from amfe.dataset.lock import DatasetLock, lock_path, read_lock
 from amfe.errors import AmfeError
 from amfe.io.atomic import atomic_write, atomic_write_h5, host_name, write_json
-from amfe.io.datasetfile import merge_parts
-from amfe.io.datasetparts import (PARAMS_JSON, part_path, parts_dir, read_part, rejected_dir,
-                                  run_params, write_params_json, write_part)
+from amfe.dataset.datafile import merge_parts
+from amfe.dataset.parts import (PARAMS_JSON, part_path, parts_dir, read_part, rejected_dir,
+                                run_params, write_params_json, write_part)
 from amfe.model.scales import PARAM_NAMES, record_seed
 from amfe.solvers.choice import GAMG_RTOL_AUTO  # the default run: --solver auto
 
@@ -292,7 +292,7 @@ def test_merge_checks_before_it_destroys(tmp_path, monkeypatch, reference):
     assert os.listdir(rejected_dir(out)) == ["rec_00000007.npz"]
     write_part(parts, recs[7], params)
     # a merged file that fails its check is not renamed into place; the parts stay
-    monkeypatch.setattr("amfe.io.datasetfile.check_dataset",
+    monkeypatch.setattr("amfe.dataset.datafile.check_dataset",
                         lambda path: (["injected problem"], {}, {}))
     with pytest.raises(AmfeError, match="fails its check .injected problem"):
         merge_parts(out, parts, params)

@@ -13,7 +13,7 @@ from amfe.cli import main
 from amfe.dataset.plan import prepare
 from amfe.dataset.prefix import write_prefix
 from amfe.errors import AmfeError
-from amfe.io.datasetparts import part_path, parts_dir, run_params, write_params_json, write_part
+from amfe.dataset.parts import part_path, parts_dir, run_params, write_params_json, write_part
 from amfe.model.scales import PARAM_NAMES
 from amfe.solvers.choice import GAMG_RTOL_AUTO
 

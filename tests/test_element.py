@@ -107,14 +107,14 @@ def test_bond_forces_from_the_gap():
     ones = np.ones(1)
     u_i, u_j = np.zeros((1, 6)), np.zeros((1, 6))
     u_j[0, 2] = 1e-3
-    axial, shear, moment = bond_forces(e, 0.8 * ones, 0.9 * ones, 5 * ones, 2 * ones, 3 * ones,
-                                       4 * ones, u_i, u_j)
+    axial, shear, moment = bond_forces(e, 0.8 * ones, 0.9 * ones,
+                                       (5 * ones, 2 * ones, 3 * ones, 4 * ones), u_i, u_j)
     assert axial[0] == pytest.approx(5e-3) and shear[0] == 0 and moment[0] == 0
     # twist j about the bond: torque kappa_n theta, and bending about x: kappa_t theta
     u_j = np.zeros((1, 6))
     u_j[0, 5], u_j[0, 3] = 1e-3, 2e-3
-    axial, shear, moment = bond_forces(e, 0.8 * ones, 0.9 * ones, 5 * ones, 2 * ones, 3 * ones,
-                                       4 * ones, u_i, u_j)
+    axial, shear, moment = bond_forces(e, 0.8 * ones, 0.9 * ones,
+                                       (5 * ones, 2 * ones, 3 * ones, 4 * ones), u_i, u_j)
     # a rotation about x at j moves the contact point by theta x (-d_j e): shear 2 * 0.9 * 2e-3
     assert shear[0] == pytest.approx(2 * 0.9 * 2e-3)
     assert moment[0] == pytest.approx(np.hypot(3e-3, 8e-3))

@@ -349,3 +349,132 @@ def test_fuzz_homogenize_options(tiny, data):
             ("--bc", ["kubc", "mixed", "periodic"])))
     fuzz_run("homogenize", data, _base(tiny[1]), None, extra,
              _pending("homogenize_output", ["OUT"]), _homogenize_ok)
+
+
+# ---------------------------------------------------------------- issue 31: attribute names
+
+MATERIAL_FILE = {"material_E": 70e9, "material_nu": 0.33, "material_psi": 0.08,
+                 "material_density": 2700.0}
+NAME_VARIANTS = {   # how a user might spell an attribute (the identity is the right spelling)
+    "same": lambda k: k, "lower": str.lower, "upper": str.upper, "title": str.title,
+    "swapcase": str.swapcase, "dash": lambda k: k.replace("_", "-"),
+    "no_separator": lambda k: k.replace("_", ""), "space": lambda k: k.replace("_", " "),
+    "no_prefix": lambda k: k[len("material_"):], "Material": lambda k: "M" + k[1:],
+}
+
+
+@FUZZ
+@given(data=st.data())
+def test_fuzz_material_attribute_names(tiny, data):
+    """The file's material with one attribute spelt a drawn way: the file's material (spelt
+    right) or one line naming the attribute and its spelling, never a solve as steel."""
+    key = data.draw(st.sampled_from(sorted(MATERIAL_FILE)), label="attribute")
+    variant = data.draw(st.sampled_from(sorted(NAME_VARIANTS)), label="variant")
+    name = NAME_VARIANTS[variant](key)
+    if name.lower() == "density":   # a bare 'density' is no material name amfe would take
+        name = key
+    centers, radii, attrs = _base(tiny[1])
+    attrs = {k: v for k, v in attrs.items() if not k.startswith("material_")}
+    attrs.update({k: v for k, v in MATERIAL_FILE.items() if k != key}, **{name: MATERIAL_FILE[key]})
+
+    def ok(out, output):
+        material = _strict_json(open(output).read())["material"]
+        assert name == key and material["source"] == "bed file", material
+        assert [material[k] for k in ("E", "nu", "psi")] == [70e9, 0.33, 0.08]
+
+    with tempfile.TemporaryDirectory() as d:
+        _kind, path = _workdir(d, data, (centers, radii, attrs))
+        out = os.path.join(d, "out.json")
+        code = check_run("homogenize", [path, "--quiet", "-o", out], d, [path], out, ok, variant)
+        assert (code == 0) == (name == key), (name, code)
+
+
+# ---------------------------------------------------------------- issue 31: option conflicts
+
+@FUZZ
+@given(data=st.data())
+def test_fuzz_option_conflicts(tiny, data):
+    """--rtol with -ksp_rtol (command line) or rtol / max_it with their PETSc options (API):
+    one given is honoured and recorded; both are one error naming both."""
+    import amfe
+    from amfe.solvers.petsc import init_petsc
+    rtol = data.draw(st.sampled_from([None, 1e-6, 1e-9]), label="rtol")
+    ksp_rtol = data.draw(st.sampled_from([None, "0.5", "1e-6", "1e-10"]), label="-ksp_rtol")
+    solver = data.draw(st.sampled_from(["auto", "gamg"]), label="solver")
+    conflict = rtol is not None and ksp_rtol is not None
+    if data.draw(st.booleans(), label="api"):
+        max_it = data.draw(st.sampled_from([None, 500]), label="max_it")
+        ksp_max_it = data.draw(st.sampled_from([None, "400"]), label="-ksp_max_it")
+        options = {k: v for k, v in (("ksp_rtol", ksp_rtol), ("-ksp_max_it", ksp_max_it)) if v}
+        conflict = conflict or (max_it is not None and ksp_max_it is not None)
+        try:
+            r = amfe.homogenize(tiny[1], rtol=rtol, max_it=max_it, solver=solver,
+                                petsc_options=options)
+        except amfe.AmfeError as exc:
+            assert conflict and "give only one of them" in str(exc), exc
+            return
+        assert not conflict
+        if r.solver["method"] == "gamg":
+            assert r.solver["rtol"] == float(ksp_rtol or rtol or r.solver["rtol"])
+        return
+    opts = init_petsc().Options()
+    before = set(opts.getAll())
+    argv = [*(["--rtol", str(rtol)] if rtol else []), *(["-ksp_rtol", ksp_rtol] if ksp_rtol else [])]
+
+    def ok(out, output):
+        s = _strict_json(open(output).read())["solver"]
+        if s["method"] == "gamg" and (rtol or ksp_rtol):
+            assert s["rtol"] == float(rtol or ksp_rtol), s
+    try:
+        with tempfile.TemporaryDirectory() as d:
+            out = os.path.join(d, "out.json")
+            code = check_run("homogenize", [tiny[1], "--quiet", "--solver", solver, *argv, "-o",
+                                            out], d, [tiny[1]], out, ok, "conflict")
+    finally:   # the command line's PETSc options stay in the database: take them out again
+        for name in set(opts.getAll()) - before:
+            opts.delValue(name)
+    assert (code == 2) == conflict, (argv, code)
+
+
+# ---------------------------------------------------------------- issue 31: training data faults
+
+TRAIN_DATA_FAULTS = {   # name: (data set array, index into the ok row's entry, value)
+    "nan_pixel": ("images", (0, 1, 1), np.nan), "inf_pixel": ("images", (0, 0, 3), np.inf),
+    "negative_pixel": ("images", (0, 2, 2), -0.5), "pixel_2": ("images", (0, 4, 4), 2.0),
+    "nan_label": ("labels", (0,), np.nan), "inf_label": ("labels", (4,), -np.inf),
+    "label_1e300": ("labels", (1,), 1e300), "label_1e-300": ("labels", (2,), 1e-300),
+    "zero_modulus": ("labels", (0,), 0.0), "negative_modulus": ("labels", (2,), -1e11),
+    "nu_1e6": ("labels", (5,), 1e6), "nu_-40": ("labels", (3,), -40.0),
+}
+
+
+@FUZZ
+@given(data=st.data())
+def test_fuzz_training_data_faults(data):
+    """A tiny data set with none or one drawn fault in a drawn ok record, and training options
+    (a learning rate that diverges, no validation, --max-train 0): a model with finite
+    metrics only for good data and options, else one line and no file."""
+    from amfe.training.checkpoint import load_checkpoint
+    from cli_fixtures import tiny_dataset
+    fault = data.draw(st.sampled_from(["none"] + sorted(TRAIN_DATA_FAULTS)), label="fault")
+    row = data.draw(st.sampled_from([0, 10, 21, 39]), label="row")   # ok rows of tiny_dataset
+    lr = data.draw(st.sampled_from(["1e-3", "1e6"]), label="--lr")
+    extra = _options(data, (("--val-fraction", ["0.2", "0"]), ("--max-train", ["5", "0"])))
+
+    def ok(out, output):
+        metrics = load_checkpoint(output)["metrics"].get("validation", {})
+        assert _finite(m["mre"] for k, m in metrics.items() if isinstance(m, dict))
+    with tempfile.TemporaryDirectory() as d:
+        path = tiny_dataset(os.path.join(d, "d.h5"))
+        if fault != "none":
+            name, index, value = TRAIN_DATA_FAULTS[fault]
+            with h5py.File(path, "r+") as f:
+                arr = f[name][()].astype(np.float64 if name == "labels" else np.float32)
+                arr[(row, *index)] = value
+                del f[name]
+                f[name] = arr
+        model = os.path.join(d, "m.pt")
+        code = check_run("train", [path, "-o", model, "--epochs", "1", "--batch-size", "8",
+                                   "--quiet", "--lr", lr, *extra], d, [path], model, ok, fault)
+    good = fault == "none" and lr == "1e-3" and "--max-train=0" not in extra
+    assert (code == 0) == good, (fault, lr, extra, code)

@@ -89,6 +89,16 @@ def test_no_import_runs_upward():
     assert not bad, "imports that run upward:\n" + "\n".join(bad)
 
 
+def test_the_data_set_code_has_one_home():
+    # Data-set files, their parts and runs live in amfe/dataset/ (issue 29, item 5); io keeps
+    # the general files (beds, results, ParaView, atomic writes).
+    strays = [p.relative_to(ROOT).as_posix() for p, module in source_files()
+              if layer_of(module) not in ("dataset", "face") and "dataset" in p.stem]
+    assert not strays, "data-set modules outside amfe/dataset/: " + ", ".join(strays)
+    assert (ROOT / "amfe" / "dataset" / "datafile.py").is_file()
+    assert (ROOT / "amfe" / "dataset" / "parts.py").is_file()
+
+
 def test_the_checker_sees_an_upward_import(tmp_path):
     # The test above must be able to fail: an upward import is caught.
     path = tmp_path / "bonds.py"
@@ -126,7 +136,7 @@ def test_one_top_level_package_installed(tmp_path):
 
 
 def test_import_amfe_pulls_in_neither_petsc_nor_torch(tmp_path):
-    code = ("import sys, amfe, amfe.model.bed, amfe.io.bedfile\n"
+    code = ("import sys, amfe, amfe.model.bed, amfe.io.bedfile, amfe.api, amfe.model.options\n"
             "print(sorted(m for m in ('petsc4py', 'torch', 'mpi4py') if m in sys.modules))\n")
     out = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True,
                          text=True)
@@ -135,7 +145,8 @@ def test_import_amfe_pulls_in_neither_petsc_nor_torch(tmp_path):
 
 
 @pytest.mark.parametrize("name", ["homogenize", "Result", "Fields", "read_bed", "Bed",
-                                  "generate_bed", "Surrogate", "homogenize_bed", "AmfeError"])
+                                  "generate_bed", "Surrogate", "homogenize_bed", "SolveOptions",
+                                  "AmfeError"])
 def test_the_face_lists_the_api(name):
     import amfe
     assert name in dir(amfe) and name in amfe.__all__

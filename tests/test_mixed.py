@@ -7,7 +7,7 @@ import pytest
 from amfe.model.bed import generate_bed
 from amfe.io.bedfile import write_bed
 from amfe.model.frame import build_frame
-from amfe.solvers.driver import homogenize_bed
+from helpers import homogenize_arrays
 
 from helpers import cubic_lattice, run_cli
 
@@ -15,15 +15,18 @@ from helpers import cubic_lattice, run_cli
 @pytest.mark.parametrize("n", [3, 4])
 def test_mixed_simple_cubic_lattice_analytic(n):
     # frictionless grips on x faces: n^2 chains of n-1 bonds in series carry the load,
-    # no Poisson coupling: Ex = (k_n / s) n^2 / (n-1)^2 as under KUBC, nu = 0
+    # no Poisson coupling: Ex = (k_n / s) n^2 / (n-1)^2 as under KUBC with the hull volume,
+    # times V_hull / V with V the spheres' box (docs/model.md, section 5), nu = 0
     s = 1.8e-6
     x, r = cubic_lattice(n, spacing=s)
     frame = build_frame(x, r)
     k_n = frame.k_n[0] * frame.force_scale / frame.length_scale
-    res = homogenize_bed(x, r, bc="mixed", rtol=1e-12)
+    res = homogenize_arrays(x, r, bc="mixed", rtol=1e-12)
     assert res["bc"] == "mixed"
     for key in ("Ex", "Ey", "Ez"):
-        assert res["properties"][key] == pytest.approx(k_n / s * n**2 / (n - 1) ** 2, rel=1e-8)
+        assert res["properties"][key] == pytest.approx(
+            k_n / s * n**2 / (n - 1) ** 2 * ((n - 1) * s / ((n - 1) * s + 2 * r[0])) ** 3,
+            rel=1e-8)
     for key in ("nu_yz", "nu_xz", "nu_xy"):
         assert abs(res["properties"][key]) < 1e-8
 
@@ -31,8 +34,8 @@ def test_mixed_simple_cubic_lattice_analytic(n):
 @pytest.mark.parametrize("seed", [1, 2])
 def test_kubc_is_stiffer_than_mixed_in_every_normal_direction(seed):
     bed = generate_bed(size=(150e-6, 150e-6, 100e-6), seed=seed)
-    kubc = homogenize_bed(bed.centers, bed.radii, rtol=1e-10)
-    mixed = homogenize_bed(bed.centers, bed.radii, bc="mixed", rtol=1e-10)
+    kubc = homogenize_arrays(bed.centers, bed.radii, rtol=1e-10)
+    mixed = homogenize_arrays(bed.centers, bed.radii, bc="mixed", rtol=1e-10)
     for key in ("Ex", "Ey", "Ez"):
         gap = kubc["properties"][key] / mixed["properties"][key] - 1
         print(f"seed {seed} {key}: KUBC {kubc['properties'][key]:.4g} Pa, mixed "
@@ -72,4 +75,4 @@ def test_unknown_bc_is_refused():
     x, r = cubic_lattice(3)
     from amfe.errors import AmfeError
     with pytest.raises(AmfeError, match="unknown boundary condition.*kubc, mixed, subc, periodic"):
-        homogenize_bed(x, r, bc="affine")
+        homogenize_arrays(x, r, bc="affine")

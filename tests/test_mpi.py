@@ -8,14 +8,14 @@ import pytest
 from amfe.model.bed import generate_bed
 from amfe.io.bedfile import write_bed
 from amfe.io.result_meta import HEADER_KEYS
-from amfe.io.vtp import read_case
+from amfe.io.vtu import read_case
 
 from helpers import run_cli
 
 pytestmark = pytest.mark.mpi
 
 RESULT_KEYS = {"properties", "C", "S", "volume", "n_particles", "n_removed", "n_bonds", "bc",
-               "ranks", "solver", "schema_version", "material", "warnings"} | set(HEADER_KEYS)
+               "ranks", "solver", "schema_version", "material", "warnings", "removed"} | set(HEADER_KEYS)
 PROPERTY_KEYS = {"Ex", "Ey", "Ez", "nu_yz", "nu_xz", "nu_xy", "G_yz", "G_xz", "G_xy"}
 
 
@@ -77,10 +77,10 @@ def test_vtu_written_once_and_complete_under_two_ranks(bed_file, tmp_path):
     proc = run_cli(["homogenize", bed_file, "--vtu", str(vtu)], ranks=2)
     assert proc.returncode == 0, proc.stderr
     files = sorted(os.listdir(vtu))
-    assert files == sorted(["cases.pvd"] + [f"case_{n}.vtp" for n in
+    assert files == sorted(["cases.json", "cases.pvd"] + [f"case_{n}.vtu" for n in
                                             ["xx", "yy", "zz", "yz", "xz", "xy"]])
     assert "Ex" in proc.stdout
-    m = read_case(vtu / "case_xx.vtp")
+    m = read_case(vtu / "case_xx.vtu")
     for name in ("displacement_m", "rotation_rad", "radius_m", "particle_id"):
         assert name in m["point_data"]
     for name in ("axial_force_N", "shear_force_N", "torsion_Nm", "bending_moment_Nm"):
@@ -115,13 +115,15 @@ def test_groups_of_a_split_communicator_solve_their_own_beds(tmp_path):
         "import json, sys\n"
         "from mpi4py import MPI\n"
         "from amfe.model.bed import generate_bed\n"
+        "from amfe.model.options import SolveOptions\n"
         "from amfe.solvers.driver import homogenize_bed\n"
         "w = MPI.COMM_WORLD\n"
         "g = w.Split(color=w.rank, key=0)\n"
         "bed = generate_bed(size=(100e-6, 100e-6, 60e-6), seed=20 + w.rank)\n"
-        "r = homogenize_bed(bed.centers, bed.radii, comm=g, rtol=1e-12)\n"
-        "alone = homogenize_bed(bed.centers, bed.radii, comm=MPI.COMM_SELF, rtol=1e-12)\n"
-        "out = w.gather((r['ranks'], r['properties']['Ex'], alone['properties']['Ex']), root=0)\n"
+        "options = SolveOptions(rtol=1e-12, solver='gamg')\n"
+        "r = homogenize_bed(bed, options, g)\n"
+        "alone = homogenize_bed(bed, options, MPI.COMM_SELF)\n"
+        "out = w.gather((r.ranks, r.Ex, alone.Ex), root=0)\n"
         "if w.rank == 0: print(json.dumps(out))\n")
     import subprocess
     import sys

@@ -24,7 +24,8 @@ from mpi4py import MPI
 import amfe
 from amfe.errors import AmfeError
 from amfe.model.bed import Bed
-from amfe.solvers.driver import homogenize_bed
+sys.path.insert(0, "tests")   # run from the repository's root
+from helpers import homogenize_arrays
 
 rank = MPI.COMM_WORLD.rank
 size = (0.15e-3, 0.15e-3, 0.08e-3)
@@ -35,14 +36,14 @@ c_nan = c.copy()
 if rank == 1:
     c_nan[3, 1] = np.nan
 variants = {
-    "seed": lambda: homogenize_bed(own.centers, own.radii),
-    "nan": lambda: homogenize_bed(c_nan, r),
-    "fewer": lambda: homogenize_bed(c[:len(c) - rank], r[:len(r) - rank]),
-    "material": lambda: homogenize_bed(c, r, amfe.Material(E=210e9 - rank)),
-    "rtol": lambda: homogenize_bed(c, r, rtol=1e-8 * (1 + rank)),
+    "seed": lambda: homogenize_arrays(own.centers, own.radii),
+    "nan": lambda: homogenize_arrays(c_nan, r),
+    "fewer": lambda: homogenize_arrays(c[:len(c) - rank], r[:len(r) - rank]),
+    "material": lambda: homogenize_arrays(c, r, amfe.Material(E=210e9 - rank)),
+    "rtol": lambda: homogenize_arrays(c, r, rtol=1e-8 * (1 + rank)),
     "partial_attrs": lambda: amfe.homogenize(Bed(c, r, {"material_E": 70e9} if rank else {})),
-    "same_bad": lambda: homogenize_bed(c * np.nan, r),
-    "same": lambda: homogenize_bed(c, r),
+    "same_bad": lambda: homogenize_arrays(c * np.nan, r),
+    "same": lambda: homogenize_arrays(c, r),
 }
 with open(f"{sys.argv[1]}.{rank}", "w") as log:   # one file per rank: no interleaving
     for name, run in variants.items():
@@ -83,7 +84,8 @@ def test_rank_divergent_inputs_are_one_error_on_every_rank(tmp_path):
     # the same bad input everywhere: its own message, on both ranks
     assert seen["same_bad"][0] == seen["same_bad"][1]
     assert "non-finite centres" in seen["same_bad"][0]["error"]
-    assert seen["same"][0]["ok"] == seen["same"][1]["ok"] == pytest.approx(5.3816e11, rel=1e-4)
+    # V: the spheres' box (arrays carry no recorded size; 5.3816e11 with the hull volume)
+    assert seen["same"][0]["ok"] == seen["same"][1]["ok"] == pytest.approx(2.46636e11, rel=1e-4)
     assert wall < 10, f"{wall:.1f} s"
 
 
@@ -120,3 +122,61 @@ def test_agree_on_one_process_raises_the_error_or_returns_the_host():
     assert len(hosts) == 1 and hosts[0][1] > 0
     with pytest.raises(AmfeError, match="bad"):
         agree_across_ranks(None, {"a": 1}, AmfeError("bad"))
+
+
+API_SCRIPT = r'''
+import json, sys
+import numpy as np
+from mpi4py import MPI
+import amfe
+from amfe.errors import AmfeError
+
+rank = MPI.COMM_WORLD.rank
+bed = amfe.generate_bed(size=(0.15e-3, 0.15e-3, 0.08e-3), seed=0)
+path = sys.argv[1] + ".h5"
+if rank == 0:
+    amfe.write_bed(path, bed)
+MPI.COMM_WORLD.barrier()
+variants = {   # only rank 0 differs
+    "max_memory": lambda: amfe.homogenize(bed, max_memory=1000 if rank == 0 else None),
+    "path_or_bed": lambda: amfe.homogenize(path if rank == 0 else bed),
+    "same": lambda: amfe.homogenize(path),
+}
+with open(f"{sys.argv[1]}.{rank}", "w") as log:
+    for name, run in variants.items():
+        try:
+            out = {"ok": run().Ex}
+        except AmfeError as exc:
+            out = {"error": str(exc)}
+        log.write(json.dumps({"variant": name, **out}) + "\n")
+if sys.argv[2] == "nan" and rank == 0:   # an uncaught error in the user's script, rank 0 only
+    amfe.Bed(np.full((3, 3), np.nan), np.ones(3))
+amfe.homogenize(bed)
+'''
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("end", ["ok", "nan"])
+def test_api_arguments_that_differ_on_one_rank(tmp_path, end):
+    """Issue 31, API under 2 ranks, only rank 0: passes max_memory (refused there only: the
+    other rank waited in the next collective), passes a path where rank 1 passes a Bed
+    (on_root's bcast met the input check's allgather: a TypeError), or builds amfe.Bed from NaN
+    and dies of it (rank 1 waited in homogenize for ever). Now one error on every rank, and an
+    uncaught exception on one rank ends the job."""
+    script = tmp_path / "api.py"
+    script.write_text(API_SCRIPT)
+    out = tmp_path / "out"
+    proc = subprocess.run(["mpirun", "-n", "2", sys.executable, str(script), str(out), end],
+                          capture_output=True, text=True, env=MPI_ENV, cwd=ROOT, timeout=60)
+    logs = [[json.loads(line) for line in (tmp_path / f"out.{r}").read_text().splitlines()]
+            for r in (0, 1)]
+    assert logs[0] == logs[1] and len(logs[0]) == 3   # the same outcome on both ranks
+    got = {d["variant"]: d for d in logs[0]}
+    assert got["max_memory"]["error"] == ("max_memory differs across ranks: rank 0 passes "
+                                          "1000, rank 1 None; every rank must pass the same")
+    assert got["path_or_bed"]["error"].startswith("bed differs across ranks: rank 0 passes '")
+    assert got["same"]["ok"] == pytest.approx(5.3816e11, rel=1e-4)
+    if end == "ok":
+        assert proc.returncode == 0, proc.stderr
+    else:
+        assert proc.returncode == 1 and "non-finite centres" in proc.stderr

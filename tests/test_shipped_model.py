@@ -43,7 +43,7 @@ def test_shipped_model_is_plain_small_and_for_the_small_scale(shipped):
 
 def test_shipped_model_predicts_held_out_beds(shipped):
     """Six beds of the held-out test set's seeds: surrogate against the PETSc solve."""
-    from amfe.solvers.driver import homogenize_bed
+    from helpers import homogenize_arrays
 
     sur = Surrogate.load()
     sc = get_scale("small")
@@ -52,7 +52,9 @@ def test_shipped_model_predicts_held_out_beds(shipped):
         bed = bed_for(sc, record_seed(2, k))
         res, image, _ = sur.predict_bed(bed)
         assert image.shape == sc.image_shape
-        props = homogenize_bed(bed.centers, bed.radii, bed.material())["properties"]
+        # label rule 2 (V = the bed's box): the model's rule-1 moduli come converted
+        props = homogenize_arrays(bed.centers, bed.radii, bed.material(),
+                               size=bed.attrs["size"])["properties"]
         want = np.array([props[n] for n in LABELS])
         err.append(np.abs(res["mean"][0] - want) / np.abs(want))
     err = np.array(err)
@@ -75,3 +77,18 @@ def test_shipped_model_gives_a_mirrored_bed_its_constants(shipped):
     sur.tta = "none"
     one = sur.predict(x)["mean"]
     assert np.abs(sur.predict(np.ascontiguousarray(x[..., ::-1]))["mean"] / one - 1).max() > 1e-4
+
+
+def test_shipped_model_is_rule1_and_its_moduli_are_converted_per_bed(shipped):
+    """Trained on label rule 1 (no label_rule in the checkpoint): predict_bed multiplies the
+    network's moduli by the bed's V_hull / V_box and leaves the Poisson ratios alone."""
+    from amfe.model.carrying import rule1_factor
+    sur = Surrogate.load()
+    assert "label_rule" not in load_checkpoint(shipped) and sur.label_rule == 1
+    assert sur.labels.startswith("trained on label rule 1, converted")
+    bed = bed_for(get_scale("small"), record_seed(2, 0))
+    converted = sur.predict_bed(bed)[0]["mean"][0]
+    raw = sur.predict(sur.inputs_of(bed)[0][None])["mean"][0]
+    f = rule1_factor(bed.centers, bed.radii, bed.attrs["size"])
+    assert 0.7 < f < 0.85
+    np.testing.assert_allclose(converted, raw * np.r_[f, f, f, 1, 1, 1], rtol=1e-12)

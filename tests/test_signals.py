@@ -18,7 +18,7 @@ import pytest
 from helpers import MPI_ENV, ROOT
 
 from amfe.io.bedfile import write_bed
-from amfe.io.datasetparts import parts_dir
+from amfe.dataset.parts import parts_dir
 from amfe.model.bed import generate_bed
 
 LINE = "amfe {command}: interrupted ({name})"
@@ -157,3 +157,96 @@ def _alive(pid):
             return fh.read().rsplit(")", 1)[1].split()[0] != "Z"
     except FileNotFoundError:
         return False
+
+
+# --------------------------------------------------------------------------- #
+# Round two (issue 31): SIGHUP and SIGQUIT, the imports, a signal inside MPI_Init
+# --------------------------------------------------------------------------- #
+@pytest.mark.parametrize("sig", [signal.SIGHUP, signal.SIGQUIT])
+def test_sighup_and_sigquit_end_a_solve_with_one_line(bed, tmp_path, sig):
+    """They gave PETSc's "Caught signal" banner and MPI_ABORT; now as SIGINT: one line."""
+    out = tmp_path / "r.json"
+    run = Run(["homogenize", bed, "-o", out, "--solver", "gamg"])
+    run.wait_for(run.seen("solver:"))
+    os.kill(run.proc.pid, sig)
+    code, _, lines = run.finish(timeout=120)
+    assert code == 128 + sig
+    _assert_one_line(lines, "homogenize", sig)
+    assert not any("PETSC" in line or "MPI_ABORT" in line for line in lines), "\n".join(lines)
+    assert os.listdir(tmp_path) == []
+
+
+KICK = """
+import importlib.abc, os, signal, sys
+class Kick(importlib.abc.MetaPathFinder):   # SIGINT while amfe's subcommands are imported
+    def find_spec(self, name, path, target=None):
+        if name == "amfe.cli.pack":
+            os.kill(os.getpid(), signal.SIGINT)
+        return None
+sys.meta_path.insert(0, Kick())
+from amfe.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def test_sigint_during_the_imports_is_one_line(bed):
+    """Ctrl-C in the first 0.3 s gave a KeyboardInterrupt traceback from the imports."""
+    p = subprocess.run([sys.executable, "-c", KICK, "homogenize", bed], cwd=ROOT, env=MPI_ENV,
+                       capture_output=True, text=True, timeout=120)
+    assert p.returncode == 130
+    assert p.stderr.splitlines() == [LINE.format(command="homogenize", name="SIGINT")], p.stderr
+
+
+HALF_STARTED = """
+import os, signal, sys
+from amfe.cli.interrupt import Interrupted, end_interrupted, signals_raise
+from mpi4py import MPI
+if MPI.COMM_WORLD.rank == 1:
+    MPI.COMM_WORLD.barrier()   # waits for rank 0, as rank 1 waits in the first collective
+    sys.exit(0)
+del sys.modules["mpi4py.MPI"]   # as when the signal arrives inside `from mpi4py import MPI`
+with signals_raise():
+    try:
+        os.kill(os.getpid(), signal.SIGINT)
+        sum(range(1000))
+    except Interrupted as exc:
+        sys.exit(end_interrupted("homogenize", exc))
+"""
+
+
+@pytest.mark.mpi
+def test_a_signal_inside_mpi_init_ends_every_rank():
+    """SIGINT to rank 0 of `mpirun -n 2 amfe homogenize --solver gamg` at 0.7 s (inside
+    MPI_Init): rank 0 printed its line, then waited in MPI_Finalize for rank 1, which waited in
+    its first collective, and mpirun never ended. Now rank 0 leaves at once and mpirun ends
+    the job."""
+    proc = subprocess.Popen(["mpirun", "-n", "2", sys.executable, "-c", HALF_STARTED], cwd=ROOT,
+                            env=MPI_ENV, start_new_session=True, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        _, err = proc.communicate(timeout=60)
+    finally:
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+    assert proc.returncode == 130
+    assert sum(LINE.format(command="homogenize", name="SIGINT") in line
+               for line in err.splitlines()) == 1
+
+
+@pytest.mark.mpi
+def test_sigint_to_rank_0_during_a_gamg_solve_ends_every_rank(bed, tmp_path):
+    """The issue's command: `mpirun -n 2 amfe homogenize ... --solver gamg`, SIGINT to rank 0
+    once the solve has started; every rank ends within 10 s of mpirun's exit."""
+    run = Run(["homogenize", bed, "-o", tmp_path / "r.json", "--solver", "gamg"], ranks=2)
+    run.wait_for(run.seen("solver:"))
+    pids = run.ranks()
+    os.kill(pids[0], signal.SIGINT)
+    code, _, lines = run.finish(timeout=60)
+    assert code == 130
+    _assert_one_line(lines, "homogenize", signal.SIGINT)
+    deadline = time.time() + 10
+    while any(_alive(pid) for pid in pids.values()):
+        assert time.time() < deadline, f"ranks still running: {pids}"
+        time.sleep(0.1)

@@ -7,10 +7,10 @@ import pytest
 from amfe.errors import AmfeError
 from amfe.model.frame import build_frame
 from amfe.model.scales import bed_for
-from amfe.solvers.choice import (FILL_RATIO_MAX, GAMG_RTOL_AUTO, MAX_DIRECT_PARTICLES,
+from amfe.solvers.choice import (FILL_RATIO_MAX, GAMG_RTOL_AUTO, MAX_DIRECT_PARTICLES, Problem,
                                  choose_solver, solve_features)
 from amfe.solvers.correction import CORRECTED_RTOL
-from amfe.solvers.driver import homogenize_bed
+from helpers import homogenize_arrays
 from amfe.vocab import CONSTANT_NAMES
 from helpers import cubic_lattice, run_cli
 
@@ -26,18 +26,18 @@ def test_the_rule_picks_each_method_where_it_should():
     assert choose_solver(huge, 1)[0] == "gamg"
     assert choose_solver(SPARSE, 1, package=None)[0] == "gamg"         # no factorisation package
     assert choose_solver(SPARSE, 1, user_options=["pc_type"])[0] == "gamg"  # the user's choice
-    assert choose_solver(SPARSE, 1, singular=True)[0] == "gamg"        # free rigid modes
+    assert choose_solver(SPARSE, 1, problem=Problem(singular=True))[0] == "gamg"        # free rigid modes
     assert choose_solver(SPARSE, 1, rtol=1e-9)[0] == "cholesky"
     assert choose_solver(DENSE, 1, rtol=1e-9)[2] == 1e-9
     # a second-order answer (KUBC on a box) takes the corrected default, auto and gamg alike
-    assert choose_solver(DENSE, 1, corrected=True)[2] == CORRECTED_RTOL
-    assert choose_solver(DENSE, 1, "gamg", corrected=True)[2] == CORRECTED_RTOL
+    assert choose_solver(DENSE, 1, problem=Problem(corrected=True))[2] == CORRECTED_RTOL
+    assert choose_solver(DENSE, 1, "gamg", problem=Problem(corrected=True))[2] == CORRECTED_RTOL
     assert choose_solver(DENSE, 1, "gamg")[2] == 1e-8
-    assert choose_solver(DENSE, 1, rtol=1e-9, corrected=True)[2] == 1e-9
+    assert choose_solver(DENSE, 1, rtol=1e-9, problem=Problem(corrected=True))[2] == 1e-9
     assert choose_solver(DENSE, 1, "cholesky")[0] == "cholesky"
     assert choose_solver(SPARSE, 1, "gamg")[2] == 1e-8
     for bad in (dict(requested="cholesky", nranks=2), dict(requested="cholesky", nranks=1,
-                                                           singular=True),
+                                                           problem=Problem(singular=True)),
                 dict(requested="lu", nranks=1)):
         with pytest.raises(AmfeError):
             choose_solver(SPARSE, **bad)
@@ -61,13 +61,13 @@ def test_features_do_not_need_a_solve_and_only_run_when_asked():
 @pytest.mark.parametrize("seed", [3, 11])
 def test_every_method_meets_the_contract_on_small_beds(seed):
     bed = bed_for("tiny", seed)
-    ref = homogenize_bed(bed.centers, bed.radii, rtol=1e-10, solver="gamg")
+    ref = homogenize_arrays(bed.centers, bed.radii, rtol=1e-10, solver="gamg")
     for solver in ("auto", "gamg", "cholesky"):
-        res = homogenize_bed(bed.centers, bed.radii, solver=solver)
+        res = homogenize_arrays(bed.centers, bed.radii, solver=solver)
         assert res["solver"]["method"] in ("gamg", "cholesky") and res["solver"]["reason"]
         for k in CONSTANT_NAMES:
             assert res["properties"][k] == pytest.approx(ref["properties"][k], rel=1e-5)
-    chol = homogenize_bed(bed.centers, bed.radii, solver="cholesky")
+    chol = homogenize_arrays(bed.centers, bed.radii, solver="cholesky")
     np.testing.assert_allclose(chol["C"], ref["C"], rtol=1e-8, atol=1e-8 * np.abs(ref["C"]).max())
 
 

@@ -17,14 +17,14 @@ from amfe.training.data import (BedDataset, Normalizer, augment_batch, dataset_h
                            read_rows, split_indices, transpose_labels)
 from amfe.training.nets import build_net, count_parameters
 from amfe.training.predict import Surrogate, summarize_members
-from amfe.training.train import TrainConfig, train_member, train_model
+from amfe.training.train import Report, TrainConfig, train_member, train_model
 
 torch.set_num_threads(1)
 
 SMALL = (3, 20, 20)
 TINY_ATTRS = {"scale": "tiny", "bed_size": [0.15e-3, 0.15e-3, 0.1e-3],
               "image_cell": [30e-6, 30e-6, 0.1e-3], "layer_thickness": 0.1e-3,
-              "image_spacing": 2.5e-6}
+              "image_spacing": 2.5e-6, "format_version": 2}    # labels under rule 2
 SMALL_ATTRS = {"scale": "small", "bed_size": [0.6e-3, 0.6e-3, 0.3e-3],
                "image_cell": [30e-6, 30e-6, 0.1e-3], "layer_thickness": 0.1e-3,
                "image_spacing": 2.5e-6}
@@ -193,8 +193,8 @@ def test_training_lowers_the_loss(synth):
     x, z = torch.from_numpy(images), norm.encode(labels)
     with torch.inference_mode():
         before = float(torch.mean((initial(x) - z) ** 2))
-    net, hist = train_member(ds, images[:0], labels[:0], norm, cfg, SMALL, seed=11,
-                             progress=False, log=None)
+    net, hist = train_member(ds, (images[:0], labels[:0]), norm, cfg, SMALL, seed=11,
+                             report=Report(progress=False, log=None))
     with torch.inference_mode():
         after = float(torch.mean((net(x) - z) ** 2))
     assert after < 0.85 * before
@@ -472,8 +472,8 @@ def test_new_architecture_lowers_the_loss(synth, arch):
     ds = BedDataset(synth, ok, in_memory=True)
     images, labels = read_rows(synth, ok)
     norm = Normalizer.fit(labels)
-    net, hist = train_member(ds, images[:0], labels[:0], norm, cfg, SMALL, seed=5,
-                             progress=False, log=None)
+    net, hist = train_member(ds, (images[:0], labels[:0]), norm, cfg, SMALL, seed=5,
+                             report=Report(progress=False, log=None))
     assert hist["train_loss"][-1] < 0.7 * hist["train_loss"][0]
     assert hist["device"] == "cpu" and all(p.device.type == "cpu" for p in net.parameters())
 

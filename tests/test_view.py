@@ -5,12 +5,14 @@ import shutil
 import stat
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 import amfe
-from amfe.io.vtp import read_case
+from amfe.io.pvd import case_fields
+from amfe.io.vtu import read_case
 from amfe.model.element import particle_resultants
 from amfe.viz.pvrun import paraview_command
 from helpers import MPI_ENV, ROOT, run_cli
@@ -55,58 +57,52 @@ def kubc(beds):
 
 
 def vtk_read(path):
-    """Everything in a .vtp, through VTK's vtkXMLPolyDataReader."""
+    """Everything in a .vtu, through VTK's vtkXMLUnstructuredGridReader (field: cases.json)."""
     xml = pytest.importorskip("vtkmodules.vtkIOXML", reason="VTK's reader (ParaView's "
                               "python3-paraview or the vtk wheel) is not installed")
     from vtkmodules.util.numpy_support import vtk_to_numpy
-    reader = xml.vtkXMLPolyDataReader()
+    reader = xml.vtkXMLUnstructuredGridReader()
     reader.SetFileName(str(path))
     reader.Update()
     assert reader.GetErrorCode() == 0
     out = reader.GetOutput()
-    pd, cd, fd = out.GetPointData(), out.GetCellData(), out.GetFieldData()
-
-    def field(a):
-        if a.IsA("vtkStringArray"):
-            return [a.GetValue(k) for k in range(a.GetNumberOfValues())]
-        return vtk_to_numpy(a).ravel()
-
+    pd, cd = out.GetPointData(), out.GetCellData()
+    types = [out.GetCellType(k) for k in range(out.GetNumberOfCells())]
     return {"n_points": out.GetNumberOfPoints(), "n_cells": out.GetNumberOfCells(),
-            "n_lines": out.GetNumberOfLines(), "points": vtk_to_numpy(out.GetPoints().GetData()),
-            "lines": vtk_to_numpy(out.GetLines().GetConnectivityArray()).reshape(-1, 2),
+            "n_lines": types.count(3), "points": vtk_to_numpy(out.GetPoints().GetData()),
+            "lines": vtk_to_numpy(out.GetCells().GetConnectivityArray()).reshape(-1, 2),
             "point": {pd.GetArrayName(k): vtk_to_numpy(pd.GetArray(k))
                       for k in range(pd.GetNumberOfArrays())},
             "cell": {cd.GetArrayName(k): vtk_to_numpy(cd.GetArray(k))
                      for k in range(cd.GetNumberOfArrays())},
-            "field": {fd.GetAbstractArray(k).GetName(): field(fd.GetAbstractArray(k))
-                      for k in range(fd.GetNumberOfArrays())}}
+            "field": case_fields(path)}
 
 
-def numpy_read(path):
-    """The same through amfe's own numpy reader (what the matplotlib fallback reads)."""
+def meshio_read(path):
+    """The same through meshio (amfe.io.vtu.read_case: what the matplotlib fallback reads)."""
     d = read_case(path)
     return {"n_points": len(d["points"]), "n_cells": len(d["lines"]), "n_lines": len(d["lines"]),
             "points": d["points"], "lines": d["lines"], "point": d["point_data"],
             "cell": d["cell_data"], "field": d["field_data"]}
 
 
-@pytest.fixture(params=["vtk", "numpy"])
+@pytest.fixture(params=["vtk", "meshio"])
 def read(request):
-    return {"vtk": vtk_read, "numpy": numpy_read}[request.param]
+    return {"vtk": vtk_read, "meshio": meshio_read}[request.param]
 
 
 def test_every_file_reads_with_vtk_and_matches_the_json_counts(solved, read):
     result, out, _ = solved
     counts = result["counts"]
     files = result["vtk"]["files"]
-    assert [os.path.basename(p) for p in files] == [f"case_{c}.vtp" for c in CASES]
-    assert sorted(os.listdir(out)) == sorted([f"case_{c}.vtp" for c in CASES]
-                                             + ["cases.pvd", "r.json"])
+    assert [os.path.basename(p) for p in files] == [f"case_{c}.vtu" for c in CASES]
+    assert sorted(os.listdir(out)) == sorted([f"case_{c}.vtu" for c in CASES]
+                                             + ["cases.json", "cases.pvd", "r.json"])
     for case, path in zip(CASES, files):
         d = read(path)
         kept = result["n_particles"] - result["n_removed"]
         assert d["n_points"] == counts["particles_kept"] == kept
-        not_drawn = int(d["field"]["bonds_not_drawn"][0])   # periodic: across a face
+        not_drawn = d["field"]["bonds_not_drawn"]           # periodic: across a face
         assert (not_drawn > 0) == (result["bc"] == "periodic")
         assert d["n_cells"] == d["n_lines"] == counts["bonds_kept"] - not_drawn
         assert counts["bonds_kept"] == result["n_bonds"]
@@ -114,8 +110,8 @@ def test_every_file_reads_with_vtk_and_matches_the_json_counts(solved, read):
         assert all(len(a) == d["n_points"] for a in d["point"].values())
         assert all(len(a) == d["n_lines"] for a in d["cell"].values())
         field = d["field"]
-        assert field["case_name"] == [case] and field["bc"] == [result["bc"]]
-        assert field["amfe_version"] == [result["amfe_version"]]
+        assert field["case_name"] == case and field["bc"] == result["bc"]
+        assert field["amfe_version"] == result["amfe_version"]
         if result["bc"] == "subc":                 # unit macro-stresses, of E
             sig = np.asarray(field["macro_stress_Pa"]).reshape(3, 3)
             voigt = sig[[0, 1, 2, 1, 0, 0], [0, 1, 2, 2, 2, 1]] / result["material"]["E"]
@@ -241,6 +237,49 @@ def test_view_with_paraview_writes_a_png_and_a_state(kubc, tmp_path):
     assert "shear_force_N" in (tmp_path / "view_yz_shear_force.pvsm").read_text()
 
 
+PV_CHECK = """
+import sys
+from paraview.simple import LoadState, GetActiveView, PVDReader, SaveScreenshot
+reader = PVDReader(FileName=sys.argv[1])
+reader.UpdatePipeline()
+print("times", [int(t) for t in reader.TimestepValues])
+for t in reader.TimestepValues:
+    reader.UpdatePipeline(t)
+    info = reader.GetDataInformation()
+    print("case", int(t), info.GetNumberOfPoints(), info.GetNumberOfCells(),
+          sorted(reader.PointData.keys()), sorted(reader.CellData.keys()))
+LoadState(sys.argv[2])
+SaveScreenshot(sys.argv[3], GetActiveView(), ImageResolution=[320, 240])
+"""
+
+
+@pytest.mark.skipif(paraview_command() is None, reason="ParaView's pvpython (and a display or "
+                    "xvfb-run) is not installed: apt-get install paraview python3-paraview xvfb")
+def test_paraview_opens_the_collection_reads_every_array_and_the_state(kubc, tmp_path):
+    """Debian's ParaView 5.11: cases.pvd with every array of every case; the script's view of
+    it with no manual step; a saved state that loads again (docs/viewing.md)."""
+    result, out, _ = kubc
+    png, state = tmp_path / "pvd.png", tmp_path / "pvd.pvsm"
+    cmd = paraview_command()
+    proc = subprocess.run(cmd + [str(Path(amfe.__file__).parent / "viz" / "amfe_view_pv.py"),
+                                 str(out / "cases.pvd"), "--png", str(png), "--size", "400",
+                                 "300", "--state", str(state)],
+                          capture_output=True, text=True, timeout=300)
+    assert png_size(png) == (400, 300), proc.stdout + proc.stderr
+    check = tmp_path / "check.py"
+    check.write_text(PV_CHECK)
+    proc = subprocess.run(cmd + [str(check), str(out / "cases.pvd"), str(state),
+                                 str(tmp_path / "state.png")],
+                          capture_output=True, text=True, timeout=300)
+    lines = proc.stdout.splitlines()
+    assert "times [0, 1, 2, 3, 4, 5]" in lines, proc.stdout + proc.stderr
+    n = result["counts"]
+    for k in range(6):
+        assert f"case {k} {n['particles_kept']} {n['bonds_kept']} {sorted(POINT)} " \
+               f"{sorted(CELL)}" in lines
+    assert png_size(tmp_path / "state.png") == (320, 240)
+
+
 @pytest.mark.parametrize("argv, message", [
     (["--case", "qq"], "the result has cases xx, yy, zz, yz, xz, xy"),
     (["--color", "stress"], "choose one of axial_force"),
@@ -261,14 +300,25 @@ def test_bad_values_exit_2_and_write_nothing(kubc, tmp_path, argv, message):
 def test_bad_targets_and_outputs_exit_2_and_write_nothing(kubc, tmp_path):
     _, out, _ = kubc
     (tmp_path / "a_file").write_text("x")
-    old = tmp_path / "old"
+    old = tmp_path / "old"                     # amfe 0.1: .vtu files, no cases.json
     old.mkdir()
     (old / "cases.pvd").write_text('<VTKFile type="Collection"><Collection><DataSet '
                                    'timestep="0" file="case_0_xx.vtu" name="xx"/></Collection>'
                                    '</VTKFile>')
+    v02 = tmp_path / "v02"                     # amfe 0.2: .vtp files
+    v02.mkdir()
+    (v02 / "cases.pvd").write_text((out / "cases.pvd").read_text().replace(".vtu", ".vtp"))
+    v02_bare = tmp_path / "v02_bare"           # its case files without the collection
+    v02_bare.mkdir()
+    (v02_bare / "case_xx.vtp").write_text("<VTKFile/>")
+    rewrite = "write the result again as .vtu: 'amfe homogenize BED.h5 --vtu DIR'"
     cases = [([str(tmp_path / "missing")], "no such file or directory"),
              ([str(tmp_path)], "holds no cases.pvd; write the files with 'amfe homogenize"),
-             ([str(old)], ".vtu files of an older amfe; write the result again"),
+             ([str(old)], "files of an older amfe (no cases.json), which amfe 0.3.0 does not "
+                          "read; " + rewrite),
+             ([str(v02)], ".vtp files of amfe 0.2, which amfe 0.3.0 does not read; " + rewrite),
+             ([str(v02_bare)], ".vtp files of amfe 0.2"),
+             ([str(v02_bare / "case_xx.vtp")], "a .vtp file of amfe 0.2"),
              ([str(out), "-o", str(tmp_path / "a_file")], "exists and is not a directory")]
     for argv, message in cases:
         before = sorted(os.listdir(tmp_path))

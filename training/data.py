@@ -1,6 +1,6 @@
 """Data for the surrogate: a lazy torch Dataset over an amfe data-set file, splits, normalisation.
 
-The file layout is :mod:`amfe.io.datasetfile` (``images`` (M, layers, H, W)
+The file layout is :mod:`amfe.dataset.datafile` (``images`` (M, layers, H, W)
 float32, ``labels`` (M, 6) Ex, Ey, Ez [Pa], nu_yz, nu_xz, nu_xy, ``status``
 (M,) 0 ok / 1 failed). Only rows with status 0 and finite labels are used.
 
@@ -35,7 +35,7 @@ import os
 import numpy as np
 import torch
 
-from amfe.io.datasetparts import STATUS_OK
+from amfe.dataset.parts import STATUS_OK
 from amfe.vocab import LABEL_NAMES
 from amfe.errors import AmfeError
 
@@ -43,9 +43,9 @@ from amfe.training import AUGMENTATIONS
 
 INPUT_KINDS = {"fill": "images", "bonds": "bond_images"}   # kind: data-set array
 DEFAULT_INPUTS = ("fill",)
-# Root attributes of a data set that say how its images were made (amfe.io.datasetfile).
+# Root attributes of a data set that say how its images were made (amfe.dataset.datafile).
 IMAGE_ATTRS = ("scale", "image_shape", "image_cell", "layer_thickness", "image_spacing",
-               "bed_size", "seed", "count")
+               "bed_size", "seed", "count", "format_version")
 
 
 def check_inputs(inputs):
@@ -83,7 +83,7 @@ def _open(path):
     for name in ("images", "labels", "status"):
         if name not in f:
             f.close()
-            raise AmfeError(f"{path} is not an amfe data set: no /{name} (see amfe.io.datasetfile)")
+            raise AmfeError(f"{path} is not an amfe data set: no /{name} (see amfe.dataset.datafile)")
     if f["images"].ndim != 4 or f["labels"].shape[1:] != (6,):
         shape_i, shape_l = f["images"].shape, f["labels"].shape
         f.close()
@@ -108,7 +108,8 @@ def dataset_info(path, inputs=DEFAULT_INPUTS):
     """Rows usable for training and the file's image attributes.
 
     Returns {path, n_rows, ok (int64 array of row numbers with status 0 and
-    finite labels), image_shape [channels, H, W] of the network input
+    finite labels), ok_nonfinite (those with status 0 but a non-finite label:
+    a corrupt record, which training refuses), image_shape [channels, H, W] of the network input
     (channels = layers x number of input kinds), inputs, and the root
     attributes in :data:`IMAGE_ATTRS` that exist, as plain Python values}.
     AmfeError if the file lacks an image kind of ``inputs``.
@@ -118,9 +119,11 @@ def dataset_info(path, inputs=DEFAULT_INPUTS):
         _require_inputs(f, path, inputs)
         status = f["status"][()]
         labels = f["labels"][()]
-        ok = np.flatnonzero((status == STATUS_OK) & np.all(np.isfinite(labels), axis=1))
+        finite = np.all(np.isfinite(labels), axis=1)
+        ok = np.flatnonzero((status == STATUS_OK) & finite)
         layers, H, W = (int(s) for s in f["images"].shape[1:])
         info = {"path": os.fspath(path), "n_rows": int(status.shape[0]), "ok": ok,
+                "ok_nonfinite": np.flatnonzero((status == STATUS_OK) & ~finite),
                 "image_shape": [layers * len(inputs), H, W], "inputs": list(inputs)}
         for key in IMAGE_ATTRS:
             if key in f.attrs and key != "image_shape":

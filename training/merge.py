@@ -14,9 +14,9 @@ import numpy as np
 
 from amfe.errors import AmfeError
 
-from amfe.training.data import dataset_hash, dataset_info, read_rows
+from amfe.training.data import Normalizer, dataset_hash, dataset_info, read_rows
 from amfe.training.train import calibrate_spread
-from amfe.training.metrics import property_metrics
+from amfe.training.metrics import validation_metrics
 
 # Checkpoint entries that must be equal in every part (training: all but the seed and timing).
 SAME = ("arch", "arch_args", "normalizer", "image_shape", "inputs", "pixelation", "material",
@@ -85,8 +85,9 @@ def merge_members(ckpts, data_path, flag_percentile=95.0, names=None):
         sur = Surrogate(out, "the merged model")
         out["spread"] = calibrate_spread(sur.member_outputs(images), flag_percentile)
         res = Surrogate(out, "the merged model").predict(images)
-        out["metrics"]["validation"] = property_metrics(res["mean"], labels)
-        out["metrics"]["validation"]["flagged_fraction"] = float(np.mean(res["flagged"]))
+        norm = Normalizer.from_dict(first["normalizer"])
+        out["metrics"]["validation"] = validation_metrics(
+            res, labels, norm, first["training"].get("lr", float("nan")))
     return out
 
 

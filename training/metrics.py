@@ -29,6 +29,21 @@ def property_metrics(pred, true):
     return out
 
 
+def validation_metrics(res, labels, norm, lr, log=None):
+    """The validation block of a checkpoint's metrics from an ensemble prediction ``res``
+    (Surrogate.predict's dict) of ``labels`` (n, 6): :func:`property_metrics`, the flagged
+    fraction, and error_vs_mean, the six ratios of the error to that of predicting the
+    training mean; AmfeError when training diverged (:func:`amfe.training.guards.check_fit`).
+    """
+    from amfe.training.guards import check_fit
+
+    vs_mean = check_fit(res["mean"], labels, norm, lr, log)
+    out = property_metrics(res["mean"], labels)
+    out["flagged_fraction"] = float(np.mean(res["flagged"]))
+    out["error_vs_mean"] = vs_mean
+    return out
+
+
 def metrics_line(metrics, key="mre", scale=100.0, fmt="{:.2f}"):
     """'Ex 1.23 Ey ...' of one metric over the six properties."""
     return " ".join(f"{n} {fmt.format(metrics[n][key] * scale)}" for n in LABEL_NAMES)

@@ -67,9 +67,8 @@ class MaxPool2x2(nn.Module):
     """2x2 max pooling, stride 2, floor mode: the same numbers as nn.MaxPool2d(2).
 
     Written as two strided maxima because torch's CPU max_pool2d (which also
-    computes argmax indices) takes half of Custom Net's inference time on
-    these small maps; this is about ten times faster. No parameters, so
-    checkpoints are unaffected.
+    computes argmax indices) is slow on these small maps (docs/benchmarks.md,
+    "Figures quoted in the code"). No parameters, so checkpoints are unaffected.
     """
 
     def forward(self, x):

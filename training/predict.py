@@ -78,9 +78,8 @@ class Surrogate:
         self.path = os.fspath(path)
         self.nets = build_members(ckpt, self.path)
         for net in self.nets:
-            # Channels-last activations: 8 passes over 1 000 beds on one CPU thread here
-            # took 0.89 s against 1.03 s, with the same results to 2e-7
-            # (docs/surrogate_scaling.md, "Speed of the eight passes").
+            # Channels-last activations: faster, with the same results to rounding
+            # (docs/benchmarks.md, "Figures quoted in the code").
             net.to(memory_format=torch.channels_last)
         self.norm = Normalizer.from_dict(ckpt["normalizer"])
         self.image_shape = tuple(int(s) for s in ckpt["image_shape"])
@@ -91,6 +90,12 @@ class Surrogate:
         self.spread_scale = np.asarray(spread.get("scale", np.ones(6)), np.float64)
         self.threshold = spread.get("threshold")
         self.fill_range = ckpt.get("fill_range")
+        # A checkpoint without "label_rule" was trained on label rule 1 (V = hull of the
+        # largest piece's centres); its moduli are converted to rule 2 (V = the bed's box)
+        # per bed in predict_bed (docs/model_card.md, docs/model.md section 5).
+        self.label_rule = int(ckpt.get("label_rule", 1))
+        self.labels = ("label rule 2" if self.label_rule >= 2 else
+                       "trained on label rule 1, converted to rule 2 (moduli x V_hull / V_box)")
 
     @classmethod
     def load(cls, path=None):
@@ -106,7 +111,11 @@ class Surrogate:
 
     def member_outputs(self, images, batch_size=None):
         """Raw predictions of every member, float64 array (members, n, 6)."""
-        x = torch.as_tensor(np.asarray(images, np.float32))
+        try:
+            x = torch.as_tensor(np.asarray(images, np.float32))
+        except (TypeError, ValueError) as exc:
+            raise AmfeError(f"images must be an array of numbers (n, layers, H, W), got "
+                            f"{type(images).__name__} ({exc})") from None
         if x.ndim == 3:
             x = x.unsqueeze(0)
         if x.ndim != 4:
@@ -120,18 +129,21 @@ class Surrogate:
     def predict(self, images, batch_size=None):
         """Predict the six constants of beds or of their images.
 
-        ``images``: a :class:`~amfe.model.bed.Bed`, a bed file's path, or inputs
-        (n, channels, H, W) (the image kinds of ``self.inputs`` stacked). Returns
-        {mean (n, 6), spread (n, 6) relative, score (n,), fill (n,), fill_out
-        (n,) bool, nonfinite (n,) bool, flagged (n,) bool}, the six in label
-        order (Ex, Ey, Ez [Pa], nu_yz, nu_xz, nu_xy); flagged = spread over the
-        threshold, fill_out, or a member's prediction not finite (NaN, inf).
+        ``images``: a :class:`~amfe.model.bed.Bed`, a bed file's path, a list of
+        them (a batch: row k is bed k), or inputs (n, channels, H, W) (the
+        image kinds of ``self.inputs`` stacked). Returns {mean (n, 6), spread
+        (n, 6) relative, score (n,), fill (n,), fill_out (n,) bool, nonfinite
+        (n,) bool, flagged (n,) bool}, the six in label order (Ex, Ey, Ez [Pa],
+        nu_yz, nu_xz, nu_xy); flagged = spread over the threshold, fill_out, or
+        a member's prediction not finite (NaN, inf).
         """
-        if isinstance(images, (str, os.PathLike)):
-            from amfe.io.bedfile import read_bed
-            images = read_bed(images)
-        if hasattr(images, "centers"):
-            return self.predict_bed(images)[0]
+        if _is_bed(images):
+            return self.predict_bed(_read(images))[0]
+        if isinstance(images, (list, tuple)) and any(_is_bed(b) for b in images):
+            if not all(_is_bed(b) for b in images):
+                raise AmfeError("predict takes a bed, a bed file, a list of those, or an image "
+                                "array; got a list mixing beds with other things")
+            images = np.stack([self.inputs_of(_read(b))[0] for b in images])
         members = self.member_outputs(images, batch_size)
         res = summarize_members(members, self.spread_scale, self.threshold)
         x = np.asarray(images)
@@ -162,7 +174,8 @@ class Surrogate:
         return np.concatenate([parts[k] for k in self.inputs], axis=0), image, times
 
     def predict_bed(self, bed):
-        """Image ``bed`` as the training data was and predict.
+        """Image ``bed`` as the training data was and predict (label rule 2: the moduli
+        of a rule-1 checkpoint are converted with the bed's own volumes).
 
         Returns (result dict, volume-fraction image (layers, H, W), seconds
         {pixelate, bonds (when the model reads bond images), predict}).
@@ -170,8 +183,23 @@ class Surrogate:
         x, image, times = self.inputs_of(bed)
         t2 = time.perf_counter()
         res = self.predict(x[None])
+        if self.label_rule < 2:   # rule-1 moduli -> rule 2; spread is relative, unchanged
+            from amfe.model.carrying import rule1_factor
+            res["mean"][:, :3] *= rule1_factor(bed.centers, bed.radii, bed.attrs.get("size"))
         times["predict"] = time.perf_counter() - t2
         return res, image, times
+
+
+def _is_bed(item):
+    """True for what :meth:`Surrogate.predict` takes as one bed: a Bed or a bed file's path."""
+    return isinstance(item, (str, os.PathLike)) or hasattr(item, "centers")
+
+
+def _read(item):
+    if isinstance(item, (str, os.PathLike)):
+        from amfe.io.bedfile import read_bed
+        return read_bed(item)
+    return item
 
 
 TTA_MODES = ("none", "flips", "d4")

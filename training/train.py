@@ -28,9 +28,10 @@ from amfe.training import AUGMENTATIONS, LOSSES, SCHEDULES
 from amfe.training.checkpoint import check_image_shape
 from amfe.training.device import device_of, resolve_device
 from amfe.training.finetune import check_data, load_init, widened_fill_range
+from amfe.training import guards
 from amfe.training.data import (DEFAULT_INPUTS, BedDataset, Normalizer, augment_batch, check_inputs,
                    dataset_hash, dataset_info, read_rows, split_indices)
-from amfe.training.metrics import metrics_line, property_metrics
+from amfe.training.metrics import metrics_line, property_metrics, validation_metrics
 from amfe.training.nets import build_net, count_parameters, resolved_args
 from amfe.training.predict import calibrate_fill, predict_raw, tta_mode
 
@@ -126,10 +127,21 @@ def predict_normalised(net, images, batch_size=1024):
     return torch.cat(out) if out else torch.zeros(0, 6)
 
 
-def train_member(train_ds, val_images, val_labels, norm, cfg, image_shape, seed, progress=True,
-                 log=print, label="", init_state=None):
+@dataclass
+class Report:
+    """How :func:`train_member` reports: progress (a tqdm bar on stderr), log (a callable
+    taking a line, or None) and label (the member's name in both)."""
+
+    progress: bool = True
+    log: object = print
+    label: str = ""
+
+
+def train_member(train_ds, val, norm, cfg, image_shape, seed, report=Report(), init_state=None):
     """Train one network (from the weights ``init_state`` if given); returns (net in eval
-    mode, history dict)."""
+    mode, history dict). val: (images, labels) of the validation rows."""
+    (val_images, val_labels), progress, log = val, report.progress, report.log
+    label = report.label
     torch.manual_seed(seed)
     dev = resolve_device(cfg.device)
     net = build_net(cfg.arch, image_shape, cfg.arch_args)
@@ -179,6 +191,8 @@ def train_member(train_ds, val_images, val_labels, norm, cfg, image_shape, seed,
                 m = property_metrics(pred.numpy(), val_labels)
                 hist["val_mre"].append([m[n]["mre"] for n in LABEL_NAMES])
             hist["epoch_seconds"].append(time.perf_counter() - t0)
+            guards.check_epoch(label, epoch + 1, hist["train_loss"][-1],
+                               hist["val_loss"][-1] if vz is not None else None, cfg.lr)
             line = f"epoch {epoch + 1:3d}/{cfg.epochs} loss {hist['train_loss'][-1]:.4g}"
             if vz is not None:
                 line += (f" val {hist['val_loss'][-1]:.4g} | val err % " + " ".join(
@@ -220,6 +234,7 @@ def train_model(data_path, cfg, progress=True, log=print):
     if ok.size < 1:
         raise AmfeError(f"{data_path}: no usable record (status ok, finite labels); nothing to "
                         "train on")
+    guards.check_ok_records(data_path, info["ok_nonfinite"])
     if cfg.arch == "multiscale":   # its hole maps read the fill layers only
         cfg.arch_args = {"n_fill": n_fill, **cfg.arch_args}
     train_rows, val_rows = split_indices(ok, cfg.val_fraction, cfg.split_seed)
@@ -230,6 +245,9 @@ def train_model(data_path, cfg, progress=True, log=print):
     train_ds = BedDataset(data_path, train_rows, in_memory=in_memory, inputs=cfg.inputs)
     train_images, train_labels = read_rows(data_path, train_rows, cfg.inputs)
     val_images, val_labels = read_rows(data_path, val_rows, cfg.inputs)
+    for rows, images, labels in ((train_rows, train_images, train_labels),
+                                 (val_rows, val_images, val_labels)):
+        guards.check_data(data_path, rows, images, labels, n_fill)
     # log space for the moduli (a relative error is what counts), and for the Poisson ratios
     # asked for: nu_xy spans 0.03-0.37 on `small` beds, and in log space its held-out error
     # fell from 7.06 to 6.48 % (docs/surrogate_scaling.md, "Poisson ratios in log space")
@@ -251,9 +269,11 @@ def train_model(data_path, cfg, progress=True, log=print):
     seeds = [cfg.seed + k for k in range(cfg.members)]
     for k, seed in enumerate(seeds):
         label = f"{cfg.arch} seed {seed}" + (f" ({k + 1}/{cfg.members})" if cfg.members > 1 else "")
-        net, hist = train_member(train_ds, val_images, val_labels, norm, cfg, image_shape, seed,
-                                 progress=progress, log=log, label=label,
+        net, hist = train_member(train_ds, (val_images, val_labels), norm, cfg, image_shape, seed,
+                                 Report(progress, log, label),
                                  init_state=start["states"][k] if start else None)
+        if not len(val_rows):   # no validation: the last epoch's loss against the mean's
+            guards.check_train_loss(label, hist["train_loss"][-1], train_labels, norm, cfg)
         nets.append(net)
         hists.append(hist)
         msg = f"{label}: trained in {hist['seconds']:.1f} s"
@@ -262,6 +282,7 @@ def train_model(data_path, cfg, progress=True, log=print):
                                               for n, e in zip(LABEL_NAMES, hist["val_mre"][-1]))
         log(msg)
 
+    from amfe.dataset.parts import label_rule
     ckpt = {
         "arch": cfg.arch,
         "arch_args": resolved_args(cfg.arch, nets[0], cfg.arch_args),
@@ -283,6 +304,8 @@ def train_model(data_path, cfg, progress=True, log=print):
         "tta": cfg.tta,
         "spread": None,
         "fill_range": calibrate_fill(train_images[:, :n_fill]),
+        # the data set's label rule (docs/model.md, section 5): amfe predict converts rule 1
+        "label_rule": label_rule(info),
         "init": start["record"] if start else None,
         "metrics": {},
     }
@@ -297,8 +320,7 @@ def train_model(data_path, cfg, progress=True, log=print):
             ckpt["spread"] = calibrate_spread(members, cfg.flag_percentile)
         sur = Surrogate(ckpt, "the new model")
         res = sur.predict(val_images)
-        ckpt["metrics"]["validation"] = property_metrics(res["mean"], val_labels)
-        ckpt["metrics"]["validation"]["flagged_fraction"] = float(np.mean(res["flagged"]))
+        ckpt["metrics"]["validation"] = validation_metrics(res, val_labels, norm, cfg.lr, log)
         log("validation (ensemble mean): mean rel. error % "
             + metrics_line(ckpt["metrics"]["validation"]) + " | R^2 "
             + metrics_line(ckpt["metrics"]["validation"], "r2", 1.0, "{:.4f}"))
@@ -344,7 +366,7 @@ def pixelation_of(info):
     missing = [k for k in need if k not in info]
     if missing:
         raise AmfeError(f"{info['path']} lacks the root attribute(s) {', '.join(missing)} that say "
-                        "how its images were made (see amfe.io.datasetfile)")
+                        "how its images were made (see amfe.dataset.datafile)")
     return {"scale": info.get("scale"), "bed_size": [float(s) for s in info["bed_size"]],
             "image_cell": [float(s) for s in info["image_cell"]],
             "layer_thickness": float(info["layer_thickness"]),

@@ -7,8 +7,9 @@ exit code. How a run ends:
 - an error meant for users (:class:`amfe.errors.AmfeError`) is printed as one
   line, ``amfe <command>: error: ...``, and the exit status is 2; a bad or
   unknown option gets the subcommand's usage and one line (argparse, exit 2);
-- SIGINT or SIGTERM: one line, ``amfe <command>: interrupted (SIGINT)``, exit
-  130 or 143, every MPI rank stopped (amfe.cli.interrupt);
+- SIGINT, SIGTERM, SIGHUP or SIGQUIT, from the first import on: one line,
+  ``amfe <command>: interrupted (SIGINT)``, exit 128 + the signal (130, 143,
+  129, 131), every MPI rank stopped (amfe.cli.interrupt);
 - a reader that closed the pipe (``| head``): quiet, exit 141;
 - a full disk: one line naming the file, exit 2;
 - anything else is a bug: its traceback, and under MPI an abort of all ranks.
@@ -26,10 +27,12 @@ import sys
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-from amfe.solvers.petsc import is_option
+from amfe.solvers.petsc import init_petsc, is_option
 
-from amfe.cli.interrupt import Interrupted, end_broken_pipe, end_interrupted, signals_raise, world
+from amfe.cli.interrupt import (Interrupted, end_broken_pipe, end_interrupted, flush_stdout,
+                                launcher_rank, signals_raise, world)
 from amfe.errors import AmfeError
+from amfe.io.console import print_warnings
 from amfe.version import __version__
 
 COMMANDS = ["pack", "homogenize", "dataset", "train", "predict", "view"]
@@ -38,9 +41,19 @@ PETSC_COMMANDS = ("homogenize", "dataset", "predict")
 DISK_FULL = (errno.ENOSPC, errno.EDQUOT)
 
 
+class _Parser(argparse.ArgumentParser):
+    """An ArgumentParser that speaks on rank 0 only: under `mpirun -n N` every rank parses the
+    same command line, and its usage, help or error would otherwise print N times. (The
+    subcommands' parsers are of this class too: add_subparsers takes the parent's class.)"""
+
+    def _print_message(self, message, file=None):
+        if launcher_rank() == 0:
+            super()._print_message(message, file)
+
+
 def build_parser():
     """The top-level parser; ``parser.subcommands`` maps each command to its own parser."""
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="amfe",
         description="Powder beds as bonded space frames: generate, homogenize, export.")
     parser.add_argument("--version", action="version", version=f"amfe {__version__}")
@@ -102,37 +115,56 @@ def parse(argv):
 
 def main(argv=None):
     argv = sys.argv[1:] if argv is None else list(argv)
-    try:
-        args = parse(argv)
-    except BrokenPipeError:   # `amfe -h | head -1`
-        return end_broken_pipe()
-    with signals_raise():
+    with signals_raise():   # from the start: a Ctrl-C during the imports is one line too
         try:
-            code = int(args.func(args) or 0)
-            sys.stdout.flush()   # here, not at exit, so a closed pipe is caught below
-            return code
-        except AmfeError as exc:
-            # Raised alike on every rank: one message, then a clean non-zero exit everywhere.
-            if _world_rank() == 0:
-                print(f"amfe {args.command}: error: {exc}", file=sys.stderr)
-            return 2
-        except Interrupted as exc:
-            return end_interrupted(args.command, exc)
-        except BrokenPipeError:
+            args = parse(argv)
+        except BrokenPipeError:   # `amfe -h | head -1`
             return end_broken_pipe()
-        except OSError as exc:
-            if exc.errno not in DISK_FULL:
-                _abort_others()
-                raise
-            # Typically on the writing rank only: stop the others too.
-            where = f" writing {exc.filename}" if exc.filename else ""
-            print(f"amfe {args.command}: error: no space left on the device{where}; free some "
-                  "space and run again (files written before are kept)", file=sys.stderr)
-            _abort_others(2)
-            return 2
-        except BaseException:
+        except SystemExit:
+            # -h, --version or a usage error: argparse wrote to stdout, which is block-buffered
+            # on a pipe unless PYTHONUNBUFFERED is set; flush it here, where a closed pipe is
+            # still ours to catch, not at interpreter exit ("Exception ignored", exit 120).
+            if not flush_stdout():
+                return end_broken_pipe()
+            raise
+        except Interrupted as exc:
+            return end_interrupted(argv[0] if argv and argv[0] in COMMANDS else "", exc)
+        return _run(args)
+
+
+def _run(args):
+    """Run the parsed command; how it ends: see the module's docstring."""
+    try:
+        if args.petsc_args and "petsc4py.PETSc" not in sys.modules:
+            # first: PETSc reads the command line's options (-log_view, -help) when it starts,
+            # and the solver layer imports it at module level (amfe.solvers.petsclib)
+            init_petsc(args.petsc_args)
+        print_warnings()   # the solver layer's warnings, on stderr (amfe.io.console)
+        code = int(args.func(args) or 0)
+        sys.stdout.flush()   # here, not at exit, so a closed pipe is caught below
+        return code
+    except AmfeError as exc:
+        # Raised alike on every rank: one message, then a clean non-zero exit everywhere.
+        if _world_rank() == 0:
+            print(f"amfe {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except Interrupted as exc:
+        return end_interrupted(args.command, exc)
+    except BrokenPipeError:
+        return end_broken_pipe()
+    except OSError as exc:
+        if exc.errno not in DISK_FULL:
             _abort_others()
             raise
+        # Typically on the writing rank only: stop the others too.
+        where = f" writing {exc.filename}" if exc.filename else ""
+        print(f"amfe {args.command}: error: no space left on the device{where}; free some "
+              "space and run again (files written before are kept)", file=sys.stderr)
+        _abort_others(2)
+        return 2
+    except BaseException:
+        _abort_others()
+        raise
 
 
 def _abort_others(code=1):
@@ -150,7 +182,7 @@ def _abort_others(code=1):
 
 def _world_rank():
     mpi = sys.modules.get("mpi4py.MPI")
-    return mpi.COMM_WORLD.rank if mpi is not None else 0
+    return mpi.COMM_WORLD.rank if mpi is not None else launcher_rank()
 
 
 if __name__ == "__main__":

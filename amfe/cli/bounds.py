@@ -3,7 +3,9 @@
 Also the note every homogenize output carries when a modulus exceeds the
 particles' own E (docs/model.md, sections 5a and 9).
 """
+import json
 import os
+import sys
 import textwrap
 
 import numpy as np
@@ -14,10 +16,10 @@ GAP_MEANING = (
     "gap = (KUBC - SUBC) / KUBC. KUBC prescribes the boundary's displacements, SUBC its "
     "forces; their energies are ordered, e:C_subc:e <= e:C_kubc:e for every strain e, and so "
     "are the moduli E and G, but not the Poisson ratios, which may fall either side. A small "
-    "gap means the bed is large enough for its boundary not to matter. With amfe's volume "
-    "(the hull of the centres) the two need NOT bracket the periodic value: a finite bed "
-    "counts its face bonds fully, which lifts both (on a cubic lattice n particles wide both "
-    "sit about 2/n above it); the periodic column, where shown, is the material's own "
+    "gap means the bed is large enough for its boundary not to matter. With V the bed's own "
+    "box the two need NOT bracket the periodic value: a finite bed lacks the bonds that "
+    "cross the box's faces on the torus, which lowers both (on a cubic lattice n particles "
+    "wide both sit 1/n below it); the periodic column, where shown, is the material's own "
     "stiffness (docs/model.md, section 9).")
 
 ABOVE_E = ("note: {names} exceed the particles' own E = {E:.4g} GPa. This is not a unit error: "
@@ -79,6 +81,7 @@ def run_all(args, bed, comm, summary, **options):
     """
     from amfe.api import homogenize
     from amfe.io.atomic import write_json
+    from amfe.io.paths import is_stdout
     from amfe.io.result_meta import HEADER_KEYS
 
     results = homogenize(bed, comm=comm, a_star_cap=args.cap_a_star, rtol=args.rtol,
@@ -87,19 +90,27 @@ def run_all(args, bed, comm, summary, **options):
     if comm.rank != 0:
         return 0
     gaps = compare(results)
+    # `-o -` (or /dev/stdout): the JSON alone on stdout, the tables on stderr (it wrote a file "-")
+    to_stdout = args.output is not None and is_stdout(args.output)
+    out = sys.stderr if to_stdout else sys.stdout
     if args.output:
         head = {k: v for k, v in results["kubc"].to_dict().items()  # the bed's header;
                 if k in HEADER_KEYS and k != "counts"}                # counts: per condition
-        write_json(args.output, {**head, "bc": "all", **gaps,
-                                 "conditions": {n: r.to_dict() for n, r in results.items()}})
+        data = {**head, "bc": "all", **gaps,
+                "conditions": {n: r.to_dict() for n, r in results.items()}}
+        if to_stdout:
+            print(json.dumps(data, indent=2), flush=True)
+        else:
+            write_json(args.output, data)
     for name, r in results.items():
-        print(f"== {name}")
-        print(summary(r.to_dict(), args.bed, vtu=args.vtu and os.path.join(args.vtu, name)))
-    print("== bounds (docs/model.md, section 9)")
-    print(table(results, gaps))
+        print(f"== {name}", file=out)
+        print(summary(r.to_dict(), args.bed, vtu=args.vtu and os.path.join(args.vtu, name)),
+              file=out)
+    print("== bounds (docs/model.md, section 9)", file=out)
+    print(table(results, gaps), file=out)
     note = above_e_note(results["kubc"].properties, results["kubc"].extra["material"]["E"])
     if note:
-        print(textwrap.fill(note, 100))
-    if args.output:
+        print(textwrap.fill(note, 100), file=out)
+    if args.output and not to_stdout:
         print(f"wrote {args.output}")
     return 0

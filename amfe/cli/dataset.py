@@ -5,6 +5,8 @@
     amfe dataset --check DATA.h5
     amfe dataset --add-bond-images DATA.h5
     amfe dataset --prefix-of DATA.h5 -o FIRST.h5 [--count N]
+    amfe dataset --export-labels DATA.h5 -o LABELS.h5|DIR/ [--count N]
+    mpirun -n N amfe dataset --from-labels LABELS.h5 [...] -o DATA.h5 [--count M]
 
 Record k holds the bed with seed record_seed(S, k) of the scale's
 distribution (amfe.model.scales), its image (amfe.dataset.images), the six labels and C
@@ -15,11 +17,11 @@ flight: the same command resumes it (after removing the stale lock
 DATA.h5.lock that the kill left; the message says how). One run at a time
 writes an output (amfe.dataset.lock). A bed that fails is recorded as failed
 with its reason; more than F of them failed makes the exit status 2. File
-layout: amfe.io.datasetfile.
+layout: amfe.dataset.datafile.
 """
-import os
 import sys
 
+from amfe.cli.interrupt import launcher_rank
 from amfe.cli.options import add_solver_args
 from amfe.errors import AmfeError
 from amfe.model.scales import SCALES
@@ -58,6 +60,14 @@ def register(sub):
                    help="write the first --count records (default: all finished in a row) of a "
                         "data set still being made (or killed) to -o, as that data set with "
                         "--count would be; the run is not disturbed")
+    p.add_argument("--export-labels", metavar="DATA.h5",
+                   help="write the label table of a data set to -o LABELS.h5 (or, -o an existing "
+                        "directory, a new shard of the records its shards lack); see "
+                        "docs/datasets.md, Label tables")
+    p.add_argument("--from-labels", nargs="+", metavar="LABELS.h5",
+                   help="make -o DATA.h5 from label tables (every shard, from the first): beds "
+                        "and images regenerated and checked, labels copied, nothing solved; "
+                        "the tables give scale, seed and method")
     p.set_defaults(func=run)
 
 
@@ -72,13 +82,19 @@ def run(args):
         return _add_bond_images(args.add_bond_images, not args.no_progress)
     if args.prefix_of:
         return _prefix(args.prefix_of, args.output, args.count)
+    if args.export_labels:
+        return _export_labels(args.export_labels, args.output, args.count)
+    if args.from_labels:
+        return _from_labels(args)
     if not args.output or args.count is None:
         raise AmfeError("give -o DATA.h5 and --count M (or --check DATA.h5)")
     from amfe.dataset.driver import run_dataset
     from amfe.dataset.plan import DEFAULT_MAX_FAILED_SHARE
     from amfe.solvers.petsc import init_petsc
 
-    init_petsc(args.petsc_args)
+    if init_petsc(args.petsc_args).Options().hasName("ksp_rtol"):   # every rank alike
+        raise AmfeError("-ksp_rtol would silently override the tolerance the data set records "
+                        "(--rtol, or its default); give the tolerance as --rtol")
     run_dataset(args.output, args.count, seed=args.seed, scale=args.scale,
                 ranks_per_bed=args.ranks_per_bed,
                 rtol=args.rtol, solver=args.solver, progress=not args.no_progress,
@@ -89,7 +105,7 @@ def run(args):
 
 def _check(path):
     from amfe.dataset.summary import summary_text
-    from amfe.io.datasetfile import check_dataset
+    from amfe.dataset.datafile import check_dataset
 
     rank = _world_rank()
     if rank != 0:
@@ -127,12 +143,41 @@ def _prefix(source, output, count):
     return 0
 
 
+def _export_labels(source, output, count):
+    from amfe.dataset.labels import export_labels
+
+    if not output:
+        raise AmfeError("--export-labels DATA.h5 needs -o LABELS.h5 (or a directory of shards)")
+    if _world_rank() != 0:
+        return 0
+    path, first, end = export_labels(source, output, count)
+    print(f"amfe dataset: wrote the labels of records {first}..{end - 1} of {source} to {path}")
+    return 0
+
+
+def _from_labels(args):
+    from amfe.dataset.driver import run_dataset
+    from amfe.dataset.plan import DEFAULT_MAX_FAILED_SHARE
+
+    if not args.output:
+        raise AmfeError("--from-labels LABELS.h5 needs -o DATA.h5, the data set to make")
+    given = [name for name, value, default in (
+        ("--seed", args.seed, 0), ("--scale", args.scale, "small"), ("--rtol", args.rtol, None),
+        ("--solver", args.solver, "auto"), ("--bc", args.bc, "kubc"),
+        ("--ranks-per-bed", args.ranks_per_bed, 1)) if value != default]
+    if given:
+        raise AmfeError(f"--from-labels takes the data set's {', '.join(given)} from its tables; "
+                        "give none")
+    run_dataset(args.output, args.count, from_labels=tuple(args.from_labels),
+                progress=not args.no_progress,
+                max_failed_share=DEFAULT_MAX_FAILED_SHARE if args.max_failed_share is None
+                else args.max_failed_share)
+    return 0
+
+
 def _world_rank():
     """This process's rank under mpirun (from the launcher's environment; 0 alone)."""
     mpi = sys.modules.get("mpi4py.MPI")
     if mpi is not None:
         return mpi.COMM_WORLD.rank
-    for var in ("OMPI_COMM_WORLD_RANK", "PMI_RANK", "PMIX_RANK"):
-        if os.environ.get(var, "").isdigit():
-            return int(os.environ[var])
-    return 0
+    return launcher_rank()

@@ -23,8 +23,8 @@ def register(sub):
                               "-log_view, -pc_type hypre.")
     p.add_argument("bed", help="bed HDF5 file (/particles/centers, /particles/radii)")
     p.add_argument("-o", "--output", help="write the result as JSON here (- : to stdout, the table to stderr)")
-    p.add_argument("--vtu", metavar="DIR", help="write the ParaView files here: case_<name>.vtp "
-                   "per load case and cases.pvd (view them: amfe view DIR)")
+    p.add_argument("--vtu", metavar="DIR", help="write the ParaView files here: case_<name>.vtu "
+                   "per load case, cases.json and cases.pvd (view them: amfe view DIR)")
     add_solver_args(p)
     p.add_argument("--cap-a-star", type=float, default=None, metavar="A",
                    help="evaluate bonds with a* > A at a* = A (A below the critical a*) "
@@ -85,9 +85,9 @@ def run(args):
     from amfe.cli.bounds import above_e_note
     from amfe.io.bedfile import read_bed
     from amfe.io.mpi import on_root
-    from amfe.io.paths import STDOUT, check_output, check_output_dir
+    from amfe.io.paths import check_output, check_output_dir, is_stdout
     from amfe.model.memory import parse_size
-    from amfe.solvers.inputs import check_rtol
+    from amfe.model.options import check_rtol
     from amfe.solvers.petsc import init_petsc
 
     init_petsc(args.petsc_args)
@@ -96,9 +96,9 @@ def run(args):
     def check_arguments():  # everything that can be refused, before reading or solving
         if args.rtol is not None:
             check_rtol(args.rtol, "--rtol")
-        if args.output:
+        if args.output is not None:   # -o '' is an error, not "no output"
             check_output(args.output, inputs=[args.bed], allow_stdout=True)
-        if args.vtu:
+        if args.vtu is not None:   # --vtu '' is an error too
             check_output_dir(args.vtu)
         return None if args.max_memory is None else parse_size(args.max_memory)
 
@@ -120,9 +120,10 @@ def run(args):
                         progress=not args.quiet, input_path=args.bed, **options)
 
     def write_and_report():
-        # `-o -`: the JSON alone on stdout (for a pipe), the table on stderr
-        table_to = sys.stderr if args.output == STDOUT else sys.stdout
-        if args.output == STDOUT:
+        # `-o -` (or /dev/stdout): the JSON alone on stdout (for a pipe), the table on stderr
+        to_stdout = args.output is not None and is_stdout(args.output)
+        table_to = sys.stderr if to_stdout else sys.stdout
+        if to_stdout:
             print(json.dumps(result.to_dict(), indent=2), flush=True)
         elif args.output:
             try:
@@ -130,7 +131,7 @@ def run(args):
             except OSError as exc:
                 raise AmfeError(f"cannot write -o {args.output}: {exc.strerror or exc}") from None
         print(summary(result.to_dict(), args.bed,
-                      None if args.output == STDOUT else args.output, args.vtu), file=table_to)
+                      None if to_stdout else args.output, args.vtu), file=table_to)
         note = above_e_note(result.properties, result.extra["material"]["E"])
         if note:
             print(note, file=table_to)

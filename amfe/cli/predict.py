@@ -21,10 +21,11 @@ import os
 import sys
 import time
 
+from amfe.cli.interrupt import launcher_rank
 from amfe.cli.options import nonnegative_float, thread_count
 from amfe.errors import AmfeError
 from amfe.io.atomic import write_json
-from amfe.io.paths import STDOUT, check_output
+from amfe.io.paths import check_output, is_stdout
 from amfe.io.result_meta import header, predict_block
 from amfe.model.material import resolve_material
 
@@ -107,13 +108,15 @@ def run(args):
 
     solver = None
     if comm is not None and (args.check or flagged):
+        from amfe.model.options import SolveOptions
         from amfe.solvers.driver import homogenize_bed
         from amfe.solvers.petsc import init_petsc
         init_petsc(args.petsc_args)
         t = time.perf_counter()
-        solver = homogenize_bed(bed.centers, bed.radii, bed.material())
+        solver = homogenize_bed(bed, SolveOptions(material=bed.material(),
+                                                  solver="gamg")).to_dict()
         times["solve"] = time.perf_counter() - t
-    rank = comm.rank if comm is not None else _launcher_rank()
+    rank = comm.rank if comm is not None else launcher_rank()
 
     surrogate_props = _finite_or_none(as_properties(res["mean"][0]))
     out = {
@@ -132,6 +135,7 @@ def run(args):
         "arch": sur.ckpt["arch"],
         "members": sur.n_members,
         "inputs": list(sur.inputs),
+        "labels": sur.labels,            # the label rule (docs/model.md, section 5)
         "image_shape": list(image.shape),
         "density": float(image.mean(dtype="float64")),
     }
@@ -196,8 +200,9 @@ def _finite_or_none(props):
 
 
 def write_result(out, output):
-    """The JSON to ``output`` (atomically) or stdout (``-``), and the table to stdout or stderr."""
-    if output == STDOUT:
+    """The JSON to ``output`` (atomically) or stdout (``-``, /dev/stdout), and the table to stdout
+    or stderr."""
+    if output is not None and is_stdout(output):
         print(summary(out), file=sys.stderr, flush=True)
         print(json.dumps(out, indent=2), flush=True)
         return
@@ -276,11 +281,3 @@ def _percent(fraction, width, sign):
     if fraction is None:
         return f"{'-':>{width + 1}s}"
     return f"{100 * fraction:{sign}{width}.2f}%"
-
-
-def _launcher_rank():
-    """This process's rank under mpirun, from the launcher's environment (0 alone)."""
-    for var in ("OMPI_COMM_WORLD_RANK", "PMI_RANK", "PMIX_RANK"):
-        if os.environ.get(var, "").isdigit():
-            return int(os.environ[var])
-    return 0

@@ -87,8 +87,9 @@ def register(sub):
                         "starts from its member --init-member + k")
     p.add_argument("--init-member", type=nonnegative_int, default=0, metavar="K",
                    help="with --init: the first member to start from (default 0)")
-    p.add_argument("--max-train", type=nonnegative_int, default=0, metavar="N",
-                   help="train on at most N of the training beds (error versus data size)")
+    p.add_argument("--max-train", type=positive_int, default=None, metavar="N",
+                   help="train on at most N of the training beds (error versus data size; "
+                        "default all)")
     p.add_argument("--test", metavar="HELDOUT.h5",
                    help="also evaluate on this held-out data set (stored in the checkpoint)")
     p.add_argument("--curve", metavar="PNG",
@@ -134,7 +135,8 @@ def check_paths(args):
 
 
 def check_test_set(args, inputs):
-    """AmfeError unless the --test data set can be evaluated by a model of the training data."""
+    """AmfeError unless the --test data set can be evaluated by a model of the training data,
+    and holds what training accepts (amfe.training.guards)."""
     from amfe.training.data import dataset_info
 
     want = dataset_info(args.data, inputs)["image_shape"]
@@ -146,6 +148,12 @@ def check_test_set(args, inputs):
     if info["ok"].size < 2:
         raise AmfeError(f"--test {args.test} has {info['ok'].size} usable record(s); its errors "
                         "and R^2 need at least 2")
+    from amfe.training.data import read_rows
+    from amfe.training.guards import check_data, check_ok_records
+
+    check_ok_records(args.test, info["ok_nonfinite"])   # what training refuses, before it starts
+    images, labels = read_rows(args.test, info["ok"], inputs)
+    check_data(args.test, info["ok"], images, labels, info["image_shape"][0] // len(inputs))
 
 
 # Options that --init takes from the initial checkpoint.
@@ -188,7 +196,7 @@ def run(args):
                       log_moduli=not args.linear_moduli, log_poisson=args.log_poisson,
                       augment=args.augment, tta=args.tta,
                       flag_percentile=args.flag_percentile, workers=args.workers,
-                      max_train=args.max_train, inputs=args.inputs, device=args.device,
+                      max_train=args.max_train or 0, inputs=args.inputs, device=args.device,
                       init=args.init or "", init_member=args.init_member)
     cfg.check()
     check_init_options(args)

@@ -26,7 +26,7 @@ def register(sub):
                        epilog="The same view in ParaView's window: see docs/viewing.md "
                               "(amfe_view_pv.py, shipped in amfe/viz/).")
     p.add_argument("target", metavar="RESULT_DIR_or_PVD",
-                   help="directory of 'amfe homogenize --vtu DIR', its cases.pvd, or one .vtp")
+                   help="directory of 'amfe homogenize --vtu DIR', its cases.pvd, or one .vtu")
     p.add_argument("-o", "--output", metavar="DIR",
                    help="directory for the PNGs (default: beside the case files)")
     p.add_argument("--case", help="only this load case, e.g. xx (default: every case)")

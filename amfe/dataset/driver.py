@@ -44,14 +44,20 @@ is a failure for all of them. Generation is deterministic, and homogenize_bed
 raises AmfeError alike on every rank, so the group stays in step.
 
 Kill-safety. Each leader writes its record as its own part file
-(:mod:`amfe.io.datasetparts`, tmp + fsync + os.replace) before it asks for more
+(:mod:`amfe.dataset.parts`, tmp + fsync + os.replace) before it asks for more
 work; a kill (any rank, any moment) loses only the beds in flight. Rerunning
 the same command (after removing the stale lock the kill left) skips every
 record whose part exists. A part that cannot be written (a full disk) stops
 the hand-out: the groups finish the beds they hold and every rank raises the
 same AmfeError; the parts written are kept. When all exist, world rank 0
 merges them into a temporary file, checks it, renames it onto DATA.h5 and
-only then removes the parts (:func:`amfe.io.datasetfile.merge_parts`).
+only then removes the parts (:func:`amfe.dataset.datafile.merge_parts`).
+
+Rebuilds. With label tables (``--from-labels``, :mod:`amfe.dataset.labels`)
+the same machinery (lock, hand-out, parts, merge) makes each record by
+:func:`amfe.dataset.labels.rebuild_record` on groups of one rank: the bed and
+images regenerated, the bed checked against the table's digest, the labels
+copied; a bed that does not regenerate stops the hand-out like a full disk.
 
 Progress. World rank 0 shows a tqdm bar (stderr) of the records finished by
 all groups, read from the window's second counter by a background thread
@@ -61,17 +67,20 @@ bar, its rate and its ETA are the job's, not rank 0's.
 import os
 import sys
 import time
+from dataclasses import dataclass, replace
 
 from amfe.dataset.handout import FINISHED, NEXT, Progress, Window
 from amfe.dataset.lock import DatasetLock, this_process
-from amfe.dataset.plan import (DEFAULT_MAX_FAILED_SHARE, check_arguments, failed_share_error,
-                               prepare, rejected_lines)
+from amfe.dataset.labels import (read_tables, rebuild_record, table_options, table_params,
+                                 table_run)
+from amfe.dataset.plan import (DatasetOptions, check_arguments, failed_share_error, prepare,
+                               rejected_lines)
 from amfe.dataset.record import load_pixelate, make_record
 from amfe.dataset.summary import final_summary
 from amfe.errors import AmfeError
 from amfe.io.atomic import NoSpaceError
-from amfe.io.datasetfile import merge_parts
-from amfe.io.datasetparts import STATUS_OK, describe_params, run_params, write_part
+from amfe.dataset.datafile import merge_parts
+from amfe.dataset.parts import STATUS_OK, describe_params, run_params, write_part
 from amfe.io.mpi import on_root
 from amfe.io.paths import check_output
 from amfe.model.scales import get_scale
@@ -79,10 +88,16 @@ from amfe.solvers.choice import GAMG_RTOL_AUTO, choose_solver
 from amfe.solvers.ksp import DEFAULT_RTOL
 
 
-def run_dataset(output, count, *, seed=0, scale="small", ranks_per_bed=1, rtol=None,
-                comm=None, progress=True, pixelate=None, out=None,
-                max_failed_share=DEFAULT_MAX_FAILED_SHARE, solver="auto", bc="kubc"):
+def run_dataset(output, count, *, comm=None, progress=True, pixelate=None, out=None, **options):
     """Make (or finish) the data set ``output``; collective over ``comm`` (default COMM_WORLD).
+
+    ``options``: the fields of :class:`amfe.dataset.plan.DatasetOptions` (seed,
+    scale, ranks_per_bed, rtol, solver, bc, max_failed_share, from_labels),
+    collected into one at once. With ``from_labels`` (label tables,
+    :mod:`amfe.dataset.labels`) the tables give the scale, seeds and labels:
+    each record's bed and images are regenerated, the bed checked against its
+    digest, and nothing is solved; ``count`` None takes every record of the
+    tables.
 
     Returns, on world rank 0, a dict: complete_before (the file was already
     there), records, ok, failed, failures [(n, reason)], rejected [(k, why,
@@ -97,32 +112,41 @@ def run_dataset(output, count, *, seed=0, scale="small", ranks_per_bed=1, rtol=N
     on world rank 0 to ``out`` (default stdout). Raises AmfeError alike on every rank, before any
     work, for bad arguments, an output locked by another run
     (:mod:`amfe.dataset.lock`), a parameter mismatch with an existing file or
-    parts directory; after the work for a record file that cannot be written
-    (a full disk: the finished records are kept), a failed merge, or more than
-    ``max_failed_share`` of the records failed (the file is written).
+    parts directory, a label table that cannot be used; after the work for a
+    record file that cannot be written (a full disk: the finished records are
+    kept), a table record whose bed does not regenerate, a failed merge, or
+    more than ``max_failed_share`` of the records failed (the file is written).
     """
     from mpi4py import MPI
 
+    opts = DatasetOptions(**options)
     world = MPI.COMM_WORLD if comm is None else comm
-    out = sys.stdout if out is None else out
     t_start = time.perf_counter()
-    sc = get_scale(scale)
-    choose_solver({}, 2, solver)  # an unknown method is refused before any work
+    table = None
+    if opts.from_labels:
+        table = on_root(world, read_tables, opts.from_labels)
+        count, opts = table_run(table, count), table_options(table, opts)
+    sc = get_scale(opts.scale)
+    choose_solver({}, 2, opts.solver)  # an unknown method is refused before any work
+    rtol = opts.rtol
     if rtol is None:
-        rtol = DEFAULT_RTOL if solver == "gamg" else GAMG_RTOL_AUTO
-    check_arguments(count, seed, ranks_per_bed, rtol, max_failed_share, world.size)
-    params = run_params(sc.name, seed, count, rtol, solver, bc)
-    output = os.fspath(output)
-    lock = DatasetLock(output, world.gather(this_process(), root=0))
+        rtol = DEFAULT_RTOL if opts.solver == "gamg" else GAMG_RTOL_AUTO
+    check_arguments(count, opts.seed, opts.ranks_per_bed, rtol, opts.max_failed_share,
+                    world.size)
+    params = run_params(sc.name, opts.seed, count, rtol, opts.solver, opts.bc)
+    if table is not None:
+        params.update(table_params(table))
+    job = _Job(world, os.fspath(output), params, sc, opts, progress, pixelate, t_start, table)
+    lock = DatasetLock(job.output, world.gather(this_process(), root=0))
 
     def take():
-        check_output(output)
+        check_output(job.output)
         lock.acquire()
     on_root(world, take)
     try:
-        result = _locked_run(MPI, world, output, params, sc, ranks_per_bed, progress,
-                             pixelate, t_start, max_failed_share)
+        result = _locked_run(MPI, job)
         if world.rank == 0:
+            out = sys.stdout if out is None else out
             print("\n".join(result["lines"]), file=out)
             out.flush()
         if result["too_many_failed"]:
@@ -133,13 +157,30 @@ def run_dataset(output, count, *, seed=0, scale="small", ranks_per_bed=1, rtol=N
     return result if world.rank == 0 else None
 
 
-def _locked_run(MPI, world, output, params, sc, ranks_per_bed, progress, pixelate, t_start,
-                max_failed_share):
+@dataclass(frozen=True)
+class _Job:
+    """One run_dataset call, as the functions below it see it."""
+
+    world: object
+    output: str
+    params: dict        # run parameters (amfe.dataset.parts.run_params)
+    sc: object          # the Scale
+    opts: DatasetOptions
+    progress: bool
+    pixelate: object    # the image function, or None before _pixelate_everywhere
+    t_start: float
+    table: dict = None  # label tables (amfe.dataset.labels.read_tables), or None
+
+
+def _locked_run(MPI, job):
     """run_dataset with the lock held: plan, work, merge; the summary dict on every rank."""
+    world, output, params, sc = job.world, job.output, job.params, job.sc
+    max_failed_share = job.opts.max_failed_share
+
     def plan_it():
         plan = prepare(output, params)
         if plan["complete"]:
-            summary = final_summary(output, plan["data"], plan["attrs"], None, t_start,
+            summary = final_summary(output, plan["data"], plan["attrs"], None, job.t_start,
                                     world.size)
             summary["lines"].insert(0, f"amfe dataset: {output} is already complete for these "
                                        f"parameters ({describe_params(params)}); nothing to do")
@@ -150,25 +191,18 @@ def _locked_run(MPI, world, output, params, sc, ranks_per_bed, progress, pixelat
     plan = on_root(world, plan_it)
     if plan["complete"]:
         return plan["summary"]
-    pixelate = _pixelate_everywhere(MPI, world, pixelate)
+    job = replace(job, pixelate=_pixelate_everywhere(MPI, world, job.pixelate))
     todo, parts = plan["todo"], plan["parts"]
-    if world.rank == 0 and plan["rejected"]:
-        print("\n".join(rejected_lines(plan["rejected"])), file=sys.stderr, flush=True)
-    if world.rank == 0 and plan["grown_from"] is not None:
-        print(f"amfe dataset: the run of {plan['grown_from']} records in {parts} grows to "
-              f"{params['count']}; the records it has are kept", file=sys.stderr, flush=True)
+    ranks_per_bed = job.opts.ranks_per_bed   # 1 for a rebuild: nothing to solve
+    if world.rank == 0:
+        _announce(job, plan, ranks_per_bed)
     group = world.Split(color=world.rank // ranks_per_bed, key=world.rank)
-    n_groups = (world.size + ranks_per_bed - 1) // ranks_per_bed
     window = Window(MPI, world)
-    if world.rank == 0 and progress:
-        print(f"amfe dataset: {sc.describe()}; {params['count']} records, {plan['n_done']} done "
-              f"before, {len(todo)} to do on {world.size} rank(s) in {n_groups} group(s) of "
-              f"{ranks_per_bed}", file=sys.stderr, flush=True)
-    bar = Progress(progress and world.rank == 0 and len(todo) > 0, params["count"],
+    bar = Progress(job.progress and world.rank == 0 and len(todo) > 0, params["count"],
                    plan["n_done"], window)
     t_loop = time.perf_counter()
     try:
-        stats, error = _work(group, window, todo, parts, params, sc, pixelate)
+        stats, error = _work(job, group, window, todo, parts)
         world.Barrier()
     finally:
         bar.close()
@@ -178,23 +212,46 @@ def _locked_run(MPI, world, output, params, sc, ranks_per_bed, progress, pixelat
     all_stats = world.gather(stats, root=0)
     errors = [e for e in world.allgather(error) if e]
     if errors:
-        raise AmfeError(f"{errors[0]}; the records finished so far are kept there: free some "
-                        "space (or fix the directory) and run the same command again")
+        raise AmfeError(errors[0])
 
     def finish():
         data, attrs = merge_parts(output, parts, params)
         run = {k: sum(s[k] for s in all_stats)
                for k in ("done", "failed", "generate", "image", "solve", "busy")}
         run["work_seconds"] = t_work
-        summary = final_summary(output, data, attrs, run, t_start, world.size)
+        summary = final_summary(output, data, attrs, run, job.t_start, world.size)
         summary.update(rejected=plan["rejected"],
                        too_many_failed=failed_share_error(output, data, max_failed_share))
         return summary
     return on_root(world, finish)
 
 
-def _work(group, window, todo, parts, params, sc, pixelate):
-    """The hand-out loop of one rank: (stats of its group's records, error writing one or None)."""
+def _announce(job, plan, ranks_per_bed):
+    """World rank 0: the lines that say what this run does, before it does it."""
+    if plan["rejected"]:
+        print("\n".join(rejected_lines(plan["rejected"])), file=sys.stderr, flush=True)
+    if plan["grown_from"] is not None:
+        print(f"amfe dataset: the run of {plan['grown_from']} records in {plan['parts']} grows "
+              f"to {job.params['count']}; the records it has are kept", file=sys.stderr,
+              flush=True)
+    if job.progress:
+        size = job.world.size
+        n_groups = (size + ranks_per_bed - 1) // ranks_per_bed
+        source = (f" rebuilt from the labels of {', '.join(job.opts.from_labels)} (no solve)"
+                  if job.table is not None else "")
+        print(f"amfe dataset: {job.sc.describe()}; {job.params['count']} records{source}, "
+              f"{plan['n_done']} done before, {len(plan['todo'])} to do on {size} rank(s) in "
+              f"{n_groups} group(s) of {ranks_per_bed}", file=sys.stderr, flush=True)
+
+
+def _work(job, group, window, todo, parts):
+    """The hand-out loop of one rank: (stats of its group's records, error or None).
+
+    An error (a record that cannot be written: a full disk; a table record
+    whose bed does not regenerate) stops the hand-out; the records written
+    are kept.
+    """
+    params = job.params
     stats = {"done": 0, "failed": 0, "generate": 0.0, "image": 0.0, "solve": 0.0, "busy": 0.0}
     error = None
     while True:
@@ -204,9 +261,16 @@ def _work(group, window, todo, parts, params, sc, pixelate):
         if pos >= len(todo):
             return stats, error
         tb = time.perf_counter()
-        rec = make_record(todo[pos], params["seed"], sc, group, rtol=params["rtol"],
-                          pixelate=pixelate, solver=params.get("solver", "gamg"),
-                          bc=params.get("bc", "kubc"))
+        if job.table is not None:
+            rec, refused = rebuild_record(todo[pos], job.table, job.sc, group, job.pixelate)
+            if refused:
+                error = refused
+                window.stop()
+                continue
+        else:
+            rec = make_record(todo[pos], params["seed"], job.sc, group, rtol=params["rtol"],
+                              pixelate=job.pixelate, solver=params.get("solver", "gamg"),
+                              bc=params.get("bc", "kubc"))
         if group.rank != 0:
             continue
         try:
@@ -216,6 +280,8 @@ def _work(group, window, todo, parts, params, sc, pixelate):
                      if isinstance(exc, NoSpaceError) else str(exc) if
                      isinstance(exc, AmfeError) else
                      f"cannot write record {todo[pos]} in {parts}: {exc.strerror or exc}")
+            error += ("; the records finished so far are kept there: free some space (or fix "
+                      "the directory) and run the same command again")
             window.stop()
             continue
         window.fetch_add(FINISHED)

@@ -39,6 +39,7 @@ of the bed. Cost: about 120 chords per sphere at the default spacing, 5 s for
 300 000 particles on one core.
 """
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -56,6 +57,11 @@ _Q_LEVELS = 1 << 16                # ... measured in units of layer thickness / 
 # A box within this relative tolerance of a whole number of cells (or layers)
 # gets no sliver cell from round-off (0.25 mm / 0.05 mm is 5 cells, not 6).
 _DIVIDE_TOL = 1e-9
+#: The version of a data set's images (this module's pixelate and amfe.dataset.bondimage):
+#: bump it when either gives other numbers for the same bed. Label tables record it, and
+#: `amfe dataset --from-labels` refuses a table of another imaging (its images would differ
+#: from those of the data set it came from).
+IMAGING_VERSION = 1
 
 
 def _positive(name, value):
@@ -133,8 +139,23 @@ def _reach(r_max, h):
     return math.ceil(r_max / h) + 1
 
 
-def _chords(c, r, kx, ky, ax, ay, row0, row1, z_lo, z_hi):
-    """Vertical chords of spheres c (C,3), r (C,) through the sample lines of rows [row0, row1).
+@dataclass(frozen=True)
+class _Strip:
+    """One strip of sample rows [row0, row1) of the sample grid (ax, ay) and the box's
+    layers: z_edges (layers+1,) [m] of thickness t [m], the box from z_lo to z_hi [m]."""
+
+    ax: "_Axis"
+    ay: "_Axis"
+    row0: int
+    row1: int
+    z_edges: np.ndarray
+    t: float
+    z_lo: float
+    z_hi: float
+
+
+def _chords(c, r, kx, ky, strip):
+    """Vertical chords of spheres c (C,3), r (C,) through the sample lines of ``strip``'s rows.
 
     Each sphere is tried against a block of sample lines: in x the run
     [bx - kx, bx + kx] around its centre's sub-interval bx, cut to the box's
@@ -145,6 +166,7 @@ def _chords(c, r, kx, ky, ax, ay, row0, row1, z_lo, z_hi):
     row) and s, e (chord ends clipped to [z_lo, z_hi]) [m] of the non-empty
     chords.
     """
+    ax, ay, row0, row1 = strip.ax, strip.ay, strip.row0, strip.row1
     wx = min(2 * kx + 1, ax.n_sub)
     wy = min(2 * ky + 1, row1 - row0)
     bx = np.floor((c[:, 0] - ax.lo) / ax.h).astype(np.int64)
@@ -164,15 +186,15 @@ def _chords(c, r, kx, ky, ax, ay, row0, row1, z_lo, z_hi):
     sphere, a, b = np.nonzero(hit)
     half = np.sqrt(half2[hit])
     zc = c[sphere, 2]
-    s = np.maximum(zc - half, z_lo)
-    e = np.minimum(zc + half, z_hi)
+    s = np.maximum(zc - half, strip.z_lo)
+    e = np.minimum(zc + half, strip.z_hi)
     keep = e > s
     sphere, s, e = sphere[keep], s[keep], e[keep]
     return x0[sphere] + a[keep], y0[sphere] + b[keep], s, e
 
 
-def _accumulate(image, ix, iy, s, e, ax, ay, z_edges, t, row0, row1):
-    """Add the union volume of chords in sample rows [row0, row1) to ``image`` [m^3].
+def _accumulate(image, ix, iy, s, e, strip):
+    """Add the union volume of chords in ``strip``'s sample rows [row0, row1) to ``image`` [m^3].
 
     image: (layers*H*W,) float64. ix, iy: sample column and row; s, e: chord
     ends [m]. Chords are cut at the layer faces; each (layer, sample line) is
@@ -185,6 +207,8 @@ def _accumulate(image, ix, iy, s, e, ax, ay, z_edges, t, row0, row1):
     sort is twice as fast as an argsort, and the group bits make one running
     maximum serve all groups (a group's keys all exceed the previous group's).
     """
+    ax, ay, row0, row1, z_edges, t = (strip.ax, strip.ay, strip.row0, strip.row1,
+                                      strip.z_edges, strip.t)
     n_layers = z_edges.size - 1
     layer = np.clip(np.floor((s - z_edges[0]) / t).astype(np.int64), 0, n_layers - 1)
     # Chords crossing a layer face are cut there; the part above becomes a new
@@ -291,6 +315,7 @@ def pixelate_spheres(centers, radii, lo, hi, cell_xy=DEFAULT_CELL,
         for row0 in range(0, ay.n_sub, rows):
             row1 = min(row0 + rows, ay.n_sub)
             y0, y1 = ay.lo + row0 * ay.h, ay.lo + row1 * ay.h
+            strip = _Strip(ax, ay, row0, row1, z_edges, t, lo[2], hi[2])
             parts = []
             for cc, rr, r_max, kx_c, ky_c in classes:
                 i0, i1 = np.searchsorted(cc[:, 1], [y0 - r_max, y1 + r_max])
@@ -298,12 +323,11 @@ def pixelate_spheres(centers, radii, lo, hi, cell_xy=DEFAULT_CELL,
                 step = max(1, _CHUNK_CANDIDATES // block)
                 for i in range(i0, i1, step):
                     j = min(i + step, i1)
-                    parts.append(_chords(cc[i:j], rr[i:j], kx_c, ky_c, ax, ay, row0, row1,
-                                         lo[2], hi[2]))
+                    parts.append(_chords(cc[i:j], rr[i:j], kx_c, ky_c, strip))
             if parts:
                 ix, iy, s, e = (np.concatenate(p) for p in zip(*parts))
                 if s.size:
-                    _accumulate(image, ix, iy, s, e, ax, ay, z_edges, t, row0, row1)
+                    _accumulate(image, ix, iy, s, e, strip)
 
     volume = (np.diff(z_edges)[:, None, None] * ay.cell_w[None, :, None]
               * ax.cell_w[None, None, :])

@@ -9,21 +9,40 @@ part that is not the record it claims to be to ``OUTPUT.rejected/``.
 """
 import math
 import os
+from dataclasses import dataclass
 
 import numpy as np
 
 from amfe.errors import AmfeError, _list_items
 from amfe.io.atomic import is_no_space, no_space_error, remove_stale_tmp
-from amfe.io.datasetfile import check_dataset
-from amfe.io.datasetparts import (STATUS_OK, describe_params, done_indices, part_path,
-                                  part_problem, parts_dir, read_params_json, reject_part,
-                                  remove_parts, same_but_count, write_params_json)
+from amfe.dataset.datafile import check_dataset
+from amfe.dataset.parts import (STATUS_OK, describe_params, done_indices, part_path,
+                                part_problem, parts_dir, read_params_json, reject_part,
+                                remove_parts, same_but_count, write_params_json)
 
 #: Data-set seeds are stored as an HDF5 uint64 attribute; record_seed takes any of them.
 SEED_LIMIT = 2**64
 #: Part files are numbered with 8 digits; 10^7 small beds are ~170 core-days already.
 MAX_COUNT = 10**7
 DEFAULT_MAX_FAILED_SHARE = 0.05
+
+
+@dataclass(frozen=True)
+class DatasetOptions:
+    """What ``amfe dataset`` makes, beside the output and the count (checked by
+    :func:`check_arguments`): the data-set seed and scale, rank groups, the
+    labels' solve (rtol None: the solver's default) and boundary conditions,
+    the failure budget, and ``from_labels``: label tables (paths) whose labels
+    the records copy instead of solving (:mod:`amfe.dataset.labels`)."""
+
+    seed: int = 0
+    scale: str = "small"
+    ranks_per_bed: int = 1
+    rtol: float = None
+    solver: str = "auto"
+    bc: str = "kubc"
+    max_failed_share: float = DEFAULT_MAX_FAILED_SHARE
+    from_labels: tuple = ()
 
 
 def _is_int(x):

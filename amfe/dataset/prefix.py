@@ -9,8 +9,8 @@ on the first thousands of beds while the rest are labelled (docs/datasets.md).
 import os
 
 from amfe.errors import AmfeError
-from amfe.io.datasetfile import merge_parts
-from amfe.io.datasetparts import done_indices, parts_dir, read_params_json
+from amfe.dataset.datafile import merge_parts
+from amfe.dataset.parts import done_indices, parts_dir, read_params_json
 from amfe.io.paths import check_output
 
 

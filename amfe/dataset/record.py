@@ -2,7 +2,7 @@
 
 :func:`make_record` is what every group of ranks of ``amfe dataset``
 (:mod:`amfe.dataset.driver`) computes for record k; the record layout is
-:mod:`amfe.io.datasetparts`'s.
+:mod:`amfe.dataset.parts`'s.
 """
 import json
 import os
@@ -13,7 +13,7 @@ import numpy as np
 
 from amfe.dataset.upgrade import record_bond_image
 from amfe.errors import AmfeError
-from amfe.io.datasetparts import STATUS_FAILED, STATUS_OK, empty_record
+from amfe.dataset.parts import STATUS_FAILED, STATUS_OK, empty_record
 from amfe.model.bed import generate_bed
 from amfe.model.scales import PARAM_NAMES, get_scale, param_record, record_seed, sample_bed_params
 from amfe.solvers.ksp import DEFAULT_RTOL
@@ -44,18 +44,51 @@ def _agree(group, err):
 
 def make_record(k, dataset_seed, scale, group, rtol=DEFAULT_RTOL, pixelate=None, solver="gamg",
                 bc="kubc"):
-    """Record k (a dict, see amfe.io.datasetfile), computed collectively on ``group``.
+    """Record k (a dict, see amfe.dataset.datafile), computed collectively on ``group``.
 
     Every rank of ``group`` calls it with the same arguments; the record is
     complete on the group's rank 0 (the others hold no image). Never raises
     for a bad bed or a failed solve: the record says status failed and why.
     """
+    from amfe.model.options import SolveOptions
     from amfe.solvers.driver import homogenize_bed
 
+    rec, bed, err = regenerate(k, dataset_seed, scale, group, pixelate)
+    if err is None:
+        t2 = time.perf_counter()
+        try:
+            res = homogenize_bed(bed, SolveOptions(material=bed.material(), rtol=rtol,
+                                                   solver=solver, bc=bc), group).to_dict()
+        except Exception as exc:  # noqa: BLE001
+            err = _reason(exc)
+        rec["seconds"][2] = time.perf_counter() - t2
+        err = _agree(group, err)
+    if err is not None:
+        rec["status"], rec["reason"] = STATUS_FAILED, err
+        return rec
+    props = res["properties"]
+    rec.update(status=STATUS_OK, reason="",
+               labels=np.array([props[n] for n in LABEL_NAMES]),
+               C=np.array(res["C"]), iterations=np.array(res["solver"]["iterations"], np.int32),
+               n_removed=int(res["n_removed"]), n_bonds=int(res["n_bonds"]),
+               volume=float(res["volume"]),
+               solver=json.dumps(res["solver"], default=float))
+    return rec
+
+
+def regenerate(k, dataset_seed, scale, group, pixelate):
+    """Record k before its solve: (record, bed or None, error or None), on every rank of ``group``.
+
+    The record (status failed until labelled) holds the bed seed, the
+    generation parameters, the particle count and, on the group's rank 0, the
+    images and density, with their seconds; the error (the same on every rank)
+    is the reason generation or imaging failed. Everything but the seconds is
+    a pure function of (dataset_seed, k, scale).
+    """
     sc = get_scale(scale)
     bed_seed = record_seed(dataset_seed, k)
     rec = empty_record(k, bed_seed, sc.image_shape)
-    err = None
+    bed, err = None, None
     t0 = time.perf_counter()
     try:
         params = sample_bed_params(sc, bed_seed)
@@ -77,27 +110,7 @@ def make_record(k, dataset_seed, scale, group, rtol=DEFAULT_RTOL, pixelate=None,
             rec["seconds"][1] = time.perf_counter() - t1
     except Exception as exc:  # noqa: BLE001 - recorded, not fatal
         err = _reason(exc)
-    err = _agree(group, err)
-    if err is None:
-        t2 = time.perf_counter()
-        try:
-            res = homogenize_bed(bed.centers, bed.radii, bed.material(), comm=group, rtol=rtol,
-                                 solver=solver, bc=bc)
-        except Exception as exc:  # noqa: BLE001
-            err = _reason(exc)
-        rec["seconds"][2] = time.perf_counter() - t2
-        err = _agree(group, err)
-    if err is not None:
-        rec["status"], rec["reason"] = STATUS_FAILED, err
-        return rec
-    props = res["properties"]
-    rec.update(status=STATUS_OK, reason="",
-               labels=np.array([props[n] for n in LABEL_NAMES]),
-               C=np.array(res["C"]), iterations=np.array(res["solver"]["iterations"], np.int32),
-               n_removed=int(res["n_removed"]), n_bonds=int(res["n_bonds"]),
-               volume=float(res["volume"]),
-               solver=json.dumps(res["solver"], default=float))
-    return rec
+    return rec, bed, _agree(group, err)
 
 
 def load_pixelate():

@@ -4,7 +4,7 @@ import time
 
 import numpy as np
 
-from amfe.io.datasetparts import STATUS_OK
+from amfe.dataset.parts import LABEL_RULES, STATUS_OK, label_rule
 from amfe.vocab import LABEL_NAMES
 
 
@@ -49,7 +49,8 @@ def summary_text(data, attrs):
     ok = status == STATUS_OK
     lines = [f"{M} records (scale {attrs.get('scale')}, seed {attrs.get('seed')}, amfe "
              f"{attrs.get('amfe_version')}, created {attrs.get('created')}): {int(ok.sum())} ok, "
-             f"{int(M - ok.sum())} failed; images {'x'.join(map(str, data['images'].shape[1:]))}"]
+             f"{int(M - ok.sum())} failed; images {'x'.join(map(str, data['images'].shape[1:]))}",
+             f"  labels made under {LABEL_RULES[label_rule(attrs)]} (docs/model.md, section 5)"]
     for n, key in failure_groups(status, data["reason"]):
         lines.append(f"  failed {n:5d} x {key}")
     if ok.any():

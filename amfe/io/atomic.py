@@ -12,12 +12,22 @@ A full disk (ENOSPC) or an exhausted quota (EDQUOT) becomes one AmfeError
 line, "no space left on DIR: ...", with the old file kept. HDF5 files are
 best written with :func:`atomic_write_h5` (built in memory): the HDF5 library
 handles a full disk badly (a segmentation fault at exit).
+
+Only a regular file (or a new name) is replaced. A symbolic link is kept and
+its target written (atomically, if a regular file). A FIFO or a character
+device (/dev/null, a terminal, /dev/stdout) is written through, as ``cat >``
+would, never replaced: the whole content is made in a temporary file first,
+then copied to it (to this process's own stdout or stderr on their file
+descriptors, so that ``-o /dev/stdout >> log`` appends). Block devices and
+sockets are refused (:func:`file_kind`).
 """
 import errno
 import json
 import os
 import re
+import shutil
 import socket
+import stat
 import sys
 import tempfile
 import time
@@ -162,6 +172,90 @@ def remove_stale_tmp(path, report=None, every_target=False):
     return removed
 
 
+WRITTEN_THROUGH = ("fifo", "character device")
+REFUSED = ("block device", "socket", "directory", "special file", "loop of symbolic links")
+
+
+def file_kind(path):
+    """What ``path`` names once symbolic links are followed: "missing", "regular", "fifo",
+    "character device", "block device", "socket", "directory", "special file" or "loop of
+    symbolic links"."""
+    try:
+        mode = os.stat(path).st_mode
+    except (FileNotFoundError, NotADirectoryError):
+        return "missing"
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            return "loop of symbolic links"
+        raise
+    for test, kind in ((stat.S_ISREG, "regular"), (stat.S_ISFIFO, "fifo"),
+                       (stat.S_ISCHR, "character device"), (stat.S_ISBLK, "block device"),
+                       (stat.S_ISSOCK, "socket"), (stat.S_ISDIR, "directory")):
+        if test(mode):
+            return kind
+    return "special file"
+
+
+def refuse_special(path, what=None):
+    """The :func:`file_kind` of an output ``path``; AmfeError if amfe must not write it (a
+    block device, a socket, a directory). what: how the message names it (default the path)."""
+    kind = file_kind(path)
+    if kind in REFUSED:
+        raise AmfeError(f"cannot write {what or path}: it is a {kind}; amfe writes regular "
+                        "files, FIFOs and character devices such as /dev/null")
+    return kind
+
+
+def own_stream(path):
+    """1 or 2 when ``path`` is this process's stdout or stderr (/dev/stdout, /proc/self/fd/2, or
+    the file either is redirected to), else None."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    for fd in (1, 2):
+        try:
+            other = os.fstat(fd)
+        except OSError:
+            continue
+        if (st.st_dev, st.st_ino) == (other.st_dev, other.st_ino):
+            return fd
+    return None
+
+
+def _write_through(path, write, by_name, check):
+    """Write a FIFO or character device ``path`` through (see the module's docstring)."""
+    with tempfile.TemporaryDirectory(prefix="amfe-out-") as scratch:
+        tmp = os.path.join(scratch, "out")
+        if by_name:
+            write(tmp)
+        else:
+            with open(tmp, "wb") as fh:
+                write(fh)
+        if check is not None:
+            check(tmp)
+        fd = own_stream(path)
+        try:
+            with open(tmp, "rb") as src:
+                if fd is not None:
+                    for stream in (sys.stdout, sys.stderr):   # what was printed comes first
+                        stream.flush()
+                    with os.fdopen(os.dup(fd), "wb") as dst:
+                        shutil.copyfileobj(src, dst)
+                else:
+                    with os.fdopen(os.open(path, os.O_WRONLY | os.O_NOCTTY), "wb") as dst:
+                        shutil.copyfileobj(src, dst)
+        except BrokenPipeError:
+            if fd == 1:
+                raise   # our own stdout's reader went away: the command ends quietly
+            raise AmfeError(f"cannot write {path}: its reader closed it") from None
+        except OSError as exc:
+            if exc.errno in _NO_SPACE:
+                raise NoSpaceError(f"no space left on {path}: the output could not be written "
+                                   f"to it ({exc.strerror})", path) from None
+            raise AmfeError(f"cannot write {path}: {exc.strerror or exc}") from None
+
+
 def fsync_dir(directory):
     """fsync a directory (makes renames in it durable); best effort."""
     try:
@@ -187,8 +281,18 @@ def atomic_write(path, write, by_name=False, check=None, clean=True):
     unless ``clean`` is False (a caller that sweeps the directory once instead).
     On any error the temporary file is removed and the error re-raised, a full
     disk as AmfeError "no space left on DIR"; an existing ``path`` is left as it was.
+    A symbolic link, a FIFO or a character device is written through, a block device or a
+    socket refused (see the module's docstring); an empty name is an AmfeError.
     """
     path = os.fspath(path)
+    if not path:
+        raise AmfeError("cannot write a file with an empty name")
+    kind = refuse_special(path)
+    if kind in WRITTEN_THROUGH or (kind == "regular" and os.path.islink(path)
+                                   and own_stream(path) is not None):
+        return _write_through(path, write, by_name, check)
+    if os.path.islink(path):   # keep the link: replace its target
+        path = os.path.realpath(path)
     directory = os.path.dirname(os.path.abspath(path))
     existed = os.path.exists(path)
     if clean:

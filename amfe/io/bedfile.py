@@ -19,7 +19,8 @@ import h5py
 import numpy as np
 
 from amfe.model.bed import Bed
-from amfe.model.bonds import check_shapes, validate_particles
+from amfe.model.bonds import check_shapes
+from amfe.model.material import check_material_names
 from amfe.model.memory import READ_BYTES, check_memory
 from amfe.model.torus import check_box
 from amfe.io.atomic import atomic_write
@@ -89,13 +90,24 @@ def write_bed(path, bed: Bed):
         raise AmfeError(f"cannot write {path}: {exc.strerror or exc}") from None
 
 
+def _name(h5name):
+    """An HDF5 object name as text (a damaged file can hold names that are not UTF-8)."""
+    return h5name.decode("utf-8", "replace") if isinstance(h5name, bytes) else h5name
+
+
+# What h5py raises for a damaged file or a dangling link, beyond OSError: RuntimeError
+# ("Unable to get link info"), KeyError (an external link to a missing file, an object header
+# past the end), ValueError (a damaged type, an attribute that is not UTF-8).
+DAMAGED = (OSError, RuntimeError, KeyError, ValueError)
+
+
 def _dataset(f, name, path):
     """The h5py dataset /name of a bed file, checked to hold real numbers (not read yet)."""
     if name not in f:
         have = []
         f.visit(have.append)
         raise AmfeError(f"{path} is not a bed file: it has no /{name} dataset "
-                        f"(it holds: {', '.join('/' + h for h in have) or 'nothing'}). "
+                        f"(it holds: {', '.join('/' + _name(h) for h in have) or 'nothing'}). "
                         f"A bed needs /{CENTERS} (N,3) and /{RADII} (N,) in m")
     obj = f[name]
     if not isinstance(obj, h5py.Dataset):
@@ -121,7 +133,9 @@ def check_attrs(attrs, path="the bed"):
 
     Reals must be finite real numbers, counts (seed, n_*) integers in
     [0, 2**64), size three positive lengths [m], enlargement two factors,
-    and generator, amfe_version, units, scan text.
+    and generator, amfe_version, units, scan text; and no attribute may look
+    like the material without being spelt as amfe reads it
+    (:func:`amfe.model.material.check_material_names`: material_e, E).
     """
     def bad(key, want):
         value = attrs[key]
@@ -146,6 +160,7 @@ def check_attrs(attrs, path="the bed"):
     for key in TEXT_ATTRS:
         if key in attrs and not isinstance(attrs[key], str):
             bad(key, "text")
+    check_material_names(attrs, path)
 
 
 def read_bed(path, max_memory=None) -> Bed:
@@ -186,10 +201,14 @@ def read_bed(path, max_memory=None) -> Bed:
             radii = np.asarray(r[()], dtype=np.float64)
     except OSError as exc:
         raise AmfeError(f"cannot read bed file {path}: {exc}") from None
+    except DAMAGED as exc:   # (an AmfeError is none of these: it passes as it is)
+        why = str(exc).strip("'\"") or type(exc).__name__   # KeyError's text comes quoted
+        raise AmfeError(f"cannot read bed file {path}: it is damaged or links to a file that "
+                        f"is missing ({why})") from None
     try:
-        centers, radii = validate_particles(centers, radii)
+        bed = Bed(centers=centers, radii=radii, attrs=attrs)  # checks the arrays
         if "periodic" in attrs:  # a periodic bed (docs/model.md, section 9)
-            check_box(attrs["periodic"], radii)
+            check_box(attrs["periodic"], bed.radii)
     except AmfeError as exc:
         raise AmfeError(f"{path}: {exc}") from None
-    return Bed(centers=centers, radii=radii, attrs=attrs)
+    return bed

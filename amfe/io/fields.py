@@ -1,7 +1,7 @@
 """Per-case fields of a solved frame as plain SI arrays: :class:`Fields` and :func:`frame_fields`.
 
 What ``homogenize(..., fields=True)`` returns and what the ParaView files
-(:mod:`amfe.io.vtp`, docs/viewing.md) hold. Particles are the kept
+(:mod:`amfe.io.vtu`, docs/viewing.md) hold. Particles are the kept
 (load-carrying) ones in input order, so ``particle_id`` is increasing and
 ``centers`` equals ``bed.centers[particle_id]`` bit for bit when the input
 arrays are given. Bond loads are those on particle i's end (the bond's first
@@ -136,8 +136,9 @@ def frame_fields(frame, u, groups, bc="kubc", centers=None, radii=None, strains=
     uj = u[:, b.j].copy()
     if frame.shift is not None:          # the image of j moves by the jump eps (s L) more
         uj[:, :, :3] += bond_jumps(frame, strains)
-    loads = [bond_end_loads(b.normal, b.d_i, b.d_j, frame.k_n, frame.k_t, frame.kappa_n,
-                            frame.kappa_t, uk[b.i], ujk) for uk, ujk in zip(u, uj)]
+    springs = (frame.k_n, frame.k_t, frame.kappa_n, frame.kappa_t)
+    loads = [bond_end_loads(b.normal, b.d_i, b.d_j, springs, uk[b.i], ujk)
+             for uk, ujk in zip(u, uj)]
 
     def stack(key, scale):
         return np.array([d[key] * scale for d in loads])
@@ -145,7 +146,8 @@ def frame_fields(frame, u, groups, bc="kubc", centers=None, radii=None, strains=
     subc = bc == "subc"
     return Fields(
         particle_id=ids,
-        centers=frame.centers[order] * L if centers is None else np.asarray(centers, float)[ids],
+        centers=(frame.centers[order] * L + frame.origin if centers is None
+                 else np.asarray(centers, float)[ids]),
         radii=frame.radii[order] * L if radii is None else np.asarray(radii, float)[ids],
         bonds=np.stack([rank[b.i], rank[b.j]], axis=1).astype(np.int64),
         a_star=np.asarray(b.a_star, dtype=float),

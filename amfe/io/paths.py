@@ -5,12 +5,14 @@ trains (:func:`check_output`, :func:`check_output_dir`): the directory must
 exist and take a new file (tried for real, which also catches /proc and
 read-only mounts), the path must not be a directory, and it must not be one
 of the command's inputs (``amfe homogenize bed.h5 -o bed.h5`` would otherwise
-replace the bed by its result).
+replace the bed by its result). A FIFO or a character device is accepted when
+writable (it is written through, amfe.io.atomic), a block device or a socket refused.
 """
 import os
 import tempfile
 
 from amfe.errors import AmfeError
+from amfe.io.atomic import WRITTEN_THROUGH, own_stream, refuse_special
 
 STDOUT = "-"
 
@@ -59,8 +61,20 @@ def check_output(path, *, inputs=(), option="-o", allow_stdout=False):
         if inp is not None and _same_file(path, os.fspath(inp)):
             raise AmfeError(f"{option} {path} is also an input of this command: writing it "
                             "would destroy the input; choose another output file")
-    _probe_directory(os.path.dirname(os.path.abspath(path)), what)
+    if refuse_special(path, what) in WRITTEN_THROUGH:   # written through, not replaced: no probe
+        if not os.access(path, os.W_OK):
+            raise AmfeError(f"cannot write {what}: permission denied")
+        return path
+    # a symbolic link's target is what gets replaced
+    _probe_directory(os.path.dirname(os.path.realpath(path)), what)
     return path
+
+
+def is_stdout(path):
+    """True when the output ``path`` is standard output: ``-``, or /dev/stdout and its kin
+    (this process's stdout, reached by a link)."""
+    path = os.fspath(path)
+    return path == STDOUT or (os.path.islink(path) and own_stream(path) == 1)
 
 
 def check_output_dir(path, *, option="--vtu"):
@@ -71,6 +85,8 @@ def check_output_dir(path, *, option="--vtu"):
     """
     path = os.fspath(path)
     what = f"{option} {path}"
+    if path == "":
+        raise AmfeError(f"{option} needs a directory name, got ''")
     if os.path.exists(path):
         if not os.path.isdir(path):
             raise AmfeError(f"cannot write {what}: it exists and is not a directory")

@@ -6,6 +6,7 @@
 conventions), then the constants and the solver record; it follows the
 shipped JSON Schema. Arrays are numpy; units are SI (Pa, 1/Pa, m^3, m, N).
 """
+import os
 from dataclasses import dataclass, field, fields as dc_fields
 
 import numpy as np
@@ -14,7 +15,7 @@ from amfe.errors import AmfeError
 from amfe.io.atomic import write_json
 from amfe.io.fields import Fields
 from amfe.io.result_meta import HEADER_KEYS, SCHEMA_VERSION
-from amfe.io.vtp import write_fields_vtp
+from amfe.io.vtu import write_fields_vtu
 from amfe.vocab import CONSTANT_NAMES, CONSTANT_UNITS
 
 __all__ = ["Result", "Fields", "SCHEMA_VERSION"]
@@ -79,22 +80,36 @@ class Result:
         return d
 
     def to_json(self, path):
-        """Write :meth:`to_dict` to ``path`` atomically (a reader never sees half a file)."""
-        write_json(path, self.to_dict())
+        """Write :meth:`to_dict` to ``path`` atomically (a reader never sees half a file).
 
-    def write_vtp(self, directory):
-        """ParaView files: ``case_<name>.vtp`` per load case and ``cases.pvd`` in ``directory``.
+        AmfeError, naming the path, for a directory, a path that is not a
+        file name, and one that cannot be written (no permission, no such
+        directory and none can be made, a full disk).
+        """
+        if not isinstance(path, (str, os.PathLike)) or os.fspath(path) in ("", b""):
+            raise AmfeError(f"Result.to_json: path must be a file name (str or path-like), got "
+                            f"{type(path).__name__} {path!r}")
+        if os.path.isdir(path):
+            raise AmfeError(f"Result.to_json: {os.fspath(path)} is a directory; give a file name "
+                            f"(e.g. {os.path.join(os.fspath(path), 'result.json')})")
+        try:
+            write_json(path, self.to_dict())
+        except OSError as exc:
+            raise AmfeError(f"cannot write {os.fspath(path)}: {exc.strerror or exc}") from None
 
-        Needs ``fields=True``; the layout is in :mod:`amfe.io.vtp` and
-        docs/viewing.md. Returns the paths, the ``.pvd`` last.
+    def write_vtu(self, directory):
+        """ParaView files: ``case_<name>.vtu`` per load case, ``cases.json`` and ``cases.pvd``.
+
+        Needs ``fields=True``; the layout is in :mod:`amfe.io.vtu` and
+        docs/viewing.md. Returns the case files' paths, the ``.pvd`` last.
         """
         if self.fields is None:
             raise AmfeError("this result holds no fields: homogenize with fields=True "
                             "to write ParaView files")
-        return write_fields_vtp(directory, self.fields)
+        return write_fields_vtu(directory, self.fields)
 
-    #: The name of :meth:`write_vtp` before amfe wrote PolyData (``.vtp``) files.
-    write_vtu = write_vtp
+    #: amfe 0.2's name of :meth:`write_vtu` (it wrote ``.vtp`` files then).
+    write_vtp = write_vtu
 
     def __repr__(self):
         lines = [f"Result(bc={self.bc!r}, {self.n_particles} particles "

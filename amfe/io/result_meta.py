@@ -18,8 +18,9 @@ from amfe.version import __version__
 from amfe.vocab import CASE_NAMES
 
 #: Version of the JSON layout; bumped when a key changes meaning or goes away, or a
-#: required key is added (3: the self-describing header of this module).
-SCHEMA_VERSION = 3
+#: required key is added (3: the self-describing header of this module; 4: volume is the
+#: bed's box and n_removed counts the pieces the condition does not load, issue 30).
+SCHEMA_VERSION = 4
 SCHEMA_FILE = "result_schema.json"
 POISSON_CONVENTION = ("nu_ij = -S_ji / S_ii: lateral strain in j over axial strain in i under "
                       "uniaxial stress in i (nu_yz = -S_zy / S_yy, nu_xz = -S_zx / S_xx, "
@@ -95,7 +96,7 @@ def homogenize_header(frame, centers, radii, material):
     n_lost = 0
     if removed.sum() > 1:
         scale = frame.length_scale
-        n_lost = find_pairs(np.asarray(centers)[removed] / scale,
+        n_lost = find_pairs((np.asarray(centers)[removed] - frame.origin) / scale,
                             np.asarray(radii)[removed] / scale)[0].size
     out["counts"].update(particles_kept=int(frame.n_particles),
                          bonds_input=int(len(frame.bonds) + n_lost),

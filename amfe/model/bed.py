@@ -8,6 +8,7 @@ every bed it emits is valid for the springs of paper eqs. 1-4: bonds past a
 stated a*_max are removed by shrinking radii (:func:`limit_a_star`).
 """
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -15,10 +16,10 @@ import numpy as np
 from amfe.version import __version__
 from amfe.model.bonds import bonded_among, contact_geometry, find_bonds, validate_particles
 from amfe.errors import AmfeError
-from amfe.model.material import STEEL, Material, material_from_attrs
+from amfe.model.material import STEEL, material_from_attrs
 from amfe.model.memory import check_memory, generation_bytes, lattice_counts
-from amfe.model.scanpath import ScanPath, scanned_mask
-from amfe.model.springs import critical_a_star
+from amfe.model.bedparams import SEED_LIMIT, BedParams, check_seed  # noqa: F401 - re-exported
+from amfe.model.scanpath import scanned_mask
 from amfe.model.torus import find_periodic_bonds, periodic_hcp_lattice, snap_box, wrap
 
 SQRT3 = math.sqrt(3.0)
@@ -38,7 +39,11 @@ class Bed:
     attrs: dict = field(default_factory=dict)
 
     def __post_init__(self):
+        # the one place a bed's arrays are checked: below the face nothing checks them again
         self.centers, self.radii = validate_particles(self.centers, self.radii)
+        if not isinstance(self.attrs, Mapping) or not all(isinstance(k, str) for k in self.attrs):
+            raise AmfeError(f"Bed attrs must be a dict with str keys, got "
+                            f"{type(self.attrs).__name__} {self.attrs!r}"[:300])
         self.attrs = dict(self.attrs)
 
     def __len__(self):
@@ -175,38 +180,6 @@ def limit_a_star(centers, radii, a_star_max, max_passes=50, box=None):
                     f"{bonds.a_star[bad].max():.6f}); lower the enlargement or the jitter")
 
 
-SEED_LIMIT = 2**64
-"""Seeds lie in [0, 2**64): one word of numpy's SeedSequence, and what an HDF5
-attribute (uint64) can hold, so every bed's seed can be written with it."""
-
-
-def check_seed(seed, name="seed"):
-    """``seed`` as an int if it is an integer in [0, 2**64), else AmfeError."""
-    if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)):
-        raise AmfeError(f"{name} must be an integer in [0, 2**64), got {type(seed).__name__} "
-                        f"{seed!r}")
-    if not 0 <= int(seed) < SEED_LIMIT:
-        raise AmfeError(f"{name} must lie in [0, 2**64) = [0, {SEED_LIMIT - 1}], got {seed}")
-    return int(seed)
-
-
-def _check_number(name, value, lo=None, hi=None, lo_open=False, hi_open=False, unit=""):
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise AmfeError(f"{name} must be a number, got {value!r}") from None
-    bad = not math.isfinite(v)
-    if lo is not None:
-        bad |= (v <= lo) if lo_open else (v < lo)
-    if hi is not None:
-        bad |= (v >= hi) if hi_open else (v > hi)
-    if bad:
-        rng = ("(" if lo_open else "[") + f"{lo if lo is not None else '-inf'}, " \
-            + f"{hi if hi is not None else 'inf'}" + (")" if hi_open else "]")
-        raise AmfeError(f"{name} must be finite and lie in {rng}{unit}, got {value!r}")
-    return v
-
-
 def generate_bed(size=(250e-6, 250e-6, 100e-6), *, mean_radius=12.5e-6,
                  enlargement=(1.05, 1.14), jitter=0.025, layer_thickness=100e-6,
                  scan=None, seed=0, a_star_max=0.98, material=STEEL, periodic=False,
@@ -268,36 +241,12 @@ def generate_bed(size=(250e-6, 250e-6, 100e-6), *, mean_radius=12.5e-6,
     box, also its size), periodic_requested, periodic_snap (L - requested),
     periodic_periods, periodic_offset.
     """
-    try:
-        size = tuple(float(s) for s in size)
-    except (TypeError, ValueError):
-        raise AmfeError(f"size must be three lengths (Lx, Ly, Lz) in m, got {size!r}") from None
-    if len(size) != 3 or not all(math.isfinite(s) and s > 0 for s in size):
-        raise AmfeError(f"size must be three positive finite lengths (Lx, Ly, Lz) in m, got {size}")
-    mean_radius = _check_number("mean radius", mean_radius, lo=0.0, lo_open=True, unit=" m")
-    try:
-        lo_f, hi_f = (float(e) for e in enlargement)
-    except (TypeError, ValueError):
-        raise AmfeError(f"enlargement must be two factors (lo, hi), got {enlargement!r}") from None
-    if not (math.isfinite(lo_f) and math.isfinite(hi_f) and 1.0 <= lo_f <= hi_f < math.sqrt(2.0)):
-        raise AmfeError(f"enlargement must satisfy 1 <= lo <= hi < sqrt(2) = 1.414, got "
-                        f"lo={lo_f}, hi={hi_f} (below 1 the particles do not touch; from sqrt(2) "
-                        "on second lattice neighbours overlap)")
-    jitter = _check_number("jitter", jitter, lo=0.0, hi=0.5, hi_open=True, unit=" (fraction of R)")
-    layer_thickness = _check_number("powder layer thickness", layer_thickness, lo=0.0,
-                                    lo_open=True, unit=" m")
-    seed = check_seed(seed)
-    if skip_seed is not None:
-        skip_seed = check_seed(skip_seed, "skip_seed")
-    if not isinstance(material, Material):
-        raise AmfeError(f"material must be an amfe.model.material.Material, got {type(material).__name__}")
-    crit = critical_a_star(material.nu, material.psi)
-    a_star_max = _check_number("a* max", a_star_max, lo=0.0, hi=crit, lo_open=True, hi_open=True,
-                               unit=f" (the critical a* is {crit:.6f} for nu={material.nu}, "
-                                    f"psi={material.psi})")
-    if scan is not None and not isinstance(scan, ScanPath):
-        raise AmfeError(f"scan must be an amfe.model.scanpath.ScanPath or None, got {type(scan).__name__}")
-
+    p = BedParams(size, mean_radius, enlargement, jitter, layer_thickness, scan, seed,
+                  a_star_max, material, periodic, offset, max_memory, skip_seed)  # checked
+    size, mean_radius, (lo_f, hi_f), jitter = p.size, p.mean_radius, p.enlargement, p.jitter
+    layer_thickness, scan, seed, a_star_max = p.layer_thickness, p.scan, p.seed, p.a_star_max
+    material, skip_seed, periodic, max_memory = p.material, p.skip_seed, p.periodic, p.max_memory
+    offset = p.offset
     r0 = mean_radius / (0.5 * (lo_f + hi_f))
     n_sites = lattice_counts(size, r0)[1]
     check_memory(generation_bytes(size, r0), max_memory,
@@ -333,6 +282,20 @@ def generate_bed(size=(250e-6, 250e-6, 100e-6), *, mean_radius=12.5e-6,
     radii, n_shrunk, passes = limit_a_star(centers, radii, a_star_max,
                                            box=box if periodic else None)
 
+    attrs = _attrs(p, size, r0, n_lattice, centers.shape[0], n_shrunk, passes)
+    if periodic:
+        attrs.update({"periodic": list(size), "periodic_requested": list(requested),
+                      "periodic_snap": moved.tolist(), "periodic_periods": counts.tolist(),
+                      "periodic_offset": offset.tolist()})
+    return Bed(centers=centers, radii=radii, attrs=attrs)
+
+
+def _attrs(p, size, r0, n_lattice, n_kept, n_shrunk, passes):
+    """The attrs of a generated bed (see :func:`generate_bed`); p: its :class:`BedParams`,
+    size: the box (snapped, for a periodic bed) [m]."""
+    mean_radius, (lo_f, hi_f), jitter = p.mean_radius, p.enlargement, p.jitter
+    layer_thickness, scan, seed, a_star_max = p.layer_thickness, p.scan, p.seed, p.a_star_max
+    material, skip_seed, crit = p.material, p.skip_seed, p.a_star_critical
     attrs = {
         "generator": "amfe.hcp",
         "amfe_version": __version__,
@@ -358,12 +321,8 @@ def generate_bed(size=(250e-6, 250e-6, 100e-6), *, mean_radius=12.5e-6,
         "a_star_max": a_star_max,
         "a_star_critical": crit,
         "n_lattice": int(n_lattice),
-        "n_scanned_out": int(n_lattice - centers.shape[0]),
+        "n_scanned_out": int(n_lattice - n_kept),
         "n_shrunk": n_shrunk,
         "shrink_passes": passes,
     })
-    if periodic:
-        attrs.update({"periodic": list(size), "periodic_requested": list(requested),
-                      "periodic_snap": moved.tolist(), "periodic_periods": counts.tolist(),
-                      "periodic_offset": offset.tolist()})
-    return Bed(centers=centers, radii=radii, attrs=attrs)
+    return attrs

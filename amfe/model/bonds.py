@@ -18,9 +18,15 @@ LENGTH_RANGE = (1e-60, 1e60)
 """Radii and coordinates must lie in this range (in the caller's length unit, SI: m):
 contact radii go through R^4 (Heron's form), which under- or overflows float64
 beyond about 1e-75 and 1e75."""
-MAX_REACH = 1e12
-"""Centres may lie at most this many mean radii from the origin: farther out,
-float64 positions no longer resolve the overlaps (1e12 R leaves 1e-4 R)."""
+MAX_REACH = 1e9
+"""Centres may lie at most this many mean radii from the origin. The frame is
+built about the bed's own middle (:func:`amfe.model.frame.frame_origin`), so
+no arithmetic is lost far out; but the stored coordinates themselves carry
+only 2.2e-16 x their size, and that rounding moves the constants by about
+(2-8)e-16 x the distance in mean radii. Measured on three generated beds
+(28-210 particles, Cholesky, moved along x, y, z and the diagonal): at most
+4.2e-7 at 1e9 R, 4.5e-6 at 1e10 R, 8.5e-5 at 1e11 R; 1e9 keeps it a
+twentieth of the solver's 1e-5 contract (docs/hard_cases.md)."""
 
 
 def real_array(value, name):
@@ -84,21 +90,68 @@ def _check_lengths(centers, radii):
                         + _list_items(f"{k} (R={radii[k]:.3g})" for k in bad)
                         + "; float64 cannot carry such lengths through the contact geometry. "
                         "Check the unit of the bed's lengths")
-    reach = np.abs(centers).max(axis=1) / radii.mean()
+    with np.errstate(over="ignore"):   # 1e300 / 1e-60: inf, refused below
+        reach = np.abs(centers).max(axis=1) / radii.mean()
     bad = np.flatnonzero(reach > MAX_REACH)
     if bad.size:
         raise AmfeError(f"{bad.size} centres lie more than {MAX_REACH:g} mean radii from the "
-                        "origin, where float64 positions no longer resolve the overlaps: "
+                        "origin, beyond which float64 stores positions to worse than 2e-7 of a "
+                        "radius and the constants move by more than 1e-6 with the rounding: "
                         + _list_items(f"{k} ({reach[k]:.3g} mean radii)" for k in bad)
                         + ". Check the coordinates and their unit, or move the bed to the origin")
+
+
+COINCIDENT = 1e-12
+"""Centres closer than this times the larger radius coincide (L = 0 for the contact geometry)."""
+
+
+def coincident_error(i, j):
+    """The AmfeError naming the pairs (i, j) (two (M,) int arrays) of coincident centres."""
+    return AmfeError(f"{i.size} pairs of particles have coincident centres: "
+                     + _list_items(f"({a}, {b})" for a, b in zip(i, j))
+                     + ". Remove the duplicates from the bed.")
+
+
+def check_coincident(centers, radii):
+    """AmfeError if centres coincide, in O(N log N) time and O(N) memory.
+
+    The KD-tree of :func:`find_pairs` would list every pair of a pile of k
+    coincident particles (k^2 / 2: 3 000 of them took 12 s and 0.8 GB, 300 000
+    never finished) before :func:`contact_geometry` refused the first. Here the
+    centres are rounded to a grid of COINCIDENT x the largest radius and sorted
+    by cell: each particle whose cell holds an earlier one is paired with the
+    first of that cell, and the pair is refused if it passes the exact test of
+    :func:`contact_geometry`. A near pair split by a cell boundary is left to
+    that test (there are few: a pile of them shares a cell).
+    """
+    cell = np.floor(centers / (COINCIDENT * float(radii.max())))
+    order = np.lexsort(cell.T[::-1])
+    c = cell[order]
+    same = np.flatnonzero((c[1:] == c[:-1]).all(axis=1)) + 1   # positions whose cell repeats
+    if same.size == 0:
+        return
+    start = np.arange(order.size)   # first position of each run of equal cells
+    first = np.ones(order.size, bool)
+    first[same] = False
+    start = np.maximum.accumulate(np.where(first, start, 0))
+    a, b = order[start[same]], order[same]
+    i, j = np.minimum(a, b), np.maximum(a, b)
+    d = centers[j] - centers[i]
+    near = np.sqrt(np.einsum("ij,ij->i", d, d)) <= COINCIDENT * np.maximum(radii[i], radii[j])
+    if near.any():
+        i, j = i[near], j[near]
+        key = np.lexsort((j, i))
+        raise coincident_error(i[key], j[key])
 
 
 def find_pairs(centers, radii):
     """Bonded pairs (i, j), i < j, as two (M,) int64 arrays sorted by (i, j).
 
     A KD-tree proposes pairs closer than twice the largest radius; the exact
-    test L < R_i + R_j keeps the bonds.
+    test L < R_i + R_j keeps the bonds. Coincident centres are refused first
+    (:func:`check_coincident`): a pile of them would make the candidate list quadratic.
     """
+    check_coincident(centers, radii)
     tree = cKDTree(centers)
     pairs = tree.query_pairs(r=2.0 * float(radii.max()), output_type="ndarray")
     if pairs.size == 0:
@@ -164,11 +217,9 @@ def contact_geometry(centers, radii, i, j, offset=None):
     Ri, Rj = radii[i], radii[j]
     branch = centers[j] - centers[i] if offset is None else centers[j] + offset - centers[i]
     L = np.sqrt(np.einsum("ij,ij->i", branch, branch))
-    tiny = L <= 1e-12 * np.maximum(Ri, Rj)
+    tiny = L <= COINCIDENT * np.maximum(Ri, Rj)
     if tiny.any():
-        raise AmfeError(f"{int(tiny.sum())} pairs of particles have coincident centres: "
-                        + _list_items(f"({a}, {b})" for a, b in zip(i[tiny], j[tiny]))
-                        + ". Remove the duplicates from the bed.")
+        raise coincident_error(i[tiny], j[tiny])
     d_i = (L**2 + Ri**2 - Rj**2) / (2.0 * L)
     d_j = L - d_i
     inside = (d_i <= 0) | (d_j <= 0)
@@ -185,8 +236,9 @@ def contact_geometry(centers, radii, i, j, offset=None):
 
 
 def find_bonds(centers, radii):
-    """Validate the particles, detect the bonds and return their :class:`Bonds`."""
-    centers, radii = validate_particles(centers, radii)
+    """The :class:`Bonds` of checked particles (a :class:`~amfe.model.bed.Bed`'s arrays:
+    :func:`validate_particles` ran when it was made)."""
+    centers, radii = np.asarray(centers, float), np.asarray(radii, float)
     i, j = find_pairs(centers, radii)
     return contact_geometry(centers, radii, i, j)
 

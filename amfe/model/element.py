@@ -119,7 +119,7 @@ def local_frames(normal, reference=None):
     return np.stack([e, y, z], axis=1)
 
 
-def bond_end_loads(normal, d_i, d_j, k_n, k_t, kappa_n, kappa_t, u_i, u_j):
+def bond_end_loads(normal, d_i, d_j, springs, u_i, u_j):
     """Force and moment vectors a bond puts on particle i's end, and their split.
 
     Minus the gradient of the energy 1/2 D.Du.D + 1/2 Dr.Dth.Dr (module
@@ -140,10 +140,9 @@ def bond_end_loads(normal, d_i, d_j, k_n, k_t, kappa_n, kappa_t, u_i, u_j):
         Unit vectors e from particle i to particle j.
     d_i, d_j : ndarray (M,)
         Lever arms: centre of i (of j) to the contact point [length].
-    k_n, k_t : ndarray (M,)
-        Normal and shear spring stiffness [force / length].
-    kappa_n, kappa_t : ndarray (M,)
-        Torsion and bending spring stiffness [force * length].
+    springs : (k_n, k_t, kappa_n, kappa_t), each ndarray (M,)
+        Normal and shear spring stiffness [force / length], torsion and bending
+        spring stiffness [force * length].
     u_i, u_j : ndarray (M, 6)
         DOFs (u_x, u_y, u_z, theta_x, theta_y, theta_z) of the two ends [length, rad].
 
@@ -157,6 +156,7 @@ def bond_end_loads(normal, d_i, d_j, k_n, k_t, kappa_n, kappa_t, u_i, u_j):
         ``bending`` (M,) [force * length]: magnitude of c normal to e.
     """
     e = np.asarray(normal, dtype=float)
+    k_n, k_t, kappa_n, kappa_t = springs
     u_i, u_j = np.asarray(u_i, dtype=float), np.asarray(u_j, dtype=float)
     d_i, d_j = np.asarray(d_i, dtype=float)[:, None], np.asarray(d_j, dtype=float)[:, None]
     k_n, k_t, kappa_n, kappa_t = (np.asarray(v, dtype=float) for v in (k_n, k_t, kappa_n, kappa_t))
@@ -204,13 +204,14 @@ def particle_resultants(n, i, j, normal, length, force_i, moment_i):
     return force, moment
 
 
-def bond_forces(normal, d_i, d_j, k_n, k_t, kappa_n, kappa_t, u_i, u_j):
-    """Spring resultants of M bonds under particle DOFs u_i, u_j (M,6).
+def bond_forces(normal, d_i, d_j, springs, u_i, u_j):
+    """Spring resultants of M bonds under particle DOFs u_i, u_j (M,6); springs: (k_n, k_t,
+    kappa_n, kappa_t), each (M,) (:func:`bond_end_loads`).
 
     Returns (axial (M,), shear (M,), moment (M,)): the normal spring force
     (positive in tension) [force], the magnitude of the shear force at the
     contact point [force], and the magnitude of the torsion+bending couple
     [force*length] (the scalars of :func:`bond_end_loads`).
     """
-    loads = bond_end_loads(normal, d_i, d_j, k_n, k_t, kappa_n, kappa_t, u_i, u_j)
+    loads = bond_end_loads(normal, d_i, d_j, springs, u_i, u_j)
     return loads["axial"], loads["shear"], np.hypot(loads["torsion"], loads["bending"])

@@ -1,23 +1,25 @@
 """The load-carrying space frame of a bed, non-dimensionalised (docs/model.md, sections 1 and 5).
 
-Only what carries load is modelled: the bond graph's largest connected
-component is kept and every other particle is dropped before anything else.
+Only what carries load is modelled: the bond graph's components that the
+boundary condition loads and holds (:mod:`amfe.model.carrying`) are kept and
+every other particle is dropped before anything else. V is the bed's own box
+(:func:`amfe.model.carrying.bed_box`), not the hull of the kept centres.
 Lengths are divided by the mean input radius ``length_scale`` and forces by
 ``force_scale = E * length_scale**2``; then k_n, k_t and kappa_n, kappa_t are
 all O(1) instead of ~1e5 N/m against ~1e-5 N m, which keeps the global matrix
 well scaled for the iterative solver and makes results independent of the
 caller's unit system.
 """
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
-from amfe.model.bonds import Bonds, bond_springs, contact_geometry, find_pairs, validate_particles
+from amfe.model.bonds import Bonds, bond_springs, contact_geometry, find_pairs
 from amfe.errors import AmfeError
 from amfe.model.material import STEEL, Material
-from amfe.model.torus import check_box, find_periodic_pairs, spanning_images, winding_rank, wrap
+from amfe.model.carrying import (bed_box, component_labels, kubc_held, periodic_winding,
+                                 removed_report, subc_spanning)
+from amfe.model.torus import check_box, find_periodic_pairs, wrap
 
 
 @dataclass
@@ -32,7 +34,13 @@ class Frame:
     n_capped: bonds whose a* was capped; length_scale [m]; force_scale [N].
     A periodic frame (docs/model.md, section 9) also has box (3,) [length_scale]:
     the periods, and shift (M,3) int: bond b joins i to the image of j at
-    x_j + shift_b * box; both are None otherwise.
+    x_j + shift_b * box; both are None otherwise. origin (3,) [m]: where the
+    frame's zero lies in the input's coordinates (:func:`frame_origin`):
+    input centre = centers * length_scale + origin; size (3,) [length_scale]: the
+    bed's box, volume = its product [length_scale^3], V of every average;
+    parts (n,) int: the kept component (0..k-1) of each particle; removed: the
+    report of :func:`amfe.model.carrying.removed_report`; box_note: why the
+    recorded size was not V's box (None when it was, or there was none).
     """
 
     centers: np.ndarray
@@ -50,6 +58,16 @@ class Frame:
     material: Material
     box: np.ndarray = None
     shift: np.ndarray = None
+    origin: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    size: np.ndarray = None
+    parts: np.ndarray = None
+    removed: dict = None
+    box_note: str = None
+
+    @property
+    def volume(self):
+        """V [length_scale^3]: the bed's box (docs/model.md, section 5)."""
+        return float(np.prod(self.size))
 
     @property
     def n_particles(self):
@@ -77,17 +95,6 @@ def morton_order(points, bits=10):
     return np.argsort(code, kind="stable")
 
 
-def largest_component(n, i, j):
-    """Boolean mask (n,) of the largest connected component of the graph (i, j).
-
-    Ties go to the component holding the lowest particle index.
-    """
-    graph = coo_matrix((np.ones(i.size), (i, j)), shape=(n, n))
-    _, labels = connected_components(graph, directed=False)
-    sizes = np.bincount(labels)
-    return labels == np.argmax(sizes)
-
-
 def _check_spans_volume(x, mean_radius):
     """AmfeError when the centres x (n,3) lie within one mean radius of a plane or a line.
 
@@ -108,23 +115,28 @@ def _check_spans_volume(x, mean_radius):
 
 
 def build_frame(centers, radii, material: Material = STEEL, a_star_cap=None, nondimensional=True,
-                box=None):
-    """The largest connected, non-dimensionalised frame of a bed.
+                box=None, bc="kubc", size=None):
+    """The load-carrying, non-dimensionalised frame of a bed under condition ``bc``.
 
-    centers (N,3) [m], radii (N,) [m]. Raises AmfeError for invalid particles,
-    degenerate contacts, a bed without bonds, a load-carrying part too small to
+    centers (N,3) [m], radii (N,) [m]: a :class:`~amfe.model.bed.Bed`'s arrays, checked
+    when it was made. Raises AmfeError for degenerate contacts, a bed without bonds, a load-carrying part too small to
     span a volume, or (unless ``a_star_cap`` is given) bonds at or past the
     critical a* (see :func:`amfe.model.bonds.bond_springs`).
     ``nondimensional=False`` keeps SI units (length_scale = force_scale = 1):
     only for showing what the scaling buys. ``box`` (3,) [m]: the bed is
     periodic with these periods (docs/model.md, section 9): bonds by minimum
-    image, the largest component on the torus, which must wrap round it in x,
-    y and z (else it carries no macro-stress along some axis: an error).
+    image, the components that wind round the torus, which together must wrap
+    round it in x, y and z (else no macro-stress along some axis: an error).
+    bc: "kubc", "mixed" or "subc" picks the finite rule of
+    :mod:`amfe.model.carrying` (mixed: one held piece at most). size (3,) [m]:
+    the bed's recorded box (attrs ``size``); V is its volume, else that of the
+    load-carrying spheres' bounding box (a periodic bed: the periods).
     """
-    centers, radii = validate_particles(centers, radii)
+    centers, radii = np.asarray(centers, float), np.asarray(radii, float)  # checked (a Bed's)
     n_input = centers.shape[0]
     length = float(radii.mean()) if nondimensional else 1.0
-    x = centers / length
+    origin = np.zeros(3) if box is not None else frame_origin(centers)
+    x = (centers - origin) / length
     r = radii / length
 
     if box is None:
@@ -138,12 +150,20 @@ def build_frame(centers, radii, material: Material = STEEL, a_star_cap=None, non
         raise AmfeError(f"the bed has no bonds: none of its {n_input} particles overlap "
                         "(bonded means |x_j - x_i| < R_i + R_j)")
     contact_geometry(x, r, i, j, None if box is None else shift * L)  # errors anywhere in the bed
-    keep = largest_component(n_input, i, j)
+    labels = component_labels(n_input, i, j)
+    ids = _carrying(x, r, i, j, shift, L, labels, bc)
+    keep = np.isin(labels, ids)
     kept = np.flatnonzero(keep)
     if kept.size < 4:
-        raise AmfeError(f"the largest bonded cluster has only {kept.size} particles; "
+        raise AmfeError(f"the load-carrying part of the bed has only {kept.size} particles; "
                         "at least 4 non-coplanar centres are needed to span a volume")
     kept = kept[morton_order(x[kept])]
+    parts = np.searchsorted(ids, labels[kept])
+    removed = removed_report(x, r, labels, ids, n_input)
+    size_f, box_note = L, None                       # periodic: the periods
+    if box is None:                                  # in SI, then in frame units
+        size_f, box_note = bed_box(centers, radii, size, kept)
+        size_f = size_f / length
     new_index = np.full(n_input, -1, np.int64)
     new_index[kept] = np.arange(kept.size)
     both = keep[i]  # a bond lies in the component iff either end does
@@ -152,7 +172,6 @@ def build_frame(centers, radii, material: Material = STEEL, a_star_cap=None, non
     order = np.lexsort((hi, lo))
     if box is not None:  # a reversed bond joins the image at -shift
         shift = np.where((bi > bj)[:, None], -shift[both], shift[both])[order]
-        _check_winding(kept.size, lo[order], hi[order], shift)
     x, r = x[kept], r[kept]
     extent = (x.max(axis=0) - x.min(axis=0)) / r.mean()  # in mean radii
     if extent.min() < 1.0:
@@ -170,12 +189,43 @@ def build_frame(centers, radii, material: Material = STEEL, a_star_cap=None, non
     return Frame(centers=x, radii=r, kept=kept, bonds=bonds, k_n=k_n, k_t=k_t,
                  kappa_n=kappa_n, kappa_t=kappa_t, n_input=n_input, n_capped=n_capped,
                  length_scale=length, force_scale=material.E / E * length**2, material=material,
-                 box=L, shift=shift)
+                 box=L, shift=shift, size=size_f, parts=parts, removed=removed,
+                 box_note=box_note, origin=origin)
 
 
-def _check_winding(n, i, j, shift):
-    rank = winding_rank(spanning_images(n, i, j, shift)[1])
-    if rank < 3:
-        raise AmfeError(f"the load-carrying cluster of the periodic bed wraps round the torus in "
-                        f"only {rank} of 3 independent directions: it does not percolate, so it "
-                        "carries no macro-stress along the others; use a denser bed")
+FAR = 4.0
+"""A bed is built about its own middle along an axis where it lies at least this many of its
+own extents from zero (closer, positions near zero lose at most a few bits anyway)."""
+
+
+def frame_origin(centers):
+    """(3,) [m]: the origin the frame is built about, so that centre - origin is exact.
+
+    The constants do not depend on where a bed lies, but float64 arithmetic on
+    positions far from zero does (x - x_c, the Bagi sums, the hull): a bed
+    translated by 1e7 m moved its constants by 2e-4 that way
+    (docs/hard_cases.md). So along an axis where every centre lies at least
+    :data:`FAR` extents from zero, the origin is the middle m of the centres'
+    range; every centre c then lies in [m/2, 2m] and c - m is exact
+    (Sterbenz's lemma): the frame is that of the stored coordinates. Along
+    the other axes it is 0, so a bed at or around zero (a generated one, in
+    [0, L]) keeps the very numbers of before.
+    """
+    lo, hi = centers.min(axis=0), centers.max(axis=0)
+    near = np.where(lo > 0, lo, np.where(hi < 0, -hi, 0.0))   # the smallest |c| per axis
+    far = (near > 0) & (near >= FAR * (hi - lo))
+    return np.where(far, lo + (hi - lo) / 2, 0.0)
+
+
+def _carrying(x, r, i, j, shift, box, labels, bc):
+    """Sorted ids of the components that carry load under ``bc`` (docs/model.md, section 5)."""
+    if box is not None:
+        return periodic_winding(x.shape[0], i, j, shift, labels)
+    if bc == "subc":
+        return subc_spanning(x, r, labels)
+    ids = kubc_held(x, r, labels)
+    if bc == "mixed" and ids.size > 1:
+        raise AmfeError(f"mixed conditions: the bed has {ids.size} separate load-carrying pieces; "
+                        "the grips of the paper's experiments hold one frame (each piece would "
+                        "keep its own free rigid motions): use --bc kubc")
+    return ids

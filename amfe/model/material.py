@@ -6,6 +6,9 @@ material_psi) is therefore complete or absent: :func:`material_from_attrs`
 refuses a partial one, naming what is missing, instead of falling back to
 steel. :func:`resolve_material` adds values given explicitly (the command
 line's --E, --nu, --psi) and says where each came from.
+:func:`check_material_names` refuses an attribute amfe would not read but a
+reader would take for the material (material_e, Material_NU, E): ignored, it
+would leave the bed solved as steel.
 """
 import math
 from dataclasses import dataclass, asdict
@@ -61,6 +64,47 @@ STEEL = Material()
 """The paper's powder (Table 1): E = 210 GPa, nu = 0.28, psi = 0.08, 7800 kg/m^3."""
 
 
+MATERIAL_ATTRS = tuple(f"material_{k}" for k in ELASTIC + ("density",))
+"""The bed attributes that hold the material, spelt exactly so (the case matters)."""
+
+
+def _squash(name):
+    """``name`` lower-cased without separators: 'Material-E' and 'material_e' -> 'materiale'."""
+    return "".join(ch for ch in str(name).lower() if ch.isalnum())
+
+
+# squashed look-alike -> the attribute meant ("E" alone is a common name for the modulus)
+_LOOK_ALIKES = {**{_squash(k): k for k in MATERIAL_ATTRS},
+                **{_squash(k): f"material_{k}" for k in ELASTIC}}
+
+
+def check_material_names(attrs, where="the bed"):
+    """AmfeError for attributes of ``attrs`` that look like the material but are not read.
+
+    That is a spelling of material_E, material_nu, material_psi or
+    material_density other than the exact one (another case, '-' or no
+    separator, or E, nu, psi without the prefix), or another number named
+    material*. amfe reads the exact names only; such an attribute would be
+    ignored and the bed solved with steel's values (or the file's other ones).
+    The message names every such attribute and the spelling meant.
+    """
+    meant = {k: _LOOK_ALIKES[_squash(k)] for k in sorted(attrs)
+             if k not in MATERIAL_ATTRS and _squash(k) in _LOOK_ALIKES}
+    if meant:
+        raise AmfeError(f"{where}: amfe reads the material from attributes spelt exactly "
+                        f"{', '.join(MATERIAL_ATTRS)} (the case matters) and would solve this bed "
+                        f"without {', '.join(repr(k) for k in meant)}: rename "
+                        + ", ".join(f"{k!r} to {v!r}" for k, v in meant.items()))
+    for key in sorted(attrs):
+        value = attrs[key]
+        numeric = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(
+            value, (bool, np.bool_))
+        if numeric and key not in MATERIAL_ATTRS and _squash(key).startswith("material"):
+            raise AmfeError(f"{where}: bed attribute {key!r} is not a material constant amfe "
+                            f"reads ({', '.join(MATERIAL_ATTRS)}), so it would have no effect; "
+                            "rename or delete it")
+
+
 def _attr(attrs, key):
     return real_number(f"bed attribute {key}", attrs[key])
 
@@ -76,9 +120,11 @@ def resolve_material(attrs=None, given=None, default=STEEL, given_source=SOURCE_
     "psi", "source"}: source is "bed file", "default (steel)",
     ``given_source`` ("command line"), or, when mixed, e.g. "command line (E);
     bed file (nu, psi)".
-    Raises AmfeError naming missing or malformed attributes.
+    Raises AmfeError naming missing or malformed attributes, and misspelt
+    ones (:func:`check_material_names`).
     """
     attrs = attrs or {}
+    check_material_names(attrs)
     given = {k: real_number(k, v) for k, v in (given or {}).items() if v is not None}
     unknown = set(given) - set(ELASTIC)
     if unknown:

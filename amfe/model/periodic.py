@@ -114,7 +114,8 @@ against 1.65 s, 5.5-6.3 against 8.0 s, 12.7 against 20.3 s; docs/benchmarks.md).
 def periodic_groups(frame):
     """One :class:`~amfe.model.loadcase.Group` of the six unit-strain cases on the torus.
 
-    Particle 0's translations are fixed at zero; ``forces`` are
+    The translations of each piece's first particle (particle 0 for one piece) are
+    fixed at zero; ``forces`` are
     :func:`periodic_rhs`; CG starts from the affine fields eps (x - x_0),
     i.e. w = 0. Tori of :data:`SMOOTHED_FROM` particles and more take
     smoothed aggregation (``Group.smoothed_aggregation``) when solved tighter
@@ -122,7 +123,8 @@ def periodic_groups(frame):
     """
     n = frame.n_particles
     fixed = np.zeros((n, 6), bool)
-    fixed[0, :3] = True
+    parts = np.zeros(n, np.int64) if frame.parts is None else frame.parts
+    fixed[np.unique(parts, return_index=True)[1], :3] = True   # one pin per piece (section 5)
     guesses = np.zeros((6, n, 6))
     guesses[:, :, :3] = np.einsum("kij,nj->kni", unit_strains(), frame.centers - frame.centers[0])
     return [Group(fixed=fixed, values=[np.zeros((n, 6)) for _ in range(6)],

@@ -13,7 +13,7 @@ words), the bed itself from ``default_rng(bed_seed)`` inside generate_bed:
 two independent streams, so the parameters do not correlate with the
 lattice's enlargement factors and jitter.
 
-The distribution (both scales; lengths in mm, angles in degrees):
+The distribution (every scale; lengths in mm, angles in degrees):
 
 - mean radius 12.5 um, jitter +/- 0.025 R, a* <= 0.98 (paper Table 1 and
   docs/model.md, section 2), three powder layers of 0.1 mm;
@@ -68,6 +68,11 @@ Scales:
   four 2 x 2 poolings; a 0.3 mm base (10 x 10) would not, and 0.9 mm
   (30 x 30) has 2.25x the particles, so about 2.3x the time per bed.
   Tracks of up to 0.15 mm still fit four or more times across the base.
+- ``medium``: 1.2 mm x 1.2 mm x 0.3 mm (twice the small side, the same
+  layers and cells, images 3 x 40 x 40) with the same scan-path parameter
+  ranges as the others: a size between ``small`` and ``paper`` for the
+  any-size surrogate (issue 32, item 4). About four times the particles of
+  a ``small`` bed (docs/datasets.md gives the measured times).
 - ``tiny``: for the test suite only: 0.15 mm x 0.15 mm x 0.1 mm (one
   layer, images 1 x 5 x 5, a few hundred particles) and a fifth of its beds
   deliberately empty (the hatch lies outside the box, so generate_bed refuses
@@ -131,6 +136,8 @@ class Scale:
 SCALES = {
     "small": Scale("small", (0.6 * MM, 0.6 * MM, 0.3 * MM),
                    purpose="2 000 beds in under an hour on 2 cores"),
+    "medium": Scale("medium", (1.2 * MM, 1.2 * MM, 0.3 * MM),
+                    purpose="twice the small side, images 3 x 40 x 40; for the any-size surrogate"),
     "paper": Scale("paper", (3.0 * MM, 3.0 * MM, 0.3 * MM),
                    purpose="the paper's 3 x 3 mm x 3 layers, 3 x 100 x 100 images; for clusters"),
     "tiny": Scale("tiny", (0.15 * MM, 0.15 * MM, 0.1 * MM), empty_probability=0.2,

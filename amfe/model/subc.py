@@ -7,8 +7,8 @@ The boundary layer
 ------------------
 B is KUBC's boundary set (:func:`amfe.model.kubc.boundary_particles`: centres
 within one maximum radius of a face of the axis-aligned box of the centres),
-x_p the centres relative to that box's centre x_c, V the convex-hull volume
-of the centres (KUBC's V). Each p in B carries a weight a_p [length^2], a
+x_p the centres relative to that box's centre x_c, V the bed's box (KUBC's V,
+docs/model.md, section 5). Each p in B carries a weight a_p [length^2], a
 share of the outward area of the box.
 
 Weights. First the face shares
@@ -65,10 +65,15 @@ vertex is in B (fully scanned beds); where a hull vertex is not prescribed
 (a track ending short of a face) the ordering is not guaranteed, and
 :func:`energy_gap` measures it.
 
-Not a bracket of the periodic value: with V the hull of the centres a finite
-cluster counts its face bonds fully; on a simple cubic lattice of n^3
-particles both KUBC and SUBC give Ex = (k_n / s) n^2 / (n-1)^2 exactly (the
-chains decouple), above the periodic k_n / s by about 2/n.
+Not a bracket of the periodic value: with V the bed's box a finite cluster
+lacks the bonds that cross the box's faces on the torus; on a simple cubic
+lattice of n^3 particles in its box (n s)^3 both KUBC and SUBC give
+Ex = (k_n / s)(n-1)/n exactly (the chains decouple), 1/n below the periodic
+k_n / s.
+
+Several pieces: each piece reaching all six faces gets its own weights,
+balanced on it (:func:`subc_weights` with ``parts``) and its own pin; the
+argument above holds piece by piece.
 
 The free frame: a pin, not a null space
 ----------------------------------------
@@ -87,7 +92,7 @@ right-hand sides, and buys nothing here.
 import numpy as np
 
 from amfe.errors import AmfeError
-from amfe.model.averages import box_center, dual_corrected, hull_of, symmetric, unit_strains
+from amfe.model.averages import box_center, dual_corrected, symmetric, unit_strains
 from amfe.model.kubc import boundary_particles
 from amfe.model.loadcase import Group
 from amfe.vocab import CASE_NAMES, VOIGT_PAIRS
@@ -130,31 +135,46 @@ def check_boundary_spans_volume(points, tol=DEGENERATE_TOL):
         "are self-equilibrated and measure a volume; use --bc kubc, or a bed that spans a volume")
 
 
-def subc_weights(centers, radii, volume):
+def subc_weights(centers, radii, volume, parts=None):
     """SUBC weights on KUBC's boundary set; see the module docstring.
 
-    centers (n,3) [L], radii (n,) [L], volume V [L^3] (the hull's).
+    centers (n,3) [L], radii (n,) [L], volume V [L^3] (the bed's box);
+    parts (n,) int: the load-carrying piece of each particle (None: one piece).
+    Each piece's weights are corrected on their own, so that its loads balance
+    (sum a = 0, sum a (x) (x - x_c) = V_c I with V_c its face shares' own
+    measure trace(sum a0 (x) (x - x_c)) / 3); then all are scaled so that the
+    V_c add up to V.
     Returns (index (B,) int: the particles of B; a (B,3) [L^2]: the weights,
-    sum a = 0 and sum a (x) (x - x_c) = V I to round-off; correction:
-    ||a - a0||_F / ||a0||_F, how far the face shares had to move).
-    Raises AmfeError when B lies in a plane or on a line.
+    sum a = 0 and sum a (x) (x - x_c) = V I to round-off, per piece too;
+    correction: ||a - a0'||_F / ||a0'||_F, how far the face shares (scaled as a)
+    had to move). Raises AmfeError when a piece's part of B lies in a plane or on a line.
     """
     x = np.asarray(centers, dtype=float)
     index = np.flatnonzero(boundary_particles(x, radii))
-    xb = x[index]
+    xb = x[index] - box_center(x)
     check_boundary_spans_volume(xb)
     rmax = float(np.max(radii))
     lo, hi = x.min(axis=0), x.max(axis=0)
-    on_lo, on_hi = (xb - lo) <= rmax, (hi - xb) <= rmax          # (B,3): on -x.., +x.. faces
+    on_lo, on_hi = (x[index] - lo) <= rmax, (hi - x[index]) <= rmax   # (B,3): on -x.., +x..
     ext = hi - lo
     areas = np.array([ext[1] * ext[2], ext[0] * ext[2], ext[0] * ext[1]])
     # every face holds the particles that reach it, so no count is zero
     a0 = areas * (on_hi / on_hi.sum(axis=0) - on_lo / on_lo.sum(axis=0))
-    M = np.concatenate([np.ones((index.size, 1)), xb - box_center(x)], axis=1)
-    G = np.zeros((4, 3))
-    G[1:] = float(volume) * np.eye(3)
-    a = a0 + M @ np.linalg.solve(M.T @ M, G - M.T @ a0)
-    return index, a, float(np.linalg.norm(a - a0) / np.linalg.norm(a0))
+    piece = np.zeros(index.size, np.int64) if parts is None else np.asarray(parts)[index]
+    a, natural = np.empty_like(a0), 0.0
+    for c in np.unique(piece):
+        sel = piece == c
+        if parts is not None:
+            check_boundary_spans_volume(xb[sel])
+        M = np.concatenate([np.ones((int(sel.sum()), 1)), xb[sel]], axis=1)
+        Vc = float(np.trace(xb[sel].T @ a0[sel])) / 3.0
+        G = np.zeros((4, 3))
+        G[1:] = Vc * np.eye(3)
+        a[sel] = a0[sel] + M @ np.linalg.solve(M.T @ M, G - M.T @ a0[sel])
+        natural += Vc
+    scale = float(volume) / natural
+    a *= scale
+    return index, a, float(np.linalg.norm(a - scale * a0) / np.linalg.norm(scale * a0))
 
 
 def subc_strain(u, index, a, volume):
@@ -169,29 +189,37 @@ def subc_strain(u, index, a, volume):
     return H[:, i, j] * np.where(i == j, 0.5, 1.0)
 
 
-def pinned_particle(centers, boundary):
-    """The particle whose six DOFs are held: outside B, nearest the box centre.
+def pinned_particle(centers, boundary, parts=None):
+    """The particles whose six DOFs are held, one per piece: outside B, nearest the box centre.
 
     A particle off the boundary keeps the pin away from the loads. Falls back
-    to the particle nearest the box centre when every particle is in B.
+    to the piece's particle nearest the box centre when all of it is in B.
+    parts (n,) int: the pieces (None: one). Returns an int array (k,).
     """
     x = np.asarray(centers, dtype=float)
     d2 = np.sum((x - box_center(x)) ** 2, axis=1)
-    inner = np.flatnonzero(~np.asarray(boundary, bool))
-    return int(inner[np.argmin(d2[inner])]) if inner.size else int(np.argmin(d2))
+    piece = np.zeros(len(x), np.int64) if parts is None else np.asarray(parts)
+    inside = ~np.asarray(boundary, bool)
+    pins = []
+    for c in np.unique(piece):
+        own = piece == c
+        pool = np.flatnonzero(own & inside)
+        pool = pool if pool.size else np.flatnonzero(own)
+        pins.append(int(pool[np.argmin(d2[pool])]))
+    return np.array(pins, np.int64)
 
 
 def subc_groups(frame):
     """One :class:`~amfe.model.loadcase.Group` of the six unit-stress cases of ``frame``.
 
-    The pinned particle's six DOFs are fixed at zero; ``forces`` holds the
-    loads f_p = Sigma_k a_p of the six unit stresses (translations only).
+    The pinned particles' six DOFs (one per piece) are fixed at zero; ``forces``
+    holds the loads f_p = Sigma_k a_p of the six unit stresses (translations only).
     """
     x = frame.centers
     n = x.shape[0]
-    index, a, _ = subc_weights(x, frame.radii, hull_of(x).volume)
+    index, a, _ = subc_weights(x, frame.radii, frame.volume, frame.parts)
     fixed = np.zeros((n, 6), bool)
-    fixed[pinned_particle(x, boundary_particles(x, frame.radii))] = True
+    fixed[pinned_particle(x, boundary_particles(x, frame.radii), frame.parts)] = True
     forces = np.zeros((6, n, 6))
     forces[:, index, :3] = np.einsum("cij,bj->cbi", unit_stresses(), a)
     zero = [np.zeros((n, 6)) for _ in range(6)]
@@ -210,7 +238,7 @@ def subc_average(frame, groups, u, moments=None, diagnose=False, cross=None):
     {"S_asymmetry": ||S - S^T|| / ||S||} (and "correction": ||D|| / ||F^T U||).
     ``moments`` and ``diagnose`` are unused (the stress is the applied one exactly).
     """
-    V = hull_of(frame.centers).volume
+    V = frame.volume
     F = np.asarray(groups[0].forces)
     work, stats = dual_corrected(np.einsum("ink,jnk->ij", F, np.asarray(u)), cross, +1)
     S = work / V
@@ -221,9 +249,9 @@ def subc_average(frame, groups, u, moments=None, diagnose=False, cross=None):
 def kubc_admissible_strain(frame):
     """SUBC strains (6,6) of KUBC's six affine fields: the identity (the ordering's premise)."""
     x = frame.centers
-    index, a, _ = subc_weights(x, frame.radii, hull_of(x).volume)
+    index, a, _ = subc_weights(x, frame.radii, frame.volume, frame.parts)
     u = np.einsum("kij,nj->kni", unit_strains(), x - box_center(x))
-    return subc_strain(u, index, a, hull_of(x).volume)
+    return subc_strain(u, index, a, frame.volume)
 
 
 def energy_gap(C_upper, C_lower, strains=None, seed=0, n_random=200):

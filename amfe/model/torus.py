@@ -23,7 +23,7 @@ from scipy.sparse.csgraph import breadth_first_order
 from scipy.spatial import cKDTree
 
 from amfe.errors import AmfeError
-from amfe.model.bonds import contact_geometry, validate_particles
+from amfe.model.bonds import check_coincident, contact_geometry
 
 NOT_PERIODIC = ("the bed is not periodic (its file has no 'periodic' attribute [Lx, Ly, Lz]); "
                 "--bc periodic needs a bed that tiles space: make one with "
@@ -107,6 +107,7 @@ def find_periodic_pairs(centers, radii, box):
     """
     x = np.asarray(centers, dtype=float)
     box = check_box(box, radii)
+    check_coincident(x, radii)   # before the KD-tree: a pile of coincident centres is quadratic
     pairs = cKDTree(x, boxsize=box).query_pairs(r=2.0 * float(np.max(radii)),
                                                 output_type="ndarray")
     if pairs.size == 0:
@@ -128,7 +129,7 @@ def find_periodic_bonds(centers, radii, box):
     arithmetic on the shifted branch vectors, so a bond inside the box gets
     bit for bit the values the non-periodic code gives it.
     """
-    centers, radii = validate_particles(centers, radii)
+    centers, radii = np.asarray(centers, float), np.asarray(radii, float)  # checked (a Bed's)
     box = check_box(box, radii)
     i, j, shift = find_periodic_pairs(centers, radii, box)
     return contact_geometry(centers, radii, i, j, offset=shift * box), shift

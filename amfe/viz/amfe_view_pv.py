@@ -1,40 +1,47 @@
-"""ParaView view of one amfe load case: the script ``amfe view`` runs, and the one to open by hand.
+"""ParaView view of amfe's load cases: the script ``amfe view`` runs, and the one to open by hand.
 
 Not imported by amfe (it needs ParaView's ``paraview.simple``); it ships in the
 package, and ``python -c "import amfe.viz, os; print(os.path.dirname(amfe.viz.__file__))"``
 prints its folder. Render a PNG (what ``amfe view`` does, under ``xvfb-run -a``
 without a display):
 
-    pvpython amfe_view_pv.py out/case_xx.vtp --png view_xx.png [--color axial_force_N]
-        [--title "axial force [N]"] [--range LO HI] [--warp F] [--size 1200 900] [--state x.pvsm]
+    pvpython amfe_view_pv.py out/case_xx.vtu --png view_xx.png [--color axial_force_N]
+        [--title "axial force [N]"] [--label "xx: eps_xx = 1"] [--range LO HI] [--warp F]
+        [--size 1200 900] [--state x.pvsm]
 
 Set the same view up interactively:
 
-    pvpython amfe_view_pv.py out/case_xx.vtp --interactive           (a render window)
-    AMFE_VIEW_FILE=out/case_xx.vtp paraview --script=amfe_view_pv.py   (the full GUI)
+    pvpython amfe_view_pv.py out/case_xx.vtu --interactive           (a render window)
+    AMFE_VIEW_FILE=out/cases.pvd paraview --script=amfe_view_pv.py   (the full GUI, every case)
     paraview --state=view_xx.pvsm                                    (a state saved by --state)
 
 Without --range/--warp the script computes them as amfe view does: the 2nd-98th
 percentile of the colour array, and the warp factor that draws the largest
-displacement as 5 % of the box. Needs only ParaView (5.11) and numpy.
+displacement as 5 % of the box (of a .pvd: the smallest factor of its cases,
+from cases.json, so that no case draws more). Needs only ParaView (5.11) and numpy.
 
-Pipeline: reader -> Outline (undeformed box); reader -> Warp By Vector -> Tube
-coloured by a cell array over a fixed range, and -> Glyph spheres at 0.3 R on
-every point; Annotate Attribute Data shows the field ``case_label`` (ParaView's
-time label says only "Time: k"). Frames of more than LARGE_LINES bonds draw
+Pipeline: reader (XML UnstructuredGrid, or the .pvd) -> Outline (undeformed box);
+reader -> Warp By Vector -> Extract Surface -> Tube (Tube wants PolyData; the
+case files are UnstructuredGrids) coloured by a cell array over a fixed range,
+and Warp By Vector -> Glyph spheres at 0.3 R on every point. The case label
+comes from ``cases.json`` beside the file (meshio writes no field data): a Text
+of it, or for a .pvd a Python Annotation that follows the time slider
+(ParaView's time label says only "Time: k"). Frames of more than LARGE_LINES bonds draw
 the bonds as lines and the particles as points instead: a bond is then about
 a pixel, and tube and sphere geometry would cost a minute of software
 rendering (measured on a 100 000-particle bed, docs/viewing.md).
 """
+import json
 import os
 import sys
 import time
 
 T_START = time.perf_counter()
-from paraview.simple import (AnnotateAttributeData, ColorBy, GetActiveViewOrCreate,  # noqa: E402
+from paraview.simple import (ColorBy, ExtractSurface, GetActiveViewOrCreate,  # noqa: E402
                              GetColorTransferFunction, GetScalarBar, Glyph, Interact,
-                             Outline, PassArrays, ResetCamera, SaveScreenshot,
-                             SaveState, Show, Text, Tube, WarpByVector, XMLPolyDataReader)
+                             Outline, PassArrays, PVDReader, PythonAnnotation, ResetCamera,
+                             SaveScreenshot, SaveState, Show, Text, Tube, WarpByVector,
+                             XMLUnstructuredGridReader)
 from paraview import servermanager  # noqa: E402
 
 SIGNED = ("axial_force_N", "torsion_Nm")
@@ -47,11 +54,11 @@ TIMES = {}
 def parse(argv):
     """Command-line options as a dict (no argparse: ParaView's GUI owns sys.argv)."""
     opts = {"file": os.environ.get("AMFE_VIEW_FILE"), "png": None, "color": "axial_force_N",
-            "title": None, "range": None, "warp": None, "size": (1200, 900), "state": None,
-            "interactive": False}
+            "title": None, "label": None, "range": None, "warp": None, "size": (1200, 900),
+            "state": None, "interactive": False}
     it = iter(argv)
     for a in it:
-        if a in ("--png", "--color", "--title", "--state"):
+        if a in ("--png", "--color", "--title", "--label", "--state"):
             opts[a[2:]] = next(it)
         elif a == "--range":
             opts["range"] = (float(next(it)), float(next(it)))
@@ -112,14 +119,43 @@ def _label(view, source, where, size):
     shown.Color = [0, 0, 0]
 
 
+def sidecar(path):
+    """The cases of the ``cases.json`` beside ``path`` (amfe.io.pvd), or [] without one."""
+    try:
+        with open(os.path.join(os.path.dirname(os.path.abspath(path)), "cases.json")) as fh:
+            return json.load(fh)["cases"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return []
+
+
+def case_label(opts, cases):
+    """A source that shows the case label: a Text, or for a .pvd one that follows the time."""
+    if opts["file"].endswith(".pvd"):
+        labels = ["case " + c.get("case_label", c.get("case_name", "?")) for c in cases]
+        if labels:
+            return PythonAnnotation(registrationName="case name", Input=opts["reader"],
+                                    Expression=f"{labels!r}[t_index]")
+    mine = [c for c in cases if c.get("file") == os.path.basename(opts["file"])]
+    text = opts["label"] or (mine[0].get("case_label") if mine else None) or \
+        os.path.basename(opts["file"])
+    return Text(registrationName="case name", Text="case " + text)
+
+
 def build(opts):
     """Set the pipeline and the view up; returns the view."""
     t_start = time.perf_counter()
-    reader = XMLPolyDataReader(registrationName=os.path.basename(opts["file"]),
-                               FileName=[opts["file"]])
+    name = os.path.basename(opts["file"])
+    if name.endswith(".pvd"):
+        reader = PVDReader(registrationName=name, FileName=opts["file"])
+    else:
+        reader = XMLUnstructuredGridReader(registrationName=name, FileName=[opts["file"]])
     reader.UpdatePipeline()
+    opts["reader"] = reader
     t_read = time.perf_counter()
+    cases = sidecar(opts["file"])
     warp, rng = opts["warp"], opts["range"]
+    if warp is None and name.endswith(".pvd") and cases:   # no case draws more than 5 %
+        warp = min(float(c["warp_factor"]) for c in cases)
     if warp is None or rng is None:
         measured = measure(reader, opts["color"])
         warp, rng = measured[0] if warp is None else warp, rng or measured[1]
@@ -144,7 +180,8 @@ def build(opts):
         spheres = Show(PassArrays(registrationName="particles", Input=warped,
                                   PointDataArrays=[], CellDataArrays=[]), view)
     else:
-        tubes = Tube(registrationName="bonds", Input=warped)
+        surface = ExtractSurface(registrationName="lines as PolyData", Input=warped)
+        tubes = Tube(registrationName="bonds", Input=surface)
         tubes.Radius = TUBE_SHARE * rmean
         tubes.NumberofSides = 8
         _colour(Show(tubes, view), view, opts, rng)
@@ -161,15 +198,13 @@ def build(opts):
         spheres.SetRepresentationType("Points")
         spheres.PointSize = 2.0
 
-    label = AnnotateAttributeData(registrationName="case name", Input=reader)
-    label.SelectInputArray = ["FIELD", "case_label"]
-    label.Prefix = "case "
-    _label(view, label, "Upper Left Corner", 20)
+    _label(view, case_label(opts, cases), "Upper Left Corner", 20)
+    of_all = " of all cases" if name.endswith(".pvd") and opts["warp"] is None else ""
     shapes = "bonds as lines, particles as points" if large else \
         f"particles as spheres at {SPHERE_SHARE:g} R"
     _label(view, Text(registrationName="note",
-                      Text=f"displacement x {warp:.3g} (largest = 5 % of box); {shapes}; grey "
-                           "box: undeformed outline\ncolours: 2-98 percentile range of the "
+                      Text=f"displacement x {warp:.3g} (largest{of_all} = 5 % of box); {shapes}; "
+                           "grey box: undeformed outline\ncolours: 2-98 percentile range of the "
                            "bonds (beyond it: the end colours)"), "Lower Left Corner", 12)
     view.CameraFocalPoint = [0.0, 0.0, 0.0]     # z up, seen from -y, +x and above;
     view.CameraPosition = [1.0, -1.6, 1.0]      # ResetCamera keeps the direction and fits
@@ -184,7 +219,7 @@ def build(opts):
 def main(argv):
     opts = parse(argv)
     if not opts["file"]:
-        print("usage: pvpython amfe_view_pv.py CASE.vtp [--png OUT.png] [--interactive]",
+        print("usage: pvpython amfe_view_pv.py CASE.vtu|cases.pvd [--png OUT.png] [--interactive]",
               file=sys.stderr)
         return 2
     view = build(opts)
@@ -202,7 +237,10 @@ def main(argv):
     return 0
 
 
-if __name__ == "__main__":
+# paraview --script runs this file as __main__ too, with sys.argv == [""]: there it only
+# builds the view (main's os._exit would close the GUI at once).
+IN_GUI = not sys.argv or not sys.argv[0]
+if __name__ == "__main__" and not IN_GUI:
     status = main(sys.argv[1:])
     # Debian's ParaView 5.11 under Xvfb dies in teardown with "GLXBadContext" and exit
     # status 1 after everything is written: leave without the teardown.

@@ -11,7 +11,7 @@ import os
 
 import numpy as np
 
-from amfe.io.vtp import WARP_SHARE
+from amfe.io.vtu import WARP_SHARE
 from amfe.viz.scene import PERCENTILES, SPHERE_SHARE
 
 MAX_LINES = 150_000

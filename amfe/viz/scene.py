@@ -10,8 +10,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from amfe.errors import AmfeError
-from amfe.io.vtkxml import read_polydata
-from amfe.io.vtp import PVD_NAME, WARP_SHARE, read_collection, warp_factor
+from amfe.io.pvd import PVD_NAME, SIDECAR_NAME, read_collection
+from amfe.io.vtu import WARP_SHARE, read_case, warp_factor
+from amfe.version import __version__
 
 #: ``--color`` value -> (cell array, colour-bar title with unit, signed?)
 COLOR_ARRAYS = {
@@ -91,40 +92,53 @@ class Scene:
                 f"{self.vmax:.4g} ({PERCENTILES[0]:g}-{PERCENTILES[1]:g} percentile)")
 
 
+def rewrite_hint(where, what):
+    """The one-line refusal of files an older amfe wrote, with the command that rewrites them."""
+    return (f"{where} holds {what}, which amfe {__version__} does not read; write the "
+            "result again as .vtu: 'amfe homogenize BED.h5 --vtu DIR' (Python: "
+            "amfe.homogenize(..., vtu_dir=DIR))")
+
+
 def case_files(target):
     """The case files of a result: ``[(name, path), ...]`` in case order.
 
     Parameters
     ----------
     target : str
-        A directory holding ``cases.pvd``, a ``.pvd`` file, or one ``case_<name>.vtp``.
+        A directory holding ``cases.pvd``, a ``.pvd`` file, or one ``case_<name>.vtu``.
 
     Raises
     ------
     AmfeError
-        Nothing amfe wrote there, or files of an older amfe (``.vtu``).
+        Nothing amfe wrote there, or files of an older amfe (0.2's ``.vtp``,
+        0.1's ``.vtu`` without ``cases.json``): the message says how to rewrite them.
     """
     target = os.fspath(target)
     if os.path.isdir(target):
         pvd = os.path.join(target, PVD_NAME)
         if not os.path.isfile(pvd):
+            if any(f.startswith("case_") and f.endswith(".vtp") for f in os.listdir(target)):
+                raise AmfeError(rewrite_hint(target, ".vtp files of amfe 0.2"))
             raise AmfeError(f"{target} holds no {PVD_NAME}; write the files with "
                             "'amfe homogenize BED.h5 --vtu DIR'")
         target = pvd
     if not os.path.isfile(target):
         raise AmfeError(f"{target}: no such file or directory; give the directory of "
-                        "'amfe homogenize BED.h5 --vtu DIR', its .pvd or one .vtp")
+                        "'amfe homogenize BED.h5 --vtu DIR', its .pvd or one .vtu")
     if target.endswith(".vtp"):
+        raise AmfeError(rewrite_hint(target, "a .vtp file of amfe 0.2"))
+    if target.endswith(".vtu"):
         name = os.path.basename(target)[:-4]
         return [(name[5:] if name.startswith("case_") else name, os.path.abspath(target))]
     if not target.endswith(".pvd"):
-        raise AmfeError(f"{target}: expected a result directory, a .pvd or a .vtp file")
+        raise AmfeError(f"{target}: expected a result directory, a .pvd or a .vtu file")
     out = read_collection(target)
     if not out:
         raise AmfeError(f"{target} lists no load cases")
-    if any(not p.endswith(".vtp") for _, p in out):
-        raise AmfeError(f"{target} lists .vtu files of an older amfe; write the result again "
-                        "with this version ('amfe homogenize BED.h5 --vtu DIR')")
+    if any(p.endswith(".vtp") for _, p in out):
+        raise AmfeError(rewrite_hint(target, "a list of .vtp files of amfe 0.2"))
+    if not os.path.isfile(os.path.join(os.path.dirname(target), SIDECAR_NAME)):
+        raise AmfeError(rewrite_hint(target, f"files of an older amfe (no {SIDECAR_NAME})"))
     missing = [p for _, p in out if not os.path.isfile(p)]
     if missing:
         raise AmfeError(f"{target} lists files that are missing: {', '.join(missing)}")
@@ -168,7 +182,7 @@ def load_scene(name, path, color):
     name : str
         Case name.
     path : str
-        Its ``.vtp``.
+        Its ``.vtu``.
     color : str
         A key of :data:`COLOR_ARRAYS`.
 
@@ -177,7 +191,7 @@ def load_scene(name, path, color):
     Scene
     """
     array, title, signed = COLOR_ARRAYS[check_color(color)]
-    data = read_polydata(path, arrays=_NEEDED + (array,))
+    data = read_case(path)
     missing = [a for a in _NEEDED if a not in data["point_data"]]
     if missing or array not in data["cell_data"]:
         raise AmfeError(f"{path} lacks the arrays {', '.join(missing or [array])}: not a case "
@@ -186,7 +200,7 @@ def load_scene(name, path, color):
     if values.ndim == 2:
         values = np.sqrt(np.einsum("ij,ij->i", values, values))
     disp = data["point_data"]["displacement_m"]
-    label = data["field_data"].get("case_label", [name])[0]
+    label = data["field_data"].get("case_label", name)
     vmin, vmax = clipped_range(values)
     return Scene(case=name, label=label, path=path, points=data["points"], displacement=disp,
                  radius=data["point_data"]["radius_m"], lines=data["lines"], values=values,

@@ -15,6 +15,7 @@ from amfe.model.frame import build_frame
 from amfe.model.kubc import kubc_groups
 from amfe.solvers.correction import second_order
 from amfe.solvers.driver import homogenize_bed
+from amfe.model.options import SolveOptions
 
 RTOLS = [1e-5, 1e-6, 1e-8]
 
@@ -37,11 +38,11 @@ def props(res):
 out = sys.argv[-1]
 with open(out, "a") as f:
     for name, bed in beds():
-        args = (bed.centers, bed.radii, bed.material())
+        def solve(**kw):
+            return homogenize_bed(bed, SolveOptions(material=bed.material(), **kw)).to_dict()
         try:
             n = len(bed.centers)
-            ref = homogenize_bed(*args, solver="cholesky") if n < 20000 else \
-                homogenize_bed(*args, solver="gamg", rtol=1e-12)
+            ref = solve(solver="cholesky") if n < 20000 else solve(solver="gamg", rtol=1e-12)
         except Exception as exc:
             print(name, "skipped:", exc, flush=True)
             continue
@@ -50,8 +51,7 @@ with open(out, "a") as f:
         row["second_order"] = second_order(kubc_groups(frame), frame.centers)
         for rtol, corr in [(None, "yes"), (1e-8, "no")] + [(r, "yes") for r in RTOLS]:
                 t = time.process_time()
-                r = homogenize_bed(*args, solver="gamg", rtol=rtol,
-                                   ksp_options={"amfe_correction": corr})
+                r = solve(solver="gamg", rtol=rtol, ksp_options={"amfe_correction": corr})
                 key = f"{rtol or 0:g}_{corr}"
                 row[key] = float(np.max(np.abs(props(r) / props(ref) - 1)))
                 row[key + "_its"] = max(r["solver"]["iterations"])

@@ -4,6 +4,7 @@ from amfe.model.scales import sample_bed_params, get_scale
 from amfe.model.bed import generate_bed
 from amfe.dataset.images import pixelate
 from amfe.solvers.driver import homogenize_bed
+from amfe.model.options import SolveOptions
 from petsc4py import PETSc
 sc=get_scale('small')
 part=int(sys.argv[1]); out=[]
@@ -13,7 +14,7 @@ for bs in base_seeds[part::2]:
     for k in range(6):
         q=dict(p); q['seed']=bs*100+k
         bed=generate_bed(**q)
-        r=homogenize_bed(bed.centers,bed.radii,bed.material(),comm=PETSc.COMM_SELF)
+        r=homogenize_bed(bed,SolveOptions(solver="gamg",material=bed.material()),PETSc.COMM_SELF).to_dict()
         pr=r['properties']; L.append([pr[n] for n in ['Ex','Ey','Ez','nu_yz','nu_xz','nu_xy']])
         img=pixelate(bed,sc.cell,sc.layer_thickness,box=[np.zeros(3),np.array(sc.size)],spacing=sc.image_spacing)
         D.append(img)

@@ -13,11 +13,12 @@ from amfe.model.frame import build_frame
 from amfe.model.scales import get_scale, sample_bed_params
 from amfe.solvers.choice import solve_features
 from amfe.solvers.driver import homogenize_bed
+from amfe.model.options import SolveOptions
 
 seed, k0, k1, out = int(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
 sc = get_scale("small")
 warm = generate_bed(**sample_bed_params(sc, record_seed(seed, k0)))
-homogenize_bed(warm.centers, warm.radii, warm.material())  # imports and PETSc start-up
+homogenize_bed(warm, SolveOptions(solver="gamg", material=warm.material()))  # imports, PETSc
 with open(out, "a") as f:
     for k in range(k0, k1):
         bed = generate_bed(**sample_bed_params(sc, record_seed(seed, k)))
@@ -31,7 +32,7 @@ with open(out, "a") as f:
         for name, kw in (("cholesky", {"solver": "cholesky"}),
                          ("gamg", {"solver": "gamg", "rtol": 1e-7})):
             t = time.process_time()
-            res = homogenize_bed(bed.centers, bed.radii, bed.material(), **kw)
+            res = homogenize_bed(bed, SolveOptions(material=bed.material(), **kw)).to_dict()
             row[name + "_cpu"] = time.process_time() - t
             props[name] = np.array([v for v in res["properties"].values()])
             row[name + "_its"] = res["solver"]["iterations"]

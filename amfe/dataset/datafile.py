@@ -27,7 +27,7 @@ DATA.h5 layout, one row per record, rows sorted by record index 0..M-1:
     n_particles (M,) int64    particles of the generated bed (-1 if none)
     n_removed   (M,) int64    of them not load-carrying (-1 if not solved)
     n_bonds     (M,) int64    bonds of the load-carrying frame (-1 if not solved)
-    volume      (M,) float64  homogenization volume [m^3] (hull of the kept centres)
+    volume      (M,) float64  homogenization volume [m^3]: format 2 the bed's box, format 1 the hull of the kept centres
     seconds     (M, 3) float64  generate, image, homogenize wall times [s]
     solver      (M,) str      JSON of homogenize_bed's solver record ("" if not solved)
     params/NAME (M,) float64  the bed's generation parameters (amfe.model.scales.PARAM_NAMES)
@@ -38,7 +38,8 @@ Root attributes: format, format_version, scale, seed, count, rtol,
 amfe_version, label_names, created (UTC, ISO 8601), bed_size [m],
 layer_thickness [m], image_cell [m], image_shape, image_spacing [m] (the
 sample spacing given to amfe.dataset.images.pixelate), density_definition,
-status_codes. A record's image is
+status_codes, label_rule_version, imaging_version (files made before
+these existed lack them: version 1). A record's image is
 ``pixelate(bed, cell, layer_thickness, box=((0, 0, 0), bed_size),
 spacing=image_spacing)`` of the bed ``amfe pack --scale SCALE --seed SEED``
 regenerates; its bond image is ``bond_image`` of that bed on the same grid.
@@ -53,8 +54,9 @@ from amfe.errors import AmfeError, _list_items
 from amfe.model.scales import PARAM_NAMES, PARAM_UNITS, get_scale, record_seed
 
 from amfe.vocab import LABEL_NAMES
-from amfe.io.datasetparts import (STATUS_FAILED, STATUS_OK, done_indices, part_path,
-                                  part_problem, read_part, reject_part, remove_parts)
+from amfe.dataset.images import IMAGING_VERSION
+from amfe.dataset.parts import (LABEL_RULE_VERSION, STATUS_FAILED, STATUS_OK, done_indices,
+                                part_path, part_problem, read_part, reject_part, remove_parts)
 SECONDS_NAMES = ("generate", "image", "homogenize")
 DENSITY_DEFINITION = ("mean of the image: the volume fraction of the box [0,Lx]x[0,Ly]x[0,Lz] "
                       "filled by the union of the spheres")
@@ -75,6 +77,79 @@ def _image_dataset(f, name, count, shape, data=None):
     return ds
 
 
+def _create_rows(f, count, shape):
+    """The per-record datasets of the layout (all but bond_images and params), by name."""
+    import h5py
+
+    d = {
+        "images": _image_dataset(f, "images", count, shape),
+        "labels": f.create_dataset("labels", (count, 6), np.float64),
+        "C": f.create_dataset("C", (count, 6, 6), np.float64),
+        "density": f.create_dataset("density", (count,), np.float64),
+        "index": f.create_dataset("index", (count,), np.int64),
+        "seed": f.create_dataset("seed", (count,), np.int64),
+        "status": f.create_dataset("status", (count,), np.uint8),
+        "reason": f.create_dataset("reason", (count,), h5py.string_dtype()),
+        "iterations": f.create_dataset("iterations", (count, 6), np.int32),
+        "n_particles": f.create_dataset("n_particles", (count,), np.int64),
+        "n_removed": f.create_dataset("n_removed", (count,), np.int64),
+        "n_bonds": f.create_dataset("n_bonds", (count,), np.int64),
+        "volume": f.create_dataset("volume", (count,), np.float64),
+        "seconds": f.create_dataset("seconds", (count, 3), np.float64),
+        "solver": f.create_dataset("solver", (count,), h5py.string_dtype()),
+    }
+    d["labels"].attrs["columns"] = list(LABEL_NAMES)
+    d["labels"].attrs["units"] = "Pa for Ex, Ey, Ez; - for the Poisson ratios"
+    d["C"].attrs["units"] = "Pa"
+    d["seconds"].attrs["columns"] = list(SECONDS_NAMES)
+    return d
+
+
+def _copy_parts(rows, bonds, output, parts, params):
+    """Copy part k into row k of ``rows`` for k < len(rows['index']), each checked first.
+
+    Returns (every part had a bond image, params (count, len(PARAM_NAMES))).
+    A part that is not its record is moved aside and the merge refused
+    (:func:`merge_parts`).
+    """
+    count, shape = rows["index"].shape[0], bonds.shape[1:]
+    all_bonds, pdata = True, np.empty((count, len(PARAM_NAMES)))
+    for k in range(count):
+        path = part_path(parts, k)
+        try:
+            rec = read_part(path)
+            why = part_problem(path, k, params, rec)
+        except AmfeError as exc:
+            why = str(exc)
+        if why is not None:
+            dest = reject_part(path, output)
+            raise AmfeError(f"record file {path} was refused ({why}) and moved to "
+                            f"{dest}; run the same command again to recompute it")
+        for name, ds in rows.items():
+            ds[k] = rec["image" if name == "images" else name]
+        if "bond_image" in rec and rec["bond_image"].shape == shape:
+            bonds[k] = rec["bond_image"]
+        else:
+            all_bonds = False
+        pdata[k] = rec["params"]
+    return all_bonds, pdata
+
+
+def _layout_attrs(sc):
+    """The root attributes that describe the layout and the images of scale ``sc``."""
+    return {
+        "label_names": list(LABEL_NAMES),
+        "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        "bed_size": list(sc.size), "layer_thickness": sc.layer_thickness,
+        "image_cell": [sc.cell[0], sc.cell[1], sc.layer_thickness],
+        "image_shape": list(sc.image_shape),
+        "image_spacing": sc.image_spacing,
+        "density_definition": DENSITY_DEFINITION,
+        "status_codes": "0 ok, 1 failed (see reason)",
+        "label_rule_version": LABEL_RULE_VERSION, "imaging_version": IMAGING_VERSION,
+    }
+
+
 # ---------------------------------------------------------------- merge
 
 def merge_parts(output, parts, params, first=None):
@@ -90,13 +165,11 @@ def merge_parts(output, parts, params, first=None):
     temporary name, checked (:func:`check_dataset`), renamed onto ``output``,
     and only then is ``parts`` removed. A kill or a failure before the rename
     leaves the parts intact and ``output`` as it was. A part that is not the
-    record it claims to be (:func:`amfe.io.datasetparts.part_problem`: another
+    record it claims to be (:func:`amfe.dataset.parts.part_problem`: another
     data set's, damaged) is moved to ``OUTPUT.rejected/`` and the merge is
     refused with an AmfeError naming it: a rerun recomputes that record. Also
     AmfeError for missing records and for a full disk.
     """
-    import h5py
-
     count = int(params["count"]) if first is None else int(first)
     sc = get_scale(params["scale"])
     missing = sorted(set(range(count)) - set(done_indices(parts, count)))
@@ -106,68 +179,19 @@ def merge_parts(output, parts, params, first=None):
     shape = sc.image_shape
 
     def write(f):
-        d = {
-            "images": _image_dataset(f, "images", count, shape),
-            "labels": f.create_dataset("labels", (count, 6), np.float64),
-            "C": f.create_dataset("C", (count, 6, 6), np.float64),
-            "density": f.create_dataset("density", (count,), np.float64),
-            "index": f.create_dataset("index", (count,), np.int64),
-            "seed": f.create_dataset("seed", (count,), np.int64),
-            "status": f.create_dataset("status", (count,), np.uint8),
-            "reason": f.create_dataset("reason", (count,), h5py.string_dtype()),
-            "iterations": f.create_dataset("iterations", (count, 6), np.int32),
-            "n_particles": f.create_dataset("n_particles", (count,), np.int64),
-            "n_removed": f.create_dataset("n_removed", (count,), np.int64),
-            "n_bonds": f.create_dataset("n_bonds", (count,), np.int64),
-            "volume": f.create_dataset("volume", (count,), np.float64),
-            "seconds": f.create_dataset("seconds", (count, 3), np.float64),
-            "solver": f.create_dataset("solver", (count,), h5py.string_dtype()),
-        }
+        rows = _create_rows(f, count, shape)
         bonds = _image_dataset(f, "bond_images", count, shape)
-        all_bonds = True   # parts written before bond images existed have none
-        pg = f.create_group("params")
-        pdata = np.empty((count, len(PARAM_NAMES)))
-        for k in range(count):
-            path = part_path(parts, k)
-            try:
-                rec = read_part(path)
-                why = part_problem(path, k, params, rec)
-            except AmfeError as exc:
-                why = str(exc)
-            if why is not None:
-                dest = reject_part(path, output)
-                raise AmfeError(f"record file {path} was refused ({why}) and moved to "
-                                f"{dest}; run the same command again to recompute it")
-            for name, ds in d.items():
-                ds[k] = rec["image" if name == "images" else name]
-            if "bond_image" in rec and rec["bond_image"].shape == shape:
-                bonds[k] = rec["bond_image"]
-            else:
-                all_bonds = False
-            pdata[k] = rec["params"]
-        if not all_bonds:
+        all_bonds, pdata = _copy_parts(rows, bonds, output, parts, params)
+        if not all_bonds:   # parts written before bond images existed have none
             del f["bond_images"]
+        pg = f.create_group("params")
         for j, name in enumerate(PARAM_NAMES):
             ds = pg.create_dataset(name, data=pdata[:, j])
             ds.attrs["units"] = PARAM_UNITS[name]
-        d["labels"].attrs["columns"] = list(LABEL_NAMES)
-        d["labels"].attrs["units"] = "Pa for Ex, Ey, Ez; - for the Poisson ratios"
-        d["C"].attrs["units"] = "Pa"
-        d["seconds"].attrs["columns"] = list(SECONDS_NAMES)
         f.attrs.update({k: v for k, v in params.items()})
         if first is not None:
             f.attrs.update({"count": count, "prefix_of": f"{parts} (count {params['count']})"})
-        f.attrs.update({
-            "label_names": list(LABEL_NAMES),
-            "created": datetime.datetime.now(datetime.timezone.utc).isoformat(
-                timespec="seconds"),
-            "bed_size": list(sc.size), "layer_thickness": sc.layer_thickness,
-            "image_cell": [sc.cell[0], sc.cell[1], sc.layer_thickness],
-            "image_shape": list(shape),
-            "image_spacing": sc.image_spacing,
-            "density_definition": DENSITY_DEFINITION,
-            "status_codes": "0 ok, 1 failed (see reason)",
-        })
+        f.attrs.update(_layout_attrs(sc))
 
     checked = {}
 
@@ -225,6 +249,14 @@ def check_dataset(path):
         data, attrs = load_dataset(path)
     except OSError as exc:
         raise AmfeError(f"cannot read {path}: {exc}") from None
+    problems = _layout_problems(data, attrs)
+    if problems:
+        return problems, data, attrs
+    return _record_problems(data, attrs), data, attrs
+
+
+def _layout_problems(data, attrs):
+    """Problems of the layout: required datasets, their dtypes, row counts and shapes."""
     problems = []
     for name, (tail, kinds) in REQUIRED.items():
         if name not in data:
@@ -232,7 +264,7 @@ def check_dataset(path):
         elif data[name].dtype.kind not in kinds:
             problems.append(f"/{name} has dtype {data[name].dtype}")
     if problems:
-        return problems, data, attrs
+        return problems
     M = data["index"].shape[0]
     count = attrs.get("count")
     if count is None:
@@ -256,9 +288,13 @@ def check_dataset(path):
     elif expect is not None and img.shape[1:] != tuple(expect):
         problems.append(f"/images rows have shape {img.shape[1:]}, scale {attrs.get('scale')} "
                         f"makes {tuple(expect)}")
-    if problems:
-        return problems, data, attrs
+    return problems
 
+
+def _record_problems(data, attrs):
+    """Problems of the records of a file whose layout is right (see :func:`check_dataset`)."""
+    problems = []
+    M, img = data["index"].shape[0], data["images"]
     index = data["index"].astype(np.int64)
     uniq, counts = np.unique(index, return_counts=True)
     dup = uniq[counts > 1]
@@ -305,6 +341,6 @@ def check_dataset(path):
             problems.append(f"/bond_images has shape {b.shape}, /images {img.shape}")
         elif not np.all(np.isfinite(b)) or b.min(initial=0) < 0:
             problems.append("bond image values negative or not finite")
-    return problems, data, attrs
+    return problems
 
 

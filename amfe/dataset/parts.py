@@ -1,7 +1,7 @@
 """A data set's part files: one ``rec_NNNNNNNN.npz`` per finished record, and params.json.
 
 ``amfe dataset`` writes each record as soon as it is solved (atomically), so a
-killed run loses only the beds in flight; :mod:`amfe.io.datasetfile` merges
+killed run loses only the beds in flight; :mod:`amfe.dataset.datafile` merges
 the parts into the HDF5 file (docs/datasets.md).
 """
 import io
@@ -18,7 +18,28 @@ from amfe.model.scales import PARAM_NAMES, get_scale, record_seed
 from amfe.version import __version__
 
 FORMAT = "amfe.dataset"
-FORMAT_VERSION = 1
+#: 2: labels under label rule 2 (issue 30: the pieces the condition loads, V the bed's box);
+#: files of version 1 stay readable and are named as made under rule 1.
+FORMAT_VERSION = 2
+#: The label rule of each format version (docs/model.md, section 5; docs/datasets.md).
+LABEL_RULES = {
+    1: "label rule 1: the largest bonded component, V = hull of its centres",
+    2: "label rule 2: the pieces the condition loads, V = the bed's box",
+}
+
+
+def label_rule(attrs):
+    """The label rule (1 or 2) of a data set from its root attributes (format_version)."""
+    version = int((attrs or {}).get("format_version", 1))
+    return 1 if version < 2 else 2
+
+
+#: The version of the rule that turns a bed into its labels (which particles carry load,
+#: the homogenization volume, the boundary conditions' averages): the rule of
+#: FORMAT_VERSION. Bump it when a label changes for the same bed; label tables
+#: (amfe.dataset.labels) record it, and a table of another rule is refused by
+#: `amfe dataset --from-labels`.
+LABEL_RULE_VERSION = label_rule({"format_version": FORMAT_VERSION})
 STATUS_OK, STATUS_FAILED = 0, 1
 PARAMS_JSON = "params.json"
 REJECTED_SUFFIX = ".rejected"

@@ -1,10 +1,10 @@
-"""ParaView files of the load cases: ``case_<name>.vtp`` each and ``cases.pvd`` (docs/viewing.md).
+"""ParaView files of the load cases: ``case_<name>.vtu`` each, ``cases.pvd`` and ``cases.json``.
 
-Why PolyData, not an UnstructuredGrid (``.vtu``): ParaView 5.11's Tube filter
-refuses an UnstructuredGrid ("requires vtkPolyData") and works on these files
-directly, as do Glyph and Warp By Vector (tried in ParaView, docs/viewing.md).
+The case files are VTK XML UnstructuredGrids written by meshio (docs/viewing.md);
+amfe writes no VTK ``DataArray`` itself. ParaView's Tube filter wants PolyData,
+so the view script puts Extract Surface before it (amfe/viz/amfe_view_pv.py).
 
-Layout of ``case_<name>.vtp`` (SI; the unit ends each array's name)
+Layout of ``case_<name>.vtu`` (SI; the unit ends each array's name)
 ------------------------------------------------------------------
 Points: the kept (load-carrying) particles' centres [m] in input order. Cells:
 one 2-point line per bond, running from particle i to particle j (on a
@@ -13,40 +13,41 @@ cells: every kept particle has a bond, and vertex cells would make every bond
 array carry fake values on them (zeros that spoil colour ranges).
 
 Point data (:data:`POINT_ARRAYS`): ``particle_id``, ``radius_m``, ``boundary``,
-``displacement_m`` (the active vectors: Warp By Vector picks it), ``rotation_rad``.
+``displacement_m`` (the first vector array: Warp By Vector picks it), ``rotation_rad``.
 Cell data (:data:`CELL_ARRAYS`): ``i``, ``j`` (input ids), ``a_star``,
 ``force_i_N``, ``moment_i_Nm``, ``axial_force_N``, ``shear_force_N``,
-``torsion_Nm``, ``bending_moment_Nm``.
-Field data: ``case_name``, ``case_label`` (e.g. "yz: gamma_yz = 1"),
-``macro_strain`` (9, row-major), ``macro_strain_voigt`` (6, engineering shear)
-or, for SUBC's unit stresses, ``macro_stress_Pa`` (9), ``bonds_not_drawn``,
-``warp_factor``, ``units`` and ``descriptions`` (one "array: ..." line per
-array), ``end_convention``, ``bc``, ``amfe_version`` and what the caller adds.
+``torsion_Nm``, ``bending_moment_Nm``. Ids are Int32 (Int64 for beds of 2**31
+particles or more), ``boundary`` UInt8, the rest Float64.
 
-The collection ``cases.pvd`` lists the files with timestep = case index.
-ParaView ignores its ``name`` attribute and shows "Time: k": the file names,
-the ``case_label`` field and the shipped view script's annotation say which
-case is which.
+meshio 5.3.5 writes no field data: the case label, macro-strain, warp factor,
+units, boundary condition, ... are in ``cases.json`` (:mod:`amfe.io.pvd`).
+
+Binary, uncompressed (:data:`COMPRESSION`): meshio's zlib compresses every
+array of a file at one level, and on the paper's bed (295 583 particles,
+1.7 M bonds) it took 5 to 6 times as long as storing (3.6 times amfe 0.2's
+writer, whose budget is 1.5) for files 21 % smaller; the float64 fields hardly
+compress (run/bench_vtu.py, docs/benchmarks.md).
 
 Atomicity: everything is checked before a file is touched. An old
 ``cases.pvd`` is removed first, each case is written atomically
-(:func:`amfe.io.atomic.atomic_write`), ``cases.pvd`` last, and case files of
-an earlier, different set are removed. So ``cases.pvd`` exists if and only if
-the set beside it is complete.
+(:func:`amfe.io.atomic.atomic_write`), then ``cases.json``, ``cases.pvd``
+last, and case files of an earlier, different set are removed (also the
+``.vtp`` files of amfe 0.2). So ``cases.pvd`` exists if and only if the set
+beside it is complete.
 """
+import json
 import os
 import re
-import xml.etree.ElementTree as ET
-from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
 from amfe.errors import AmfeError
 from amfe.io.atomic import atomic_write, fsync_dir
-from amfe.io.vtkxml import polydata_xml, read_polydata
+from amfe.io.pvd import PVD_NAME, SIDECAR_NAME, case_fields, pvd_text
 from amfe.version import __version__
 
-PVD_NAME = "cases.pvd"
+COMPRESSION = None
+"""meshio's compressor for the case files: None (stored) or "zlib" (see the module doc)."""
 WARP_SHARE = 0.05
 """Largest displacement drawn, as a share of the largest side of the points' box."""
 
@@ -72,14 +73,14 @@ END_CONVENTION = ("force_i_N and moment_i_Nm act on particle i (cell array i); p
                   "gets -force_i_N and L e x force_i_N - moment_i_Nm about its own centre, "
                   "with e = (x_j - x_i) / L and L = |x_j - x_i|")
 _SAFE_NAME = re.compile(r"^[A-Za-z0-9_\-]+$")
-_OURS = re.compile(r"^case_[A-Za-z0-9_\-]+\.vtp$|^case_\d+_[A-Za-z0-9_\-]+\.vtu$")
+_OURS = re.compile(r"^case_[A-Za-z0-9_\-]+\.vt[up]$")   # this set's, 0.2's .vtp, 0.1's
 _VOIGT = (("eps_xx", 0, 0), ("eps_yy", 1, 1), ("eps_zz", 2, 2), ("gamma_yz", 1, 2),
           ("gamma_xz", 0, 2), ("gamma_xy", 0, 1))
 
 
 def case_filename(name):
-    """File name of the load case called ``name``: ``case_<name>.vtp``."""
-    return f"case_{name}.vtp"
+    """File name of the load case called ``name``: ``case_<name>.vtu``."""
+    return f"case_{name}.vtu"
 
 
 def warp_factor(points, displacement, share=WARP_SHARE):
@@ -121,8 +122,8 @@ def case_label(name, eps=None, sigma=None):
     return f"{name}: " + (", ".join(comps) if comps else "no load")
 
 
-def write_fields_vtp(directory, fields, field_data=None):
-    """Write one ``case_<name>.vtp`` per load case of ``fields`` and ``cases.pvd``.
+def write_fields_vtu(directory, fields, field_data=None):
+    """Write one ``case_<name>.vtu`` per load case of ``fields``, ``cases.json`` and ``cases.pvd``.
 
     Parameters
     ----------
@@ -131,7 +132,7 @@ def write_fields_vtp(directory, fields, field_data=None):
     fields : amfe.io.fields.Fields
         SI arrays; every value must be finite.
     field_data : dict, optional
-        More field data for every file: str, list of str, or numbers.
+        More keys for ``cases.json`` (JSON-serialisable: str, numbers, lists).
 
     Returns
     -------
@@ -144,47 +145,64 @@ def write_fields_vtp(directory, fields, field_data=None):
         Bad names, shapes or non-finite values (nothing is touched then), or
         a failed write (then no ``cases.pvd`` is left).
     """
+    import meshio
+
     names = _check(fields)
     arrays = {**POINT_ARRAYS, **CELL_ARRAYS}
     stress = fields.macro_strain is None
     # A periodic frame's bonds across a face would span the box: left out.
     drawn = np.ones(len(fields.bonds), bool) if fields.shift is None else \
         ~np.any(np.asarray(fields.shift) != 0, axis=1)
-    common = {"units": [f"{k}: {u}" for k, (u, _) in arrays.items()],
-              "descriptions": [f"{k}: {d}" for k, (_, d) in arrays.items()],
-              "end_convention": END_CONVENTION, "bc": fields.bc, "amfe_version": __version__,
-              "per_unit_strain": "displacements, rotations and loads are per unit "
-                                 + ("macro-stress of E (the particles' modulus)" if stress
-                                    else "macro-strain"),
-              "bonds_not_drawn": np.array([int((~drawn).sum())])}
-    common.update(field_data or {})
+    sidecar = {"amfe_version": __version__, "bc": fields.bc,
+               "units": {k: u for k, (u, _) in arrays.items()},
+               "descriptions": {k: d for k, (_, d) in arrays.items()},
+               "end_convention": END_CONVENTION,
+               "per_unit_strain": "displacements, rotations and loads are per unit "
+                                  + ("macro-stress of E (the particles' modulus)" if stress
+                                     else "macro-strain"),
+               "bonds_not_drawn": int((~drawn).sum())}
+    sidecar.update(field_data or {})
+    # Int32 ids halve their share of the file; VTK reads either.
     pid = np.asarray(fields.particle_id, dtype=np.int64)
-    bonds = np.asarray(fields.bonds, dtype=np.int64)[drawn]
-    static_cells = {"i": pid[bonds[:, 0]], "j": pid[bonds[:, 1]],
+    ids = np.int32 if len(pid) == 0 or pid.max() < 2 ** 31 - 1 else np.int64
+    pid = pid.astype(ids)
+    lines = np.asarray(fields.bonds)[drawn].astype(ids)
+    static_cells = {"i": pid[lines[:, 0]], "j": pid[lines[:, 1]],
                     "a_star": np.asarray(fields.a_star, dtype=float)[drawn]}
-
-    def blob(k):
+    cases = []
+    for k, nm in enumerate(names):
         disp = np.asarray(fields.displacement[k], dtype=float)
+        entry = {"file": case_filename(nm), "case_name": nm}
         if stress:
             sig = np.asarray(fields.macro_stress[k], dtype=float)
-            load = {"case_label": case_label(names[k], sigma=sig),
-                    "macro_stress_Pa": sig.reshape(9)}
+            entry.update(case_label=case_label(nm, sigma=sig), macro_stress_Pa=sig.ravel().tolist())
         else:
             eps = np.asarray(fields.macro_strain[k], dtype=float)
-            load = {"case_label": case_label(names[k], eps), "macro_strain": eps.reshape(9),
-                    "macro_strain_voigt": voigt_of(eps)}
-        fd = {"case_name": names[k], **load,
-              "warp_factor": np.array([warp_factor(fields.centers, disp)]), **common}
+            entry.update(case_label=case_label(nm, eps), macro_strain=eps.ravel().tolist(),
+                         macro_strain_voigt=voigt_of(eps).tolist())
+        entry["warp_factor"] = warp_factor(fields.centers, disp)
+        cases.append(entry)
+    sidecar["cases"] = cases
+
+    def write_case(k, path):
         pd = {"particle_id": pid, "radius_m": np.asarray(fields.radii, dtype=float),
               "boundary": np.asarray(fields.boundary[k]).astype(np.uint8),
-              "displacement_m": disp, "rotation_rad": np.asarray(fields.rotation[k], float)}
+              "displacement_m": np.asarray(fields.displacement[k], dtype=float),
+              "rotation_rad": np.asarray(fields.rotation[k], dtype=float)}
         cd = {"force_i_N": fields.force[k], "moment_i_Nm": fields.moment[k],
               "axial_force_N": fields.axial_force[k], "shear_force_N": fields.shear_force[k],
               "torsion_Nm": fields.torsion[k], "bending_moment_Nm": fields.bending_moment[k]}
-        cd = {**static_cells, **{key: np.asarray(v)[drawn] for key, v in cd.items()}}
-        return polydata_xml(fields.centers, bonds, pd, cd, fd, vectors="displacement_m")
+        cd = {**static_cells, **{key: np.asarray(v, dtype=float)[drawn] for key, v in cd.items()}}
+        mesh = meshio.Mesh(np.asarray(fields.centers, dtype=float), [("line", lines)],
+                           point_data=pd, cell_data={key: [v] for key, v in cd.items()})
+        meshio.vtu.write(path, mesh, binary=True, compression=COMPRESSION,
+                         header_type="UInt64")
 
-    return _write_set(os.fspath(directory), blob, names)
+    try:
+        text = json.dumps(sidecar, indent=1) + "\n"
+    except (TypeError, ValueError) as exc:       # before any file is touched
+        raise AmfeError(f"field_data must be JSON-serialisable: {exc}") from None
+    return _write_set(os.fspath(directory), write_case, names, text)
 
 
 def _check(f):
@@ -219,7 +237,7 @@ def _check(f):
     return names
 
 
-def _write_set(directory, blob, names):
+def _write_set(directory, write_case, names, sidecar_text):
     try:
         os.makedirs(directory, exist_ok=True)
     except OSError as exc:
@@ -230,9 +248,10 @@ def _write_set(directory, blob, names):
         if os.path.lexists(pvd):                 # no stale collection outlives a failed write
             os.remove(pvd)
         for k, path in enumerate(final):
-            data = blob(k)
-            atomic_write(path, lambda fh: fh.write(data))
-        text = _pvd_text([os.path.basename(p) for p in final], names).encode()
+            atomic_write(path, lambda tmp, k=k: write_case(k, tmp), by_name=True)
+        atomic_write(os.path.join(directory, SIDECAR_NAME),
+                     lambda fh: fh.write(sidecar_text.encode()))
+        text = pvd_text([os.path.basename(p) for p in final], names).encode()
         atomic_write(pvd, lambda fh: fh.write(text))
     except OSError as exc:
         raise AmfeError(f"writing the load-case files in {directory} failed ({exc}); no "
@@ -248,34 +267,34 @@ def _write_set(directory, blob, names):
     return final + [pvd]
 
 
-def _pvd_text(files, names):
-    lines = ['<?xml version="1.0"?>',
-             "<!-- amfe load cases: timestep k = load case k; ParaView shows 'Time: k', the "
-             "field data case_label names the case. SI units, per unit macro-strain -->",
-             '<VTKFile type="Collection" version="0.1" byte_order="LittleEndian">',
-             "  <Collection>"]
-    for k, (f, nm) in enumerate(zip(files, names)):
-        lines.append(f'    <DataSet timestep="{k}" group="" part="0" file={quoteattr(f)} '
-                     f'name={quoteattr(nm)}/>')
-    lines += ["  </Collection>", "</VTKFile>", ""]
-    return "\n".join(lines)
+def read_case(path):
+    """One case file as numpy arrays (meshio's read), with what ``cases.json`` says of it.
 
+    Returns
+    -------
+    dict
+        ``points`` (N, 3) [m], ``lines`` (M, 2) int64 point indices, ``point_data``
+        {name: (N,) or (N, k)}, ``cell_data`` {name: (M,) or (M, k)}, and
+        ``field_data``: :func:`amfe.io.pvd.case_fields` ({} without a sidecar).
 
-def read_collection(path):
-    """The cases of a ``.pvd``: ``[(name, absolute path of its file), ...]`` in order.
-
-    Raises AmfeError for a file that is not a readable collection.
+    Raises
+    ------
+    AmfeError
+        Not a VTU file, or cells other than 2-point lines.
     """
+    import meshio
+
     path = os.fspath(path)
     try:
-        root = ET.parse(path).getroot()
-    except (OSError, ET.ParseError) as exc:
-        raise AmfeError(f"cannot read the collection {path}: {exc}") from None
-    base = os.path.dirname(os.path.abspath(path))
-    return [(ds.get("name") or f"t{ds.get('timestep')}", os.path.join(base, ds.get("file", "")))
-            for ds in root.iter("DataSet")]
-
-
-def read_case(path):
-    """One case file as numpy arrays (see :func:`amfe.io.vtkxml.read_polydata`)."""
-    return read_polydata(os.fspath(path))
+        mesh = meshio.vtu.read(path)
+    except Exception as exc:                     # meshio raises ReadError, KeyError, ...
+        raise AmfeError(f"cannot read {path} as a VTU file: {exc}") from None
+    if any(block.type != "line" for block in mesh.cells) or len(mesh.cells) > 1:
+        raise AmfeError(f"{path}: only 2-point line cells are read, found "
+                        + ", ".join(b.type for b in mesh.cells))
+    lines = mesh.cells[0].data if mesh.cells else np.zeros((0, 2))
+    return {"points": np.asarray(mesh.points, dtype=float),
+            "lines": np.asarray(lines, dtype=np.int64).reshape(-1, 2),
+            "point_data": dict(mesh.point_data),
+            "cell_data": {k: v[0] for k, v in mesh.cell_data.items()},
+            "field_data": case_fields(path)}
