@@ -166,34 +166,21 @@ def _voxel(bed, options, error, comm, spec):
     spec: the face's bc, model, voxel_size, progress, vtu_dir and input_path."""
     from amfe.solvers.voxel import homogenize_voxel
     bc, model = spec["bc"], spec["model"]
-    centers = radii = material = source = box = None
-    if error is None:
-        centers, radii, box = bed.centers, bed.radii, bed.attrs.get("periodic")
-        material, source = options.material, options.material_source
-        if options.solver not in ("auto", "gamg"):
-            raise AmfeError("homogenize: the voxel model solves with CG + GAMG, not "
-                            f"{options.solver!r}")
+    if error is None and options.solver not in ("auto", "gamg"):
+        raise AmfeError("homogenize: the voxel model solves with CG + GAMG, not "
+                        f"{options.solver!r}")
     if model != "voxel":
         raise AmfeError(f"homogenize: model must be 'frame' or 'voxel', got {model!r}"
                         + ("" if model != "frame" else " (voxel_size needs model='voxel')"))
     if bc not in ("kubc", "periodic"):
         raise AmfeError(f"homogenize: the voxel model solves bc 'kubc' or 'periodic', not {bc!r}")
-    if bc == "periodic" and error is None and box is None:
-        from amfe.model.torus import NOT_PERIODIC
-        raise AmfeError(NOT_PERIODIC)
     if spec["vtu_dir"] is not None:
         raise AmfeError("homogenize: the voxel model writes no ParaView files yet (no --vtu)")
     with messages(spec["progress"]):
-        d = homogenize_voxel(centers, radii, material, voxel_size=spec["voxel_size"],
-                             period=box if bc == "periodic" else None, comm=comm,
-                             rtol=getattr(options, "rtol", None),
-                             max_it=getattr(options, "max_it", None),
-                             ksp_options=getattr(options, "ksp_options", None),
-                             accept_unconverged=getattr(options, "accept_unconverged", False),
-                             progress=spec["progress"], material_source=source,
-                             max_memory=getattr(options, "max_memory", None), input_error=error)
-    describe_input(d, spec["input_path"])
-    return Result.from_dict(d)
+        result = homogenize_voxel(bed, options and replace(options, bc=bc), comm,
+                                  voxel_size=spec["voxel_size"], input_error=error)
+    describe_input(result.extra, spec["input_path"])
+    return result
 
 
 def _inputs(bed, material, given_source):

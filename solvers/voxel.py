@@ -13,8 +13,10 @@ error (the dual-weighted residual of :mod:`amfe.solvers.correction`).
 
 Units inside: lengths in the first voxel side h_x, stresses in E.
 """
-import sys
+import logging
 import time
+from collections import namedtuple
+from dataclasses import replace
 
 import numpy as np
 import scipy.sparse as sp
@@ -23,81 +25,88 @@ from amfe.errors import AmfeError
 from amfe.model.averages import (asymmetry, compliance_and_constants, dual_corrected,
                                  unit_strains)
 from amfe.model.hex8 import VERTICES, element_stiffness
-from amfe.model.material import STEEL, SOURCE_DEFAULT
-from amfe.model.bonds import validate_particles
+from amfe.model.material import STEEL
 from amfe.model.memory import check_memory
+from amfe.model.options import SolveOptions
 from amfe.model.voxel import voxel_bytes, voxel_solid
 from amfe.model.voxelmesh import block_rows, build_mesh, element_loads
+from amfe.io.result import Result
 from amfe.io.result_meta import header
-from amfe.solvers.consistency import agree_across_ranks, digest
-from amfe.solvers.inputs import check_rtol
+from amfe.solvers.consistency import agree_across_ranks
+from amfe.solvers.driver import petsc_comm
+from amfe.solvers.inputs import checked_inputs
 from amfe.solvers.ksp import RESIDUAL_FACTOR, check_solution, make_ksp, petsc_options
 from amfe.solvers.partition import row_ranges
 from amfe.solvers.petsc import init_petsc
+from amfe.solvers.petsclib import PETSc
 
+LOG = logging.getLogger("amfe.solvers")
 EPS = float(np.finfo(float).eps)
 VOXEL_RTOL = 1e-5
 """Default CG tolerance. With the second-order correction the constants at 1e-5 are
 within 7.6e-10 (KUBC) and 5.7e-12 (periodic) of those at 1e-12 on a 48-particle
 periodic bed at 3 um voxels, in 8 and 11 iterations against 21 and 26
 (docs/model.md, section 10)."""
+#: The conditions the voxel model solves; ``periodic``: it needs the bed's periodic box.
+Condition = namedtuple("Condition", "periodic")
+VOXEL_CONDITIONS = {"kubc": Condition(False), "periodic": Condition(True)}
 
 
-def homogenize_voxel(centers, radii, material=None, *, voxel_size=None, period=None,
-                     comm=None, rtol=None, max_it=None, ksp_options=None, initial="affine",
-                     accept_unconverged=False, progress=False, material_source=None,
-                     box=None, max_memory=None, input_error=None):
+def homogenize_voxel(bed, options=None, comm=None, *, voxel_size=None, input_error=None,
+                     initial="affine"):
     """Effective C of the union of a bed's spheres, meshed by voxels of side ``voxel_size``.
 
-    centers (N, 3) [m], radii (N,) [m], the same on every rank; material: a
-    :class:`~amfe.model.material.Material` (E, nu used; default steel);
-    voxel_size [m] (default mean radius / 4); period (3,) [m]: solve the
-    periodic condition on this period box (a periodic bed), else KUBC on the
-    box of the kept centres. rtol: CG's relative tolerance (default
-    :data:`VOXEL_RTOL`, 1e-5);
-    initial: "affine" (the applied field, KUBC) or "zero" (the initial guess).
-    box ((3,), (3,)) [m]: KUBC on this box instead of the centres' (the spheres
-    clipped to it). max_memory [bytes]: refuse a model estimated to need more
-    (default: half the machine's memory), before allocating its grid.
-    input_error: an AmfeError the caller met preparing this rank's input;
+    bed: a checked :class:`~amfe.model.bed.Bed` (centres (N, 3) [m], radii (N,)
+    [m]; ``attrs["periodic"]`` (3,) [m], the period box, for bc "periodic";
+    ``attrs["size"]`` (3,) [m], the recorded box, V under KUBC). options: a
+    :class:`~amfe.model.options.SolveOptions` (default: its defaults): bc
+    "kubc" (on the frame's box, docs/model.md section 5) or "periodic"; rtol
+    (default :data:`VOXEL_RTOL`, 1e-5), max_it, ksp_options,
+    accept_unconverged, max_memory (bytes; a model estimated to need more is
+    refused before its grid is allocated), material (None: the bed's, else
+    steel; E and nu used) and material_source. voxel_size [m] (default mean
+    radius / 4). initial: "affine" (the applied field, KUBC) or "zero" (the
+    initial guess). comm, input_error: as :func:`amfe.solvers.driver.homogenize_bed`:
     the ranks' inputs are compared first (one collective), so a bad or
     differing input is the same error on every rank, never a hang.
-    Returns the result dict of :func:`amfe.solvers.driver.homogenize_bed`'s
-    shape (properties, C, S [Pa, 1/Pa], volume [m^3], counts, solver,
-    material, warnings, the header) with a ``model`` record (name "voxel",
-    voxel size, voxels, solid fraction, DOFs, neck share, pieces removed).
-    Raises AmfeError on every rank for bad input or a failed solve.
+    Returns the :class:`~amfe.io.result.Result` of homogenize_bed's shape
+    (properties, C, S [Pa, 1/Pa], volume [m^3], counts, solver, material,
+    removed, warnings, the header) whose extra holds a ``model`` record (name
+    "voxel", voxel size, voxels, solid fraction, DOFs, neck share, pieces
+    removed). Progress and warnings leave through the logger "amfe.solvers"
+    on rank 0. Raises AmfeError on every rank for bad input or a failed solve.
     """
-    PETSc = init_petsc()
-    comm = PETSc.COMM_WORLD if comm is None else (
-        comm if isinstance(comm, PETSc.Comm) else PETSc.Comm(comm))
+    if options is None and input_error is None:
+        options = SolveOptions()
+    init_petsc(options.petsc_args if isinstance(options, SolveOptions) else None)
+    comm = petsc_comm(comm)
     mpi = comm.tompi4py()
-    source = material_source or (SOURCE_DEFAULT if material is None else "argument")
-    material = material or STEEL
-    raw, error = (centers, radii), input_error
+    error = input_error
     try:
-        if error is not None:
-            raise error
-        centers, radii = validate_particles(centers, radii)
-        if rtol is not None:
-            check_rtol(rtol)
+        if error is None and isinstance(options, SolveOptions) \
+                and options.bc not in VOXEL_CONDITIONS:
+            raise AmfeError(f"the voxel model solves bc 'kubc' or 'periodic', not {options.bc!r}")
         if initial not in ("affine", "zero"):
             raise AmfeError(f"initial must be 'affine' or 'zero', got {initial!r}")
     except AmfeError as exc:
-        error = exc
-    options = (voxel_size, digest(period), digest(box), rtol, max_it, initial,
-               sorted((ksp_options or {}).items()))
-    agree_across_ranks(mpi, {"centers": raw[0], "radii": raw[1], "material": repr(material),
-                             "options": repr(options)}, error)
-    log = _logger(mpi.rank, progress)
+        error = error or exc
+    agree_across_ranks(mpi, {"voxel": repr((voxel_size, initial))}, None)
+    inp = checked_inputs(mpi, bed, options, VOXEL_CONDITIONS, error)
+    options = replace(inp.options, material=inp.material)
     t0 = time.perf_counter()
-    geo = voxel_solid(centers, radii, voxel_size, period, box=box, max_memory=max_memory,
+    geo = voxel_solid(bed.centers, bed.radii, voxel_size, inp.box if options.bc == "periodic"
+                      else None, size=bed.attrs.get("size"), max_memory=options.max_memory,
                       ranks=mpi.size)
+    for line in geo.warnings if mpi.rank == 0 else ():
+        LOG.warning(line)
     t_geo = time.perf_counter() - t0
-    C, sol, mesh = voxel_stiffness(geo, material, comm, periodic=period is not None, rtol=rtol,
-                                   max_it=max_it, ksp_options=ksp_options, initial=initial,
-                                   accept_unconverged=accept_unconverged, log=log,
-                                   max_memory=max_memory)
+    C, sol, mesh = voxel_stiffness(geo, options, comm, initial=initial)
+    return Result.from_dict(_result(bed, geo, (C, sol, mesh), inp.record, mpi.size, t_geo))
+
+
+def _result(bed, geo, solved, record, ranks, t_geo):
+    """The result dict of a solved voxel model (docs/model.md, sections 6 and 10)."""
+    C, sol, mesh = solved
     S, props = compliance_and_constants(C)
     model = {"name": "voxel", "voxel_size": float(geo.grid.h.max()),
              "voxel_sides": geo.grid.h.tolist(), "voxels": geo.grid.n.tolist(),
@@ -108,16 +117,15 @@ def homogenize_voxel(centers, radii, material=None, *, voxel_size=None, period=N
              "box": {"min": geo.grid.lo.tolist(),
                      "max": (geo.grid.lo + geo.grid.n * geo.grid.h).tolist()},
              "geometry_seconds": t_geo}
-    record = {"E": material.E, "nu": material.nu, "psi": material.psi, "source": source}
-    out = header("homogenize", centers, radii, record)
+    out = header("homogenize", bed.centers, bed.radii, record)
     out["counts"].update(particles_kept=int(len(geo.kept)), bonds_kept=geo.n_bonds,
                          bonds_input=geo.n_bonds_input)
+    n = int(len(bed.radii))
     out.update({
         "properties": {k: float(v) for k, v in props.items()},
         "C": C.tolist(), "S": S.tolist(), "volume": geo.grid.volume,
-        "n_particles": int(len(radii)), "n_removed": int(len(radii) - len(geo.kept)),
-        "n_bonds": geo.n_bonds, "bc": "kubc" if period is None else "periodic",
-        "ranks": int(mpi.size),
+        "n_particles": n, "n_removed": n - int(len(geo.kept)), "removed": geo.removed,
+        "n_bonds": geo.n_bonds, "bc": "periodic" if mesh.periodic else "kubc", "ranks": ranks,
         "solver": {"method": "gamg", "reason": "voxel model: CG + GAMG, rigid-body near null "
                    "space", "ksp_type": sol["ksp_type"], "pc_type": sol["pc_type"],
                    "rtol": sol["rtol"], "residual_limit": RESIDUAL_FACTOR * sol["rtol"],
@@ -129,55 +137,50 @@ def homogenize_voxel(centers, radii, material=None, *, voxel_size=None, period=N
     return out
 
 
-def voxel_stiffness(geo, material, comm, *, periodic=False, rtol=None, max_it=None,
-                    ksp_options=None, initial="affine", accept_unconverged=False, log=None,
-                    max_memory=None):
+def voxel_stiffness(geo, options, comm, *, initial="affine"):
     """(C (6, 6) [Pa], solve record, mesh) of a :class:`~amfe.model.voxel.VoxelSolid`.
 
-    geo.solid are the voxels meshed (load-carrying already); periodic: the
-    grid is a period box. The other arguments as :func:`homogenize_voxel`.
+    geo.solid are the voxels meshed (load-carrying already); options: a
+    :class:`~amfe.model.options.SolveOptions` (bc "periodic": the grid is a
+    period box; material None: steel). initial as :func:`homogenize_voxel`.
     """
-    PETSc = init_petsc()
     mpi = comm.tompi4py()
-    log = log or (lambda line: None)
-    rtol = VOXEL_RTOL if rtol is None else rtol
+    periodic = options.bc == "periodic"
+    options = replace(options, rtol=VOXEL_RTOL if options.rtol is None else options.rtol)
+    material = options.material or STEEL
     mesh = build_mesh(geo.solid, periodic=periodic)
     voxels = int(np.prod(geo.grid.n))
-    check_memory(voxel_bytes(voxels, mesh.n_nodes, mpi.size), max_memory,
+    check_memory(voxel_bytes(voxels, mesh.n_nodes, mpi.size), options.max_memory,
                  f"a voxel model of {mesh.n_nodes:.3g} nodes ({3 * mesh.n_nodes:.3g} DOFs) on "
                  f"{mpi.size} rank(s)")
-    log(f"voxels: {geo.grid.n.tolist()} of {geo.grid.h.max():.3g} m, {mesh.n_elements} solid "
-        f"(fraction {geo.solid_fraction:.4f}), {mesh.n_nodes} nodes, {len(geo.kept)} particles; "
-        f"{100 * geo.neck_share:.0f} % of necks >= 2 voxels")
+    _log(mpi, f"voxels: {geo.grid.n.tolist()} of {geo.grid.h.max():.3g} m, {mesh.n_elements} "
+         f"solid (fraction {geo.solid_fraction:.4f}), {mesh.n_nodes} nodes, {len(geo.kept)} "
+         f"particles; {100 * geo.neck_share:.0f} % of necks >= 2 voxels")
     h = geo.grid.h / geo.grid.h[0]
     Ke = element_stiffness(h, 1.0, material.nu)
     bounds = row_ranges(mesh.n_nodes, mpi.size)
     r0, r1 = int(bounds[mpi.rank]), int(bounds[mpi.rank + 1])
     t1 = time.perf_counter()
-    A0 = _assemble(PETSc, comm, mesh, Ke, r0, r1)
+    A0 = _assemble(comm, mesh, Ke, r0, r1)
     x_local = mesh.node_ijk(np.arange(r0, r1)) * h          # node coordinates, units h_x
     volume = float(np.prod(geo.grid.n * h))
     t_asm = time.perf_counter() - t1
     cases = _periodic(mesh, Ke, h, r0, r1) if periodic else \
         _kubc(mesh, x_local, geo.grid.n * h / 2.0, r0, r1)
-    sol = _solve(PETSc, comm, A0, cases, x_local, rtol, max_it, ksp_options, initial,
-                 accept_unconverged, log)
+    sol = _solve(A0, cases, x_local, options, initial)
     W = cases["W0"] - sol["work"] if periodic else sol["work"]
     W, sol["stats"] = dual_corrected(W, [sol["cross"]], -1)
-    sol["assembly_seconds"], sol["rtol"] = t_asm, rtol
+    sol["assembly_seconds"], sol["rtol"] = t_asm, options.rtol
     return W / volume * material.E, sol, mesh
 
 
-def _logger(rank, progress):
-    start = time.perf_counter()
-
-    def log(line):
-        if progress and rank == 0:
-            print(f"[{time.perf_counter() - start:7.2f} s] {line}", file=sys.stderr, flush=True)
-    return log
+def _log(mpi, line):
+    """One progress line to the logger, on rank 0 only (the face decides what prints)."""
+    if mpi.rank == 0:
+        LOG.info(line)
 
 
-def _assemble(PETSc, comm, mesh, Ke, r0, r1):
+def _assemble(comm, mesh, Ke, r0, r1):
     """Rows [3 r0, 3 r1) of the stiffness as a distributed AIJ matrix of block size 3."""
     indptr, cols, blocks = block_rows(mesh, Ke, r0, r1)
     nloc, n = r1 - r0, mesh.n_nodes
@@ -222,14 +225,14 @@ def _periodic(mesh, Ke, h, r0, r1):
             "forces": forces, "W0": W0, "gross_sq": gross}
 
 
-def _solve(PETSc, comm, A0, cases, x_local, rtol, max_it, ksp_options, initial, accept, log):
+def _solve(A0, cases, x_local, options, initial):
     """Solve the six cases on one operator; the work matrix and cross products.
 
     work[i, j]: KUBC g_i . A0 x_j (the prescribed translations' work against the
     reactions), periodic F_i . x_j; cross[i, j] = x_i . r_j, r_j the true residual
     on the free DOFs (the prescribed values set exactly first).
     """
-    mpi = comm.tompi4py()
+    mpi = A0.getComm().tompi4py()
     r0 = A0.getOwnershipRange()[0]
     dofs = cases["dofs"].astype(PETSc.IntType) + r0
     A = A0.duplicate(copy=True)
@@ -239,12 +242,12 @@ def _solve(PETSc, comm, A0, cases, x_local, rtol, max_it, ksp_options, initial, 
     coords.setArray(x_local.ravel())
     A.setNearNullSpace(PETSc.NullSpace().createRigidBody(coords))
     t0 = time.perf_counter()
-    with petsc_options(PETSc, ksp_options) as unused:
-        ksp = make_ksp(PETSc, A, rtol=rtol, max_it=max_it)
+    with petsc_options(options.ksp_options) as unused:
+        ksp = make_ksp(A, rtol=options.rtol, max_it=options.max_it)
         ksp.setInitialGuessNonzero(True)
         ksp.setUp()
     setup = time.perf_counter() - t0
-    log(f"GAMG set-up {setup:.2f} s")
+    _log(mpi, f"GAMG set-up {setup:.2f} s")
     xs, rs, loads, iterations, residuals, warnings = [], [], [], [], [], []
     norm_A = A0.norm(PETSc.NormType.FROBENIUS)
     t1 = time.perf_counter()
@@ -269,8 +272,9 @@ def _solve(PETSc, comm, A0, cases, x_local, rtol, max_it, ksp_options, initial, 
         gross = (np.sqrt(mpi.allreduce(cases["gross_sq"][k])) if "gross_sq" in cases
                  else norm_A * g.norm())
         floor = EPS * (norm_A * x.norm() + gross) / bnorm if bnorm > 0 else 0.0
-        warning, _ = check_solution(PETSc, ksp, f"voxel load case {k}", residual,
-                                    lambda: (residual, "unpreconditioned", floor), accept=accept)
+        warning, _ = check_solution(ksp, f"voxel load case {k}", residual,
+                                    lambda: (residual, "unpreconditioned", floor),
+                                    accept=options.accept_unconverged)
         if warning:
             warnings.append(warning)
         iterations.append(int(ksp.getIterationNumber()))
@@ -278,7 +282,7 @@ def _solve(PETSc, comm, A0, cases, x_local, rtol, max_it, ksp_options, initial, 
         f = A0.createVecLeft()
         A0.mult(x, f)
         xs.append(x), rs.append(r), loads.append(f if cases["forces"] is None else None)
-        log(f"case {k}: {iterations[-1]} iterations, true residual {residual:.1e}")
+        _log(mpi, f"case {k}: {iterations[-1]} iterations, true residual {residual:.1e}")
     solve = time.perf_counter() - t1
     if cases["forces"] is None:
         work = np.array([[g_dot(A, cases["values"][i], loads[j]) for j in range(6)]

@@ -6,11 +6,12 @@ import pytest
 import scipy.sparse as sp
 
 from amfe.errors import AmfeError
-from amfe.model.bed import generate_bed
+from amfe.model.bed import Bed, generate_bed
 from amfe.model.bonds import find_bonds
 from amfe.model.hex8 import (VERTICES, element_stiffness, isotropic_D, mean_strain_matrix,
                              strain_matrix)
 from amfe.model.material import Material
+from amfe.model.options import SolveOptions
 from amfe.model.voxel import (NECK_ERROR_SHARE, NECK_WARN_SHARE, Grid, VoxelSolid, grid_over,
                               load_carrying, voxel_solid, voxelize)
 from amfe.model.voxelmesh import block_rows, build_mesh
@@ -22,10 +23,11 @@ SIDES = [np.ones(3), np.array([1.0, 0.8, 1.3])]
 
 
 def solid_lattice(n=3, spacing=1e-5, radius=0.9e-5):
-    """n^3 cubic lattice whose spheres (radius > spacing sqrt(3) / 2) fill their centres' box."""
+    """n^3 cubic lattice whose spheres (radius > spacing sqrt(3) / 2) fill their centres' box,
+    which is the bed's recorded size (docs/model.md, section 5: V and KUBC's box)."""
     g = np.arange(n) * spacing
     x = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)
-    return x, np.full(len(x), radius)
+    return Bed(x, np.full(len(x), radius), {"size": [(n - 1) * spacing] * 3})
 
 
 # ----------------------------------------------------------------------------- element
@@ -145,20 +147,21 @@ def test_block_rows_equal_element_by_element_assembly(periodic):
 # ----------------------------------------------------------------------------- solver
 def test_fully_solid_box_gives_the_particles_C_from_a_zero_guess():
     from amfe.solvers.voxel import homogenize_voxel
-    x, r = solid_lattice()
     m = Material(E=200e9, nu=0.3)
-    res = homogenize_voxel(x, r, m, voxel_size=0.5e-5, rtol=1e-12, initial="zero")
-    assert res["model"]["solid_fraction"] == 1.0
-    assert min(res["solver"]["iterations"]) > 0
-    assert np.abs(np.array(res["C"]) - isotropic_D(m.E, m.nu)).max() <= 1e-10 * m.E
+    res = homogenize_voxel(solid_lattice(), SolveOptions(rtol=1e-12, material=m),
+                           voxel_size=0.5e-5, initial="zero")
+    assert res.extra["model"]["solid_fraction"] == 1.0
+    assert min(res.solver["iterations"]) > 0
+    assert np.abs(np.array(res.C) - isotropic_D(m.E, m.nu)).max() <= 1e-10 * m.E
 
 
 def test_fully_solid_periodic_box_gives_the_particles_C():
     from amfe.solvers.voxel import homogenize_voxel
-    x, r = solid_lattice(n=5, spacing=1e-5, radius=0.9e-5)   # the period must exceed 4 R
-    res = homogenize_voxel(x, r, None, voxel_size=0.5e-5, period=[5e-5] * 3, rtol=1e-12)
-    assert res["bc"] == "periodic" and res["model"]["solid_fraction"] == 1.0
-    assert np.abs(np.array(res["C"]) - isotropic_D(STEEL_E, STEEL_NU)).max() <= 1e-10 * STEEL_E
+    lattice = solid_lattice(n=5, spacing=1e-5, radius=0.9e-5)   # the period must exceed 4 R
+    bed = Bed(lattice.centers, lattice.radii, {"periodic": [5e-5] * 3})
+    res = homogenize_voxel(bed, SolveOptions(bc="periodic", rtol=1e-12), voxel_size=0.5e-5)
+    assert res.bc == "periodic" and res.extra["model"]["solid_fraction"] == 1.0
+    assert np.abs(np.array(res.C) - isotropic_D(STEEL_E, STEEL_NU)).max() <= 1e-10 * STEEL_E
 
 
 def test_floating_piece_changes_nothing_once_removed():
@@ -177,7 +180,8 @@ def test_floating_piece_changes_nothing_once_removed():
         geo = VoxelSolid(grid=grid, solid=kept, kept=np.arange(1), n_bonds=0, n_bonds_input=0,
                          neck_share=1.0, solid_fraction=float(kept.mean()), pieces_removed=pieces,
                          voxels_removed=voxels, warnings=[])
-        Cs.append(voxel_stiffness(geo, Material(), PETSc.COMM_SELF, rtol=1e-12)[0])
+        Cs.append(voxel_stiffness(geo, SolveOptions(rtol=1e-12, material=Material()),
+                                  PETSc.COMM_SELF)[0])
         assert pieces == (1 if solid is blob else 0)
     assert np.abs(Cs[0] - Cs[1]).max() <= 1e-10 * STEEL_E
 
@@ -222,14 +226,15 @@ def test_petsc_solve_equals_an_independent_scipy_solve(periodic):
     from amfe.solvers.voxel import voxel_stiffness
     bed = generate_bed(size=(60e-6, 60e-6, 50e-6), seed=2, periodic=True)
     geo = voxel_solid(bed.centers, bed.radii, 5e-6, bed.attrs["periodic"] if periodic else None)
-    C = voxel_stiffness(geo, Material(), init_petsc().COMM_SELF, periodic=periodic,
-                        rtol=1e-10)[0]
+    bc = "periodic" if periodic else "kubc"
+    C = voxel_stiffness(geo, SolveOptions(bc=bc, rtol=1e-10, material=Material()),
+                        init_petsc().COMM_SELF)[0]
     want, averaged = scipy_voxel_C(geo, periodic)
     assert np.abs(C - want).max() <= 1e-8 * np.abs(want).max()
     assert np.abs(averaged - want).max() <= 1e-10 * np.abs(want).max()  # the same C
     # a loose solve: the second-order correction leaves a small fraction of its own size
-    C, sol, _ = voxel_stiffness(geo, Material(), init_petsc().COMM_SELF, periodic=periodic,
-                                rtol=1e-4)
+    C, sol, _ = voxel_stiffness(geo, SolveOptions(bc=bc, rtol=1e-4, material=Material()),
+                                init_petsc().COMM_SELF)
     error = np.abs(C - want).max() / np.abs(want).max()
     assert error < 0.05 * sol["stats"]["correction"] and error < 1e-6
 
@@ -238,7 +243,7 @@ def test_petsc_solve_equals_an_independent_scipy_solve(periodic):
 def bed_result():
     from amfe.solvers.voxel import homogenize_voxel
     bed = generate_bed(size=(100e-6, 100e-6, 60e-6), seed=1)
-    return homogenize_voxel(bed.centers, bed.radii, voxel_size=5e-6, rtol=1e-10)
+    return homogenize_voxel(bed, SolveOptions(rtol=1e-10), voxel_size=5e-6).to_dict()
 
 
 def test_kubc_C_of_a_bed_is_below_the_voigt_bound(bed_result):
@@ -279,11 +284,12 @@ def test_result_follows_the_schema_and_api_dispatch(bed_result, tmp_path):
 
 def test_memory_estimate_refuses_before_allocating():
     from amfe.solvers.voxel import homogenize_voxel
-    x, r = solid_lattice()
+    bed = solid_lattice()
     with pytest.raises(AmfeError, match="memory"):       # the grid alone: 8e12 voxels
-        homogenize_voxel(x, r, voxel_size=1e-9)
-    with pytest.raises(AmfeError, match="nodes"):        # the grid fits, the solve does not
-        homogenize_voxel(x, r, voxel_size=0.5e-5, max_memory=200_000)
+        homogenize_voxel(bed, voxel_size=1e-9)
+    # the grid and the frame's estimate of 27 particles (0.5 MB) fit, the 125 nodes' 1.75 MB not
+    with pytest.raises(AmfeError, match="nodes"):
+        homogenize_voxel(bed, SolveOptions(max_memory=1_000_000), voxel_size=0.5e-5)
 
 
 # ----------------------------------------------------------------------------- MPI
@@ -293,18 +299,19 @@ def test_one_and_two_ranks_agree(tmp_path):
     script.write_text(
         "import json\n"
         "from mpi4py import MPI\n"
-        "from amfe.model.bed import generate_bed\n"
+        "from amfe.model.bed import Bed, generate_bed\n"
+        "from amfe.model.options import SolveOptions\n"
         "from amfe.solvers.voxel import homogenize_voxel\n"
         "bed = generate_bed(size=(60e-6, 60e-6, 50e-6), seed=2, periodic=True)\n"
         "out = {}\n"
-        "for name, period in (('kubc', None), ('periodic', bed.attrs['periodic'])):\n"
+        "for name in ('kubc', 'periodic'):\n"
         "    for comm in (MPI.COMM_WORLD, MPI.COMM_SELF):\n"
-        "        r = homogenize_voxel(bed.centers, bed.radii, voxel_size=5e-6, period=period,\n"
-        "                             comm=comm, rtol=1e-10)\n"
-        "        out[f'{name}{r[\"ranks\"]}'] = r['C']\n"
+        "        r = homogenize_voxel(bed, SolveOptions(bc=name, rtol=1e-10), comm,\n"
+        "                             voxel_size=5e-6)\n"
+        "        out[f'{name}{r.ranks}'] = r.C.tolist()\n"
         "from amfe.errors import AmfeError\n"
         "try:\n"   # a rank-dependent bed: the same error on both ranks, no hang
-        "    homogenize_voxel(bed.centers, bed.radii * (1 + 1e-3 * MPI.COMM_WORLD.rank))\n"
+        "    homogenize_voxel(Bed(bed.centers, bed.radii * (1 + 1e-3 * MPI.COMM_WORLD.rank)))\n"
         "except AmfeError as exc:\n"
         "    out['error'] = str(exc)\n"
         "out['errors'] = MPI.COMM_WORLD.allgather('error' in out)\n"

@@ -182,11 +182,12 @@ class VoxelSolid:
     """The voxel model of a bed before meshing (docs/model.md, section 10).
 
     grid: :class:`Grid`; solid: (nz, ny, nx) bool, the load-carrying voxels;
-    kept: indices of the particles kept (section 5's largest bonded cluster);
-    n_bonds: bonds among them (n_bonds_input: in the whole bed); neck_share: share of their necks >= 2 voxels
-    across; solid_fraction: load-carrying solid voxels / all voxels;
-    pieces_removed, voxels_removed: the floating pieces taken out;
-    warnings: list of str.
+    kept: indices of the particles kept (section 5's load-carrying pieces);
+    n_bonds: bonds among them (n_bonds_input: in the whole bed); neck_share:
+    share of their necks >= 2 voxels across; solid_fraction: load-carrying
+    solid voxels / all voxels; pieces_removed, voxels_removed: the solid
+    pieces taken out at the voxel level; warnings: list of str; removed: the
+    particle pieces removed (:func:`amfe.model.carrying.removed_report`, or None).
     """
 
     grid: Grid
@@ -199,63 +200,92 @@ class VoxelSolid:
     pieces_removed: int
     voxels_removed: int
     warnings: list
+    removed: dict = None
 
 
-def voxel_solid(centers, radii, voxel_size=None, period=None, box=None, max_memory=None,
+def kubc_box(centers, radii, size=None, kept=None):
+    """(lo (3,), hi (3,), note) [m]: the frame's box of a bed under KUBC, placed in space.
+
+    Its lengths are :func:`amfe.model.carrying.bed_box`'s (V of the frame,
+    docs/model.md, section 5): the recorded ``size`` (3,) [m] where it holds
+    the load-carrying centres (``kept``, indices; default all), as [0, L] where
+    they lie in it (a generated bed) or else centred on their extent; otherwise
+    the load-carrying spheres' bounding box. note: bed_box's (why the recorded
+    size was not used), else None.
+    """
+    from amfe.model.carrying import bed_box
+    L, note = bed_box(centers, radii, size, kept)
+    x = centers if kept is None else centers[kept]
+    r = radii if kept is None else radii[kept]
+    if size is None or note is not None:
+        lo = (x - r[:, None]).min(axis=0)
+    elif np.all((x >= -1e-9 * L) & (x <= L * (1 + 1e-9))):
+        lo = np.zeros(3)
+    else:
+        lo = 0.5 * (x.min(axis=0) + x.max(axis=0) - L)
+    return lo, lo + L, note
+
+
+def voxel_solid(centers, radii, voxel_size=None, period=None, size=None, max_memory=None,
                 ranks=1):
-    """The :class:`VoxelSolid` of a bed: centers (N, 3) [m], radii (N,) [m].
+    """The :class:`VoxelSolid` of a bed: centers (N, 3) [m], radii (N,) [m] (a Bed's, checked).
 
-    The particles kept are the frame's (docs/model.md, section 5: the largest
-    bonded cluster, on the torus when ``period`` (3,) [m] is given). The box is
-    the bounding box of their centres (KUBC, as the frame's) or the period box
-    [0, L) (periodic). ``voxel_size`` [m] defaults to the mean radius /
-    :data:`DEFAULT_VOXELS_PER_RADIUS`. ``box`` ((3,), (3,)) [m]: KUBC on this box
-    instead (the spheres clipped to it). ``max_memory`` [bytes] (default: half
-    the machine's): a grid whose estimate (:func:`voxel_bytes`) exceeds it is
-    refused before it is allocated.
+    The particles kept are the frame's under the same condition (docs/model.md,
+    section 5, :mod:`amfe.model.carrying`): under KUBC every bonded piece its
+    prescribed boundary particles hold; on the torus (``period`` (3,) [m]) the
+    pieces that wind round it. The box is the frame's (:func:`kubc_box`: the
+    bed's recorded ``size`` (3,) [m], else the kept spheres' bounding box; the
+    spheres are clipped to it), or the period box [0, L). ``voxel_size`` [m]
+    defaults to the mean radius / :data:`DEFAULT_VOXELS_PER_RADIUS`.
+    ``max_memory`` [bytes] (default: half the machine's): a grid whose estimate
+    (:func:`voxel_bytes`) exceeds it is refused before it is allocated.
     """
     from amfe.model.memory import check_memory
-    from amfe.model.bonds import contact_geometry, find_pairs, validate_particles
-    from amfe.model.frame import largest_component
+    from amfe.model.bonds import contact_geometry, find_pairs
+    from amfe.model.carrying import (component_labels, kubc_held, periodic_winding,
+                                     removed_report, removed_warning)
     from amfe.model.torus import check_box, find_periodic_pairs, wrap
 
-    centers, radii = validate_particles(centers, radii)
+    centers, radii = np.asarray(centers, float), np.asarray(radii, float)
     if voxel_size is None:
         voxel_size = float(radii.mean()) / DEFAULT_VOXELS_PER_RADIUS
-    if period is None:
-        i, j = find_pairs(centers, radii)
-        offset = None
-    else:
+    shift = None
+    if period is not None:
         L = check_box(period, radii)
         centers = wrap(centers, L)
         i, j, shift = find_periodic_pairs(centers, radii, L)
-        offset = shift * L
+    else:
+        i, j = find_pairs(centers, radii)
     if i.size == 0:
         raise AmfeError(f"the bed has no bonds: none of its {len(radii)} particles overlap")
-    a = contact_geometry(centers, radii, i, j, offset).a
-    keep = largest_component(len(radii), i, j)
-    x, r = centers[keep], radii[keep]
+    a = contact_geometry(centers, radii, i, j, None if shift is None else shift * L).a
+    labels = component_labels(len(radii), i, j)
+    ids = (kubc_held(centers, radii, labels) if period is None
+           else periodic_winding(len(radii), i, j, shift, labels))
+    keep = np.isin(labels, ids)
+    removed = removed_report(centers, radii, labels, ids, len(radii))
+    kept = np.flatnonzero(keep)
+    note = None
     if period is not None:
         grid = grid_over(np.zeros(3), L, voxel_size)
-    elif box is not None:
-        grid = grid_over(box[0], box[1], voxel_size)
     else:
-        grid = grid_over(x.min(axis=0), x.max(axis=0), voxel_size)
+        lo, hi, note = kubc_box(centers, radii, size, kept)
+        grid = grid_over(lo, hi, voxel_size)
     voxels = int(np.prod(grid.n))
     check_memory(voxel_bytes(voxels, 0, ranks), max_memory,
                  f"a voxel model of {voxels:.3g} voxels ({'x'.join(map(str, grid.n))}) on "
                  f"{ranks} rank(s)")
-    warnings = []
+    warnings = [note] if note else []
     share = resolved_share(a[keep[i]], grid)
-    note = check_necks(share, voxel_size)
-    if note:
-        warnings.append(note)
-    solid = voxelize(x, r, grid, periodic=period is not None)
-    kept_solid, pieces, voxels = load_carrying(solid, periodic=period is not None)
+    neck = check_necks(share, voxel_size)
+    warnings += ([neck] if neck else []) + removed_warning(
+        removed, "kubc" if period is None else "periodic")
+    solid = voxelize(centers[kept], radii[kept], grid, periodic=period is not None)
+    kept_solid, pieces, n_gone = load_carrying(solid, periodic=period is not None)
     if pieces:
-        warnings.append(f"{pieces} solid piece(s) of {voxels} voxels carry no load (they touch "
+        warnings.append(f"{pieces} solid piece(s) of {n_gone} voxels carry no load (they touch "
                         "no prescribed boundary or are not the largest piece) and were removed")
-    return VoxelSolid(grid=grid, solid=kept_solid, kept=np.flatnonzero(keep),
-                      n_bonds=int(keep[i].sum()), n_bonds_input=int(i.size), neck_share=share,
+    return VoxelSolid(grid=grid, solid=kept_solid, kept=kept, n_bonds=int(keep[i].sum()),
+                      n_bonds_input=int(i.size), neck_share=share,
                       solid_fraction=float(kept_solid.mean()), pieces_removed=pieces,
-                      voxels_removed=voxels, warnings=warnings)
+                      voxels_removed=n_gone, warnings=warnings, removed=removed)
