@@ -108,6 +108,46 @@ def test_neck_resolution_warning_and_error():
         voxel_solid(bed.centers, bed.radii, a.max() * 1.01)
 
 
+def two_blocks(pair=True, radius=0.9e-5):
+    """Two 3^3 cubic blocks of spacing 1e-5 m, 6e-5 m apart in x (both held by KUBC's
+    boundary set) and, with ``pair``, two bonded particles floating between them (on one
+    line: held by nothing). radius 0.9e-5 m: solid blocks; 0.55e-5: necks the frame takes."""
+    a, b = solid_lattice(), solid_lattice()
+    x = [a.centers, b.centers + [8e-5, 0, 0]]
+    if pair:
+        x.append(np.array([[5e-5, 1e-5, 0.5e-5], [5e-5, 1e-5, 1.5e-5]]))
+    x = np.concatenate(x)
+    return Bed(x, np.full(len(x), radius))
+
+
+def test_particles_and_box_follow_the_frames_carrying_rule():
+    """docs/model.md, sections 5 and 10: the frame's pieces, its box and its V."""
+    from amfe.model.carrying import bed_box
+    from amfe.model.frame import build_frame
+    bed = two_blocks(radius=0.55e-5)
+    geo = voxel_solid(bed.centers, bed.radii, 0.2e-5)
+    frame = build_frame(bed.centers, bed.radii)
+    assert np.array_equal(geo.kept, np.sort(frame.kept)) and geo.kept.size == 54
+    assert geo.removed["particles"] == frame.removed["particles"] == 2
+    L = bed_box(bed.centers, bed.radii, None, geo.kept)[0]
+    assert geo.grid.volume == pytest.approx(np.prod(L), rel=1e-12)
+    assert np.allclose(geo.grid.lo, -0.55e-5, rtol=0, atol=1e-18)
+    assert frame.volume * frame.length_scale ** 3 == pytest.approx(geo.grid.volume, rel=1e-12)
+    # a recorded size that holds the centres is the box, at [0, L]
+    sized = voxel_solid(bed.centers, bed.radii, 0.2e-5, size=[12e-5, 3e-5, 3e-5])
+    assert np.array_equal(sized.grid.lo, np.zeros(3))
+    assert sized.grid.volume == pytest.approx(12e-5 * 9e-10, rel=1e-12)
+
+
+def test_a_floating_piece_inside_the_box_changes_no_constant():
+    from amfe.solvers.voxel import homogenize_voxel
+    C = [homogenize_voxel(two_blocks(pair), SolveOptions(rtol=1e-10), voxel_size=0.5e-5)
+         for pair in (False, True)]
+    assert (C[0].n_removed, C[1].n_removed) == (0, 2)
+    assert C[1].volume == C[0].volume
+    assert np.abs(C[1].C - C[0].C).max() <= 1e-12 * np.abs(C[0].C).max()
+
+
 # ----------------------------------------------------------------------------- mesh
 def element_dofs(mesh):
     """(n_solid, 24) DOFs of every solid element, element by element (x fastest)."""
@@ -267,6 +307,11 @@ def test_result_follows_the_schema_and_api_dispatch(bed_result, tmp_path):
     res = amfe.homogenize(bed, model="voxel", voxel_size=5e-6, rtol=1e-10)
     assert res.extra["model"]["name"] == "voxel"
     assert np.allclose(res.C, bed_result["C"], rtol=1e-12, atol=0)
+    # KUBC on the frame's box: the recorded size [0, L], V and the particles the frame's
+    frame = amfe.homogenize(bed)
+    assert res.extra["model"]["box"]["min"] == [0.0, 0.0, 0.0]
+    assert res.volume == pytest.approx(frame.volume, rel=1e-12)
+    assert res.n_removed == frame.n_removed
     with pytest.raises(AmfeError, match="voxel model solves"):
         amfe.homogenize(bed, model="voxel", bc="subc")
     with pytest.raises(AmfeError, match="model must be"):
