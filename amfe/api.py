@@ -21,7 +21,7 @@ from amfe.model.options import (BC_NAMES, SolveOptions, check_choice, check_flag
 def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_options=None,
                a_star_cap=None, material=None, max_it=None, diagnose=False, progress=False,
                vtu_dir=None, solver="auto", accept_unconverged=False, max_memory=None,
-               material_source=None, input_path=None):
+               material_source=None, input_path=None, model="frame", voxel_size=None):
     """Effective elastic constants of a powder bed, as a :class:`~amfe.io.result.Result`.
 
     Parameters
@@ -82,6 +82,12 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
     input_path : str, optional
         The bed file to name in the result's ``input`` block (default: ``bed``
         itself when it is a path).
+    model : {"frame", "voxel"}
+        "frame" (default): the paper's bonded space frame. "voxel": the
+        continuum of the same spheres by voxel finite elements, the frame's
+        reference (docs/model.md, section 10); bc "kubc" or "periodic" only.
+    voxel_size : float, optional
+        The voxel model's voxel side [m] (default: mean radius / 4).
 
     Returns
     -------
@@ -131,6 +137,12 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
     except AmfeError as exc:
         error = exc
 
+    # --- voxel model dispatch (issue 35): its own solver, nothing of the frame's path ---
+    if model != "frame" or voxel_size is not None:
+        return _voxel(bed, options, error, pcomm,
+                      dict(bc=bc, model=model, voxel_size=voxel_size, progress=progress,
+                           vtu_dir=vtu_dir, input_path=input_path))
+
     def one(bc, vtu_dir):
         with messages(progress):
             result = homogenize_bed(bed, options and replace(options, bc=bc), pcomm,
@@ -146,6 +158,29 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
         return one(bc, vtu_dir)
     names = ["kubc", "subc"] + (["periodic"] if error is None and "periodic" in bed.attrs else [])
     return {name: one(name, vtu_dir and os.path.join(vtu_dir, name)) for name in names}
+
+
+def _voxel(bed, options, error, comm, spec):
+    """The voxel model's Result (issue 35; docs/model.md, section 10).
+
+    spec: the face's bc, model, voxel_size, progress, vtu_dir and input_path."""
+    from amfe.solvers.voxel import homogenize_voxel
+    bc, model = spec["bc"], spec["model"]
+    if error is None and options.solver not in ("auto", "gamg"):
+        raise AmfeError("homogenize: the voxel model solves with CG + GAMG, not "
+                        f"{options.solver!r}")
+    if model != "voxel":
+        raise AmfeError(f"homogenize: model must be 'frame' or 'voxel', got {model!r}"
+                        + ("" if model != "frame" else " (voxel_size needs model='voxel')"))
+    if bc not in ("kubc", "periodic"):
+        raise AmfeError(f"homogenize: the voxel model solves bc 'kubc' or 'periodic', not {bc!r}")
+    if spec["vtu_dir"] is not None:
+        raise AmfeError("homogenize: the voxel model writes no ParaView files yet (no --vtu)")
+    with messages(spec["progress"]):
+        result = homogenize_voxel(bed, options and replace(options, bc=bc), comm,
+                                  voxel_size=spec["voxel_size"], input_error=error)
+    describe_input(result.extra, spec["input_path"])
+    return result
 
 
 def _inputs(bed, material, given_source):

@@ -33,6 +33,12 @@ def run_cli(args, ranks=None, cwd=None, timeout=300):
                           timeout=timeout)
 
 
+def run_mpi_script(script, ranks=2, timeout=300):
+    """Run a Python script under `mpirun -n RANKS` from the repository root; CompletedProcess."""
+    return subprocess.run(["mpirun", "-n", str(ranks), sys.executable, str(script)],
+                          capture_output=True, text=True, cwd=ROOT, env=MPI_ENV, timeout=timeout)
+
+
 def homogenize_arrays(centers, radii, material=None, *, comm=None, box=None, petsc_args=None,
                       size=None, **options):
     """:func:`amfe.solvers.driver.homogenize_bed` on arrays, its result as the JSON dict

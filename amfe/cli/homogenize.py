@@ -47,6 +47,12 @@ def register(sub):
                         "10 x rtol (an error otherwise), with a warning in the JSON")
     add_material_args(p, "override the bed file's")
     add_memory_arg(p)
+    # voxel model (issue 35; docs/model.md, section 10)
+    p.add_argument("--model", choices=["frame", "voxel"], default="frame",
+                   help="frame: the paper's bonded space frame (default); voxel: the continuum "
+                        "of the same spheres by voxel finite elements (--bc kubc or periodic)")
+    p.add_argument("--voxel-size", type=float, default=None, metavar="H",
+                   help="voxel side in m for --model voxel (default: mean radius / 4)")
     p.set_defaults(func=run)
 
 
@@ -101,7 +107,12 @@ def run(args):
     options = dict(accept_unconverged=args.accept_unconverged, max_memory=max_memory,
                    material=given_material(args) or None, material_source="command line",
                    solver=args.solver)
+    if args.model != "frame" or args.voxel_size is not None:   # voxel model (issue 35)
+        options.update(model=args.model, voxel_size=args.voxel_size)
     if args.bc == "all":
+        if "model" in options:
+            raise AmfeError("--bc all is not available with --model voxel; give --bc kubc or "
+                            "--bc periodic")
         from amfe.cli.bounds import run_all
         return run_all(args, bed, comm, summary, **options)
     result = homogenize(bed, comm=comm, a_star_cap=args.cap_a_star, rtol=args.rtol,
@@ -145,6 +156,12 @@ def summary(result, bed_path, output=None, vtu=None):
         m = result["material"]
         lines.append(f"material: E {m['E'] / 1e9:g} GPa, nu {m['nu']:g}, psi {m['psi']:g} "
                      f"({m['source']})")
+    if "model" in result:  # voxel model (issue 35)
+        v = result["model"]
+        lines.append(f"model: voxel, {'x'.join(map(str, v['voxels']))} voxels of "
+                     f"{v['voxel_size']:.4g} m, solid fraction {v['solid_fraction']:.4f}, "
+                     f"{v['dofs']} DOFs, {100 * v['necks_resolved_share']:.0f} % of necks "
+                     f">= 2 voxels across, {v['pieces_removed']} floating piece(s) removed")
     if "n_capped" in result:
         lines.append(f"a* capped on {result['n_capped']} bonds")
     props = result["properties"]

@@ -1,0 +1,291 @@
+"""The voxel model's geometry: the union of a bed's spheres on a regular grid, pure numpy.
+
+docs/model.md, section 10 ("Geometry", "Necks", "Load-carrying voxels"). A
+:class:`Grid` covers the box [lo, lo + n h] with n = (nx, ny, nz) voxels of
+sides h (3,) [m]; a voxel is solid when its centre lies inside any sphere
+(:func:`voxelize`). Voxel (ix, iy, iz) is element ix + nx (iy + ny iz) and the
+solid array has shape (nz, ny, nx) (x varies fastest, as the nodes do).
+"""
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+from amfe.errors import AmfeError
+
+NECK_WARN_SHARE = 0.5
+"""Below this share of necks resolved by at least 2 voxels across, a warning."""
+NECK_ERROR_SHARE = 0.2
+"""Below this share, an error: most necks are then one voxel wide or missing,
+and the voxel solid no longer joins the spheres the frame joins."""
+CHUNK_PAIRS = 1 << 21
+"""(sphere, voxel) candidate pairs tested at once in :func:`voxelize` (~100 MB)."""
+
+
+@dataclass(frozen=True)
+class Grid:
+    """A regular voxel grid: lowest corner lo (3,) [m], counts n (3,) int, sides h (3,) [m]."""
+
+    lo: np.ndarray
+    n: np.ndarray
+    h: np.ndarray
+
+    @property
+    def shape(self):
+        """(nz, ny, nx): the shape of a voxel array."""
+        return tuple(int(k) for k in self.n[::-1])
+
+    @property
+    def volume(self):
+        """Volume of the box [m^3]."""
+        return float(np.prod(self.n * self.h))
+
+
+def grid_over(lo, hi, voxel_size):
+    """The grid that fills the box [lo, hi] with voxels no larger than voxel_size [m].
+
+    n_k = ceil(L_k / voxel_size) voxels per axis (at least 1), sides h_k =
+    L_k / n_k: the box is covered exactly (KUBC's faces are its faces) and the
+    voxels are bricks within a factor (n_k + 1) / n_k of cubes.
+    """
+    from amfe.model.material import real_number
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    voxel_size = real_number("the voxel size", voxel_size)
+    if not (np.isfinite(voxel_size) and voxel_size > 0):
+        raise AmfeError(f"the voxel size must be a positive length in m, got {voxel_size!r}")
+    size = hi - lo
+    if not np.all(size > 0):
+        raise AmfeError(f"the voxel model needs a box of positive size, got {size.tolist()} m")
+    n = np.maximum(1, np.ceil(size / voxel_size * (1.0 - 1e-12))).astype(np.int64)
+    return Grid(lo=lo, n=n, h=size / n)
+
+
+def voxelize(centers, radii, grid, periodic=False):
+    """Solid mask (nz, ny, nx) bool: voxel centres inside any sphere.
+
+    centers (N, 3) [m], radii (N,) [m]. Spheres are handled in chunks of
+    :data:`CHUNK_PAIRS` candidate voxels (each sphere's bounding cube), so the
+    memory stays bounded whatever N. ``periodic``: the grid is the period box
+    and voxels wrap round it (else the spheres are clipped to the box).
+    """
+    centers = np.asarray(centers, float)
+    radii = np.asarray(radii, float)
+    solid = np.zeros(grid.shape, bool)
+    if len(radii) == 0:
+        return solid
+    m = np.ceil(2.0 * float(radii.max()) / grid.h).astype(np.int64) + 2   # cube side in voxels
+    off = np.stack(np.meshgrid(*(np.arange(k) for k in m), indexing="ij"), -1).reshape(-1, 3)
+    chunk = max(1, CHUNK_PAIRS // len(off))
+    flat = solid.reshape(-1)
+    for s in range(0, len(radii), chunk):
+        x, r = centers[s:s + chunk], radii[s:s + chunk]
+        first = np.floor((x - r[:, None] - grid.lo) / grid.h - 0.5).astype(np.int64)
+        idx = first[:, None, :] + off[None, :, :]                  # (c, M, 3)
+        d = grid.lo + (idx + 0.5) * grid.h - x[:, None, :]
+        inside = np.einsum("cmk,cmk->cm", d, d) < (r * r)[:, None]
+        if periodic:
+            idx = np.mod(idx, grid.n)
+        else:
+            inside &= np.all((idx >= 0) & (idx < grid.n), axis=2)
+        idx = idx[inside]
+        flat[idx[:, 0] + grid.n[0] * (idx[:, 1] + grid.n[1] * idx[:, 2])] = True
+    return solid
+
+
+def neck_voxels(neck_radii, grid):
+    """Voxels across each neck, 2 a / max(h), for neck radii a (M,) [m]."""
+    return 2.0 * np.asarray(neck_radii, float) / float(np.max(grid.h))
+
+
+def resolved_share(neck_radii, grid, across=2.0):
+    """Share of necks at least ``across`` voxels wide (1.0 without necks)."""
+    n = neck_voxels(neck_radii, grid)
+    return 1.0 if n.size == 0 else float(np.mean(n >= across))
+
+
+def check_necks(share, voxel_size, warn=NECK_WARN_SHARE, error=NECK_ERROR_SHARE):
+    """A warning (str) when share < warn, None when not; AmfeError when share < error."""
+    what = (f"only {100 * share:.0f} % of the necks are at least 2 voxels across at voxel "
+            f"size {voxel_size:.4g} m")
+    if share < error:
+        raise AmfeError(f"{what} (fewer than {100 * error:.0f} %): the voxel solid does not "
+                        "join the spheres the bonds join; give a smaller --voxel-size")
+    if share < warn:
+        return (f"{what} (fewer than {100 * warn:.0f} %): the thinnest necks are under-"
+                "resolved and the voxel model is too soft there; use a smaller voxel size")
+    return None
+
+
+def load_carrying(solid, periodic=False):
+    """(kept mask like solid, pieces removed, voxels removed): the solid pieces that carry load.
+
+    Pieces are face-connected (two voxels sharing only an edge or a vertex
+    would hinge). Non-periodic (KUBC): a piece carries load when it touches
+    the box's boundary, where the displacements are prescribed; the others
+    float and are removed. Periodic: the largest piece on the torus (pieces
+    joined across opposite faces are one) is kept, the others removed.
+    """
+    labels, count = ndimage.label(solid)
+    if count == 0:
+        raise AmfeError("the voxel model has no solid voxel: the spheres miss every voxel "
+                        "centre; give a smaller voxel size")
+    if not periodic:
+        faces = [labels[0], labels[-1], labels[:, 0], labels[:, -1], labels[:, :, 0],
+                 labels[:, :, -1]]
+        touching = np.zeros(count + 1, bool)
+        for f in faces:
+            touching[f.ravel()] = True
+        touching[0] = False
+        keep = touching
+    else:
+        a, b = [], []
+        for axis in range(3):
+            lo, hi = np.take(labels, 0, axis).ravel(), np.take(labels, -1, axis).ravel()
+            both = (lo > 0) & (hi > 0)
+            a.append(lo[both])
+            b.append(hi[both])
+        a, b = np.concatenate(a), np.concatenate(b)
+        graph = coo_matrix((np.ones(a.size), (a, b)), shape=(count + 1, count + 1))
+        _, merged = connected_components(graph, directed=False)
+        sizes = np.bincount(merged[labels[labels > 0]], minlength=merged.max() + 1)
+        keep = merged == np.argmax(sizes)
+        keep[0] = False
+    kept = keep[labels]
+    pieces = int(count - len(np.unique(labels[kept]))) if kept.any() else count
+    if not kept.any():
+        raise AmfeError("no solid piece of the voxel model touches the box's boundary: "
+                        "nothing carries load")
+    return kept, pieces, int(solid.sum() - kept.sum())
+
+
+DEFAULT_VOXELS_PER_RADIUS = 4
+"""Default voxel size: the mean radius over this (docs/model.md, section 10)."""
+GRID_BYTES = 32
+"""Bytes per voxel of the grid that every rank holds (solid masks, component labels,
+node numbers)."""
+NODE_BYTES = 14_000
+"""Bytes per active node over all ranks: the matrix (about 81 nonzeros a row), its
+constrained copy, GAMG's hierarchy, six cases' vectors and the assembly's temporaries
+(peak RSS less the interpreter's: 10.0 kB per node on one rank at 18 000 and 45 000
+nodes; about 13.4 kB per node over two ranks on the figure-2 bed at R/4, 134 538 nodes)."""
+
+
+def voxel_bytes(voxels, nodes, ranks=1):
+    """Estimated peak bytes over ``ranks`` of a voxel model: grids replicated, the rest shared."""
+    return GRID_BYTES * voxels * ranks + NODE_BYTES * nodes
+
+
+@dataclass
+class VoxelSolid:
+    """The voxel model of a bed before meshing (docs/model.md, section 10).
+
+    grid: :class:`Grid`; solid: (nz, ny, nx) bool, the load-carrying voxels;
+    kept: indices of the particles kept (section 5's load-carrying pieces);
+    n_bonds: bonds among them (n_bonds_input: in the whole bed); neck_share:
+    share of their necks >= 2 voxels across; solid_fraction: load-carrying
+    solid voxels / all voxels; pieces_removed, voxels_removed: the solid
+    pieces taken out at the voxel level; warnings: list of str; removed: the
+    particle pieces removed (:func:`amfe.model.carrying.removed_report`, or None).
+    """
+
+    grid: Grid
+    solid: np.ndarray
+    kept: np.ndarray
+    n_bonds: int
+    n_bonds_input: int
+    neck_share: float
+    solid_fraction: float
+    pieces_removed: int
+    voxels_removed: int
+    warnings: list
+    removed: dict = None
+
+
+def kubc_box(centers, radii, size=None, kept=None):
+    """(lo (3,), hi (3,), note) [m]: the frame's box of a bed under KUBC, placed in space.
+
+    Its lengths are :func:`amfe.model.carrying.bed_box`'s (V of the frame,
+    docs/model.md, section 5): the recorded ``size`` (3,) [m] where it holds
+    the load-carrying centres (``kept``, indices; default all), as [0, L] where
+    they lie in it (a generated bed) or else centred on their extent; otherwise
+    the load-carrying spheres' bounding box. note: bed_box's (why the recorded
+    size was not used), else None.
+    """
+    from amfe.model.carrying import bed_box
+    L, note = bed_box(centers, radii, size, kept)
+    x = centers if kept is None else centers[kept]
+    r = radii if kept is None else radii[kept]
+    if size is None or note is not None:
+        lo = (x - r[:, None]).min(axis=0)
+    elif np.all((x >= -1e-9 * L) & (x <= L * (1 + 1e-9))):
+        lo = np.zeros(3)
+    else:
+        lo = 0.5 * (x.min(axis=0) + x.max(axis=0) - L)
+    return lo, lo + L, note
+
+
+def voxel_solid(centers, radii, voxel_size=None, period=None, size=None, max_memory=None,
+                ranks=1):
+    """The :class:`VoxelSolid` of a bed: centers (N, 3) [m], radii (N,) [m] (a Bed's, checked).
+
+    The particles kept are the frame's under the same condition (docs/model.md,
+    section 5, :mod:`amfe.model.carrying`): under KUBC every bonded piece its
+    prescribed boundary particles hold; on the torus (``period`` (3,) [m]) the
+    pieces that wind round it. The box is the frame's (:func:`kubc_box`: the
+    bed's recorded ``size`` (3,) [m], else the kept spheres' bounding box; the
+    spheres are clipped to it), or the period box [0, L). ``voxel_size`` [m]
+    defaults to the mean radius / :data:`DEFAULT_VOXELS_PER_RADIUS`.
+    ``max_memory`` [bytes] (default: half the machine's): a grid whose estimate
+    (:func:`voxel_bytes`) exceeds it is refused before it is allocated.
+    """
+    from amfe.model.memory import check_memory
+    from amfe.model.bonds import contact_geometry, find_pairs
+    from amfe.model.carrying import (component_labels, kubc_held, periodic_winding,
+                                     removed_report, removed_warning)
+    from amfe.model.torus import check_box, find_periodic_pairs, wrap
+
+    centers, radii = np.asarray(centers, float), np.asarray(radii, float)
+    if voxel_size is None:
+        voxel_size = float(radii.mean()) / DEFAULT_VOXELS_PER_RADIUS
+    shift = None
+    if period is not None:
+        L = check_box(period, radii)
+        centers = wrap(centers, L)
+        i, j, shift = find_periodic_pairs(centers, radii, L)
+    else:
+        i, j = find_pairs(centers, radii)
+    if i.size == 0:
+        raise AmfeError(f"the bed has no bonds: none of its {len(radii)} particles overlap")
+    a = contact_geometry(centers, radii, i, j, None if shift is None else shift * L).a
+    labels = component_labels(len(radii), i, j)
+    ids = (kubc_held(centers, radii, labels) if period is None
+           else periodic_winding(len(radii), i, j, shift, labels))
+    keep = np.isin(labels, ids)
+    removed = removed_report(centers, radii, labels, ids, len(radii))
+    kept = np.flatnonzero(keep)
+    note = None
+    if period is not None:
+        grid = grid_over(np.zeros(3), L, voxel_size)
+    else:
+        lo, hi, note = kubc_box(centers, radii, size, kept)
+        grid = grid_over(lo, hi, voxel_size)
+    voxels = int(np.prod(grid.n))
+    check_memory(voxel_bytes(voxels, 0, ranks), max_memory,
+                 f"a voxel model of {voxels:.3g} voxels ({'x'.join(map(str, grid.n))}) on "
+                 f"{ranks} rank(s)")
+    warnings = [note] if note else []
+    share = resolved_share(a[keep[i]], grid)
+    neck = check_necks(share, voxel_size)
+    warnings += ([neck] if neck else []) + removed_warning(
+        removed, "kubc" if period is None else "periodic")
+    solid = voxelize(centers[kept], radii[kept], grid, periodic=period is not None)
+    kept_solid, pieces, n_gone = load_carrying(solid, periodic=period is not None)
+    if pieces:
+        warnings.append(f"{pieces} solid piece(s) of {n_gone} voxels carry no load (they touch "
+                        "no prescribed boundary or are not the largest piece) and were removed")
+    return VoxelSolid(grid=grid, solid=kept_solid, kept=kept, n_bonds=int(keep[i].sum()),
+                      n_bonds_input=int(i.size), neck_share=share,
+                      solid_fraction=float(kept_solid.mean()), pieces_removed=pieces,
+                      voxels_removed=n_gone, warnings=warnings, removed=removed)
