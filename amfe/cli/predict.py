@@ -91,7 +91,8 @@ def run(args):
     sur = Surrogate.load(args.model)
     times["load_model"] = time.perf_counter() - t
     threshold = args.threshold if args.threshold is not None else sur.threshold
-    if args.fallback and threshold is None and not sur.fill_range:
+    if args.fallback and threshold is None and not sur.fill_range \
+            and not sur.ckpt.get("conformal"):
         raise AmfeError(f"--fallback needs a flag threshold: {sur.path} is a single network "
                         "without a calibrated ensemble spread; use an ensemble (amfe train "
                         "--members 5) or give --threshold")
@@ -124,6 +125,9 @@ def _one_bed(args, sur, threshold, path, bed, res, image, times, t_start):
 
     score = float(res["score"][0])
     reasons = flag_reasons(res, threshold, sur.n_members)
+    bars = interval_of(sur, bed, res) if "non-finite" not in reasons else None
+    if bars is not None and bars["interval_flag"]:
+        reasons.append("interval")
     comm = None
     if args.check or args.fallback:
         from mpi4py import MPI
@@ -156,6 +160,11 @@ def _one_bed(args, sur, threshold, path, bed, res, image, times, t_start):
         "spread": _finite_or_none(as_properties(res["spread"][0])),
         "spread_score": score if math.isfinite(score) else None,
         "threshold": threshold,
+        # Split conformal intervals at the model's nominal coverage, None where the model
+        # has no calibration for the bed's size (amfe.training.conformal).
+        "intervals": bars["intervals"] if bars else None,
+        "coverage": bars["coverage"] if bars else None,
+        "interval_calibration": bars["calibration"] if bars else None,
         "fill": float(res["fill"][0]),
         "fill_range": ([sur.fill_range["lo"], sur.fill_range["hi"]] if sur.fill_range
                        else None),
@@ -187,6 +196,14 @@ def _one_bed(args, sur, threshold, path, bed, res, image, times, t_start):
     out["seconds"] = times["total"]
     out["timings"] = times
     return out, rank
+
+
+def interval_of(sur, bed, res):
+    """The bed's interval block (amfe.training.conformal.interval_block) at its imaged size."""
+    from amfe.training.conformal import interval_block
+    from amfe.training.predict import _image_size
+    return interval_block(res["mean"][0], SIX, sur.ckpt.get("conformal"),
+                          _image_size(bed, sur.ckpt), res["spread"][0])
 
 
 def process_age():
@@ -269,7 +286,16 @@ def summary(out, output=None):
         if check:
             line += (f" {_fmt(k, check['solver'][k]):>16s} "
                      f"{_percent(check['relative_difference'][k], 9, '+')}")
+        if out.get("intervals"):
+            lo, hi = out["intervals"][k]
+            line += f"  [{_fmt(k, lo)}, {_fmt(k, hi)}]"
         lines.append(line)
+    if out.get("coverage"):
+        lines.append(f"intervals: split conformal, nominal coverage {100 * out['coverage']:g} % "
+                     f"({out['interval_calibration']['n']} calibration beds of "
+                     f"{out['interval_calibration']['size']} mm)")
+    elif out.get("interval_calibration"):
+        lines.append(out["interval_calibration"]["note"])
     if out["threshold"] is None or out["members"] < 2:
         lines.append("no spread flag (a single network has no spread)")
     elif out["spread_score"] is None:
@@ -284,6 +310,8 @@ def summary(out, output=None):
     reasons = out.get("flag_reasons", [])
     if "non-finite" in reasons:
         lines.append("FLAGGED: the surrogate's prediction is not finite (a damaged model?)")
+    elif reasons == ["interval"]:
+        lines.append("FLAGGED: an interval is wider than the model's limit")
     elif out["flagged"]:
         lines.append("FLAGGED: unlike the training beds")
     else:
