@@ -84,3 +84,39 @@ def test_wide_intervals_flag_the_bed():
     assert interval_block([1e9], ("Ex",), conf, (0.6e-3, 0.6e-3))["interval_flag"]
     conf["flag_half_width"] = 0.5
     assert not interval_block([1e9], ("Ex",), conf, (0.6e-3, 0.6e-3))["interval_flag"]
+
+
+def test_calibrate_script_stores_the_sizes_calibration(tmp_path):
+    """run/calibrate_intervals.py on a held-out tiny data set: the checkpoint's quantiles are
+    calibrate()'s on the model's own predictions, and predict then gives intervals."""
+    import importlib.util
+    import os
+
+    from cli_fixtures import tiny_dataset, tiny_model
+    from amfe.training.checkpoint import load_checkpoint
+    from amfe.training.data import dataset_info, read_rows
+    from amfe.training.predict import Surrogate
+    from amfe.vocab import LABEL_NAMES
+
+    model, bed = tiny_model(str(tmp_path))
+    held = tiny_dataset(str(tmp_path / "held.h5"), n=30, failed=())
+    spec = importlib.util.spec_from_file_location(
+        "calibrate_intervals", os.path.join(os.path.dirname(__file__), "..", "run",
+                                            "calibrate_intervals.py"))
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    assert script.main([str(model), str(held), "-o", str(model)]) == 2   # never in place
+    out = tmp_path / "cal.pt"
+    assert script.main([str(model), str(held), "-o", str(out), "--coverage", "0.8"]) == 0
+    conf = load_checkpoint(out)["conformal"]
+    assert conf["coverage"] == 0.8 and list(conf["sizes"]) == ["0.15x0.15"]
+    sur = Surrogate.load(model)
+    images, labels = read_rows(held, dataset_info(held)["ok"], sur.inputs)
+    res = sur.predict(images)
+    want = calibrate(res["mean"], labels, LABEL_NAMES, res["spread"], 0.8)
+    have = conf["sizes"]["0.15x0.15"]
+    assert have["n"] == want["n"] == 30 and have["uses_spread"]
+    for key in ("quantile", "spread_scale"):
+        assert have[key] == pytest.approx(want[key], rel=1e-6)
+    got = interval_block(res["mean"][0], LABEL_NAMES, conf, (0.15e-3, 0.15e-3), res["spread"][0])
+    assert got["coverage"] == 0.8 and got["calibration"]["n"] == 30

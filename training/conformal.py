@@ -80,6 +80,25 @@ def calibration(per_size, coverage=DEFAULT_COVERAGE, names=None,
             "sizes": dict(per_size)}
 
 
+def store(ckpt, key, cal, coverage, names, flag_half_width=None):
+    """Add one size's calibration ``cal`` to ``ckpt["conformal"]`` (in place; returns ckpt).
+
+    AmfeError if the checkpoint's calibration is at another nominal coverage.
+    """
+    conf = ckpt.get("conformal")
+    if conf is None:
+        conf = calibration({}, coverage, names,
+                           DEFAULT_FLAG_HALF_WIDTH if flag_half_width is None else flag_half_width)
+    elif abs(float(conf["coverage"]) - float(coverage)) > 1e-12:
+        raise AmfeError(f"the model's intervals are calibrated at coverage {conf['coverage']:g}, "
+                        f"not {float(coverage):g}; calibrate every size at one coverage")
+    elif flag_half_width is not None:
+        conf["flag_half_width"] = float(flag_half_width)
+    conf["sizes"][key] = cal
+    ckpt["conformal"] = conf
+    return ckpt
+
+
 def intervals(pred, names, cal, spread=None):
     """lo, hi (n, k) of predictions (n, k) with one size's calibration ``cal``."""
     pred = np.asarray(pred, np.float64)
