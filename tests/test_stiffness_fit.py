@@ -37,3 +37,23 @@ def test_fit_beats_the_mean_stiffness_at_two_sizes():
         err = np.abs(pred - c)[:, [0, 1, 2], [0, 1, 2]].mean()
         base = np.abs(mean_C - c)[:, [0, 1, 2], [0, 1, 2]].mean()
         assert err < 0.35 * base, (err, base)
+
+
+def test_stiffness_model_round_trip_and_predict_refuses_it(tmp_path):
+    from amfe.training.checkpoint import save_checkpoint
+    from amfe.training.stiffness_fit import load_stiffness_model, stiffness_checkpoint
+    from cli_fixtures import run_main
+    from test_training import _tiny_bed
+    torch.manual_seed(2)
+    args = {"layers_in": 1, "channels": (4, 8), "hidden": (16,)}
+    net = AnySizeNet(**args)
+    px = {"image_cell": [30e-6, 30e-6], "layer_thickness": 0.1e-3, "image_spacing": 2.5e-6}
+    path = save_checkpoint(tmp_path / "c.pt", stiffness_checkpoint(net, args, SCALE, px, 1))
+    back, ckpt = load_stiffness_model(path)
+    x = torch.rand(3, 1, 6, 6)
+    s = torch.full((3, 2), 0.18)
+    np.testing.assert_array_equal(predict_stiffness(back, x, s, scale=ckpt["stiffness_scale"]),
+                                  predict_stiffness(net, x, s, scale=SCALE))
+    bed = _tiny_bed(tmp_path / "bed.h5")
+    code, out, err = run_main(["predict", bed, "--model", path])
+    assert code == 2 and "not a plain amfe checkpoint" in err and len(err.strip().splitlines()) == 1

@@ -71,3 +71,42 @@ def fit_stiffness(net, groups, scale, epochs=50, lr=2e-3, batch_size=16, augment
             total += loss.item() * len(idx)
         history.append(total / sum(x.shape[0] for x, _, _ in data))
     return history
+
+
+# An any-size stiffness model is saved as its own format: amfe predict's loader
+# (amfe.training.checkpoint, format "amfe.surrogate") refuses it with one line until
+# it learns to run one (docs/surrogate.md, "What remains").
+STIFFNESS_FORMAT = "amfe.stiffness"
+
+
+def stiffness_checkpoint(net, arch_args, scale, pixelation, layers, **extra):
+    """A plain-data checkpoint dict of an :class:`AnySizeNet` stiffness model.
+
+    arch_args: AnySizeNet's keyword arguments (layers_in, channels, hidden);
+    scale [Pa]: C's normalised unit; pixelation: {image_cell, layer_thickness,
+    image_spacing}; layers: the image layers the model reads; extra: e.g.
+    conformal, tta, metrics.
+    """
+    state = {k: v.detach().cpu().clone() for k, v in net.state_dict().items()}
+    return {"format": STIFFNESS_FORMAT, "format_version": 1, "arch": "anysize",
+            "arch_args": {k: (list(v) if isinstance(v, tuple) else v)
+                          for k, v in arch_args.items()},
+            "members": [state], "stiffness_scale": float(scale), "outputs": "cholesky21",
+            "pixelation": dict(pixelation), "layers": int(layers), **extra}
+
+
+def load_stiffness_model(path):
+    """(net in eval mode, checkpoint dict) of a file written from :func:`stiffness_checkpoint`."""
+    from amfe.training.anysize import AnySizeNet
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # noqa: BLE001 - any unreadable file is reported the same way
+        raise AmfeError(f"cannot read {path} as a stiffness model ({type(exc).__name__})") from None
+    if not isinstance(ckpt, dict) or ckpt.get("format") != STIFFNESS_FORMAT:
+        raise AmfeError(f"{path} is not an amfe stiffness model (format {STIFFNESS_FORMAT!r})")
+    net = AnySizeNet(**ckpt["arch_args"])
+    try:
+        net.load_state_dict(ckpt["members"][0])
+    except (RuntimeError, KeyError, IndexError) as exc:
+        raise AmfeError(f"{path}: the weights do not fit its AnySizeNet ({exc})") from None
+    return net.eval(), ckpt
