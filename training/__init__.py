@@ -9,6 +9,10 @@
 - :mod:`amfe.training.checkpoint`: plain-data checkpoints, loaded weights-only.
 - :mod:`amfe.training.predict`: inference on images and beds, the ensemble flag.
 - :mod:`amfe.training.metrics`, :mod:`amfe.training.plots`: errors per property, curves.
+- :mod:`amfe.training.stiffness`, :mod:`amfe.training.stiffness_fit`: the full stiffness
+  through a Cholesky head, its tensor symmetries, fitting and saving such models.
+- :mod:`amfe.training.anysize`: a fully convolutional net for any bed size, the whole-cell rule.
+- :mod:`amfe.training.conformal`: split conformal intervals per bed size.
 
 This module imports nothing heavy, so the amfe command line can build its
 parsers without importing torch.

@@ -1,6 +1,7 @@
 """`amfe predict BED.h5`: the surrogate's elastic constants of a bed, in milliseconds.
 
-    amfe predict bed.h5 [--model MODEL.pt] [-o OUT.json | -o -] [--check] [--fallback]
+    amfe predict BED.h5 [BED.h5 ...] [--model MODEL.pt] [-o OUT.json | -o -] [--check]
+                 [--fallback]
 
 Pixelates the bed exactly as the model's training data (cells, layers and
 sample spacing are stored in the checkpoint) and runs the network(s); the
@@ -14,6 +15,13 @@ Every path and option is checked before the model is loaded (amfe.io.paths):
 and the table to stderr. A prediction that is not finite (a damaged model:
 NaN weights, or an overflow) is never reported: it is flagged, --fallback
 solves instead, and without --fallback it is an error (exit 2, no file).
+
+Several beds are predicted in one process: the model is loaded once and
+the beds' images go through the network in one batch. With one bed the
+JSON is that bed's result (as always); with several it is
+{schema_version, command, beds: [one result per bed, in the order given]},
+each naming its input.path. Every result names the boundary condition its
+constants are for (``bc``: "kubc", as the labels).
 """
 import json
 import math
@@ -38,7 +46,8 @@ def register(sub):
                        description=__doc__.split("\n\n")[0],
                        epilog="With --check or --fallback, any -option (single dash) goes to "
                               "PETSc.")
-    p.add_argument("bed", metavar="BED.h5", help="bed HDF5 file (/particles/centers, /radii)")
+    p.add_argument("bed", metavar="BED.h5", nargs="+",
+                   help="bed HDF5 file(s) (/particles/centers, /radii); several: one batch")
     p.add_argument("--model", metavar="MODEL.pt",
                    help="checkpoint from amfe train (default: the shipped amfe/models/"
                         "multiscale_small.pt)")
@@ -61,7 +70,7 @@ def check_args(args):
         raise AmfeError(f"unknown option(s) {' '.join(args.petsc_args)}: single-dash options go "
                         "to PETSc, which amfe predict runs only with --check or --fallback")
     if args.output is not None:
-        check_output(args.output, inputs=[args.bed, args.model], allow_stdout=True)
+        check_output(args.output, inputs=[*args.bed, args.model], allow_stdout=True)
 
 
 def run(args):
@@ -70,7 +79,7 @@ def run(args):
     check_args(args)
     import torch
 
-    from amfe.training.predict import Surrogate, as_properties, check_material
+    from amfe.training.predict import Surrogate, check_material
 
     from amfe.io.bedfile import read_bed
 
@@ -82,18 +91,43 @@ def run(args):
     sur = Surrogate.load(args.model)
     times["load_model"] = time.perf_counter() - t
     threshold = args.threshold if args.threshold is not None else sur.threshold
-    if args.fallback and threshold is None and not sur.fill_range:
+    if args.fallback and threshold is None and not sur.fill_range \
+            and not sur.ckpt.get("conformal"):
         raise AmfeError(f"--fallback needs a flag threshold: {sur.path} is a single network "
                         "without a calibrated ensemble spread; use an ensemble (amfe train "
                         "--members 5) or give --threshold")
-    t = time.perf_counter()
-    bed = read_bed(args.bed)
-    times["read_bed"] = time.perf_counter() - t
-    check_material(bed, sur.ckpt, sur.path)
-    res, image, t_pred = sur.predict_bed(bed)
-    times.update(t_pred)
+    beds = []
+    for path in args.bed:
+        t = time.perf_counter()
+        bed = read_bed(path)
+        check_material(bed, sur.ckpt, sur.path)
+        beds.append((path, bed, time.perf_counter() - t))
+    predictions = sur.predict_beds([bed for _, bed, _ in beds])
+    outs = []
+    for (path, bed, t_read), (res, image, t_pred) in zip(beds, predictions):
+        bed_times = {**times, "read_bed": t_read, **t_pred}
+        outs.append(_one_bed(args, sur, threshold, path, bed, res, image, bed_times, t_start))
+    if outs[0][1] == 0:
+        write_result(outs[0][0] if len(outs) == 1 else batch_result([o for o, _ in outs]),
+                     args.output)
+    return 0
+
+
+def batch_result(results):
+    """The JSON of several beds: {schema_version, command, beds: [results]}."""
+    from amfe.io.result_meta import SCHEMA_VERSION
+    return {"schema_version": SCHEMA_VERSION, "command": "predict", "beds": results}
+
+
+def _one_bed(args, sur, threshold, path, bed, res, image, times, t_start):
+    """(result dict, rank) of one bed's prediction (and solve, with --check/--fallback)."""
+    from amfe.training.predict import as_properties
+
     score = float(res["score"][0])
     reasons = flag_reasons(res, threshold, sur.n_members)
+    bars = interval_of(sur, bed, res) if "non-finite" not in reasons else None
+    if bars is not None and bars["interval_flag"]:
+        reasons.append("interval")
     comm = None
     if args.check or args.fallback:
         from mpi4py import MPI
@@ -120,11 +154,17 @@ def run(args):
 
     surrogate_props = _finite_or_none(as_properties(res["mean"][0]))
     out = {
-        "bed": os.fspath(args.bed),
+        "bed": os.fspath(path),
+        "bc": "kubc",   # the labels' boundary condition (docs/model.md, section 5)
         "properties": surrogate_props,
         "spread": _finite_or_none(as_properties(res["spread"][0])),
         "spread_score": score if math.isfinite(score) else None,
         "threshold": threshold,
+        # Split conformal intervals at the model's nominal coverage, None where the model
+        # has no calibration for the bed's size (amfe.training.conformal).
+        "intervals": bars["intervals"] if bars else None,
+        "coverage": bars["coverage"] if bars else None,
+        "interval_calibration": bars["calibration"] if bars else None,
         "fill": float(res["fill"][0]),
         "fill_range": ([sur.fill_range["lo"], sur.fill_range["hi"]] if sur.fill_range
                        else None),
@@ -151,13 +191,19 @@ def run(args):
                                                                  solver_props[k]) for k in SIX}}
         out["solver"] = solver["solver"]
     out = {**header("predict", bed.centers, bed.radii, resolve_material(bed.attrs)[1],
-                    input_path=args.bed), **out, "predict": predict_block(out)}
+                    input_path=path), **out, "predict": predict_block(out)}
     times["total"] = time.perf_counter() - t_start
     out["seconds"] = times["total"]
     out["timings"] = times
-    if rank == 0:
-        write_result(out, args.output)
-    return 0
+    return out, rank
+
+
+def interval_of(sur, bed, res):
+    """The bed's interval block (amfe.training.conformal.interval_block) at its imaged size."""
+    from amfe.training.conformal import interval_block
+    from amfe.training.predict import _image_size
+    return interval_block(res["mean"][0], SIX, sur.ckpt.get("conformal"),
+                          _image_size(bed, sur.ckpt), res["spread"][0])
 
 
 def process_age():
@@ -222,7 +268,10 @@ def _fmt(key, value):
 
 
 def summary(out, output=None):
-    """The table amfe predict prints (tests compare its numbers with the JSON)."""
+    """The table amfe predict prints (tests compare its numbers with the JSON); one per bed."""
+    if "beds" in out:
+        tables = "\n".join(summary(one) for one in out["beds"])
+        return tables + (f"\nwrote {output}" if output else "")
     check = out.get("check")
     lines = [f"{out['bed']}: image {'x'.join(map(str, out['image_shape']))}, packing density "
              f"{out['density']:.3f}; model {out['model']} ({out['arch']}, {out['members']} "
@@ -237,7 +286,16 @@ def summary(out, output=None):
         if check:
             line += (f" {_fmt(k, check['solver'][k]):>16s} "
                      f"{_percent(check['relative_difference'][k], 9, '+')}")
+        if out.get("intervals"):
+            lo, hi = out["intervals"][k]
+            line += f"  [{_fmt(k, lo)}, {_fmt(k, hi)}]"
         lines.append(line)
+    if out.get("coverage"):
+        lines.append(f"intervals: split conformal, nominal coverage {100 * out['coverage']:g} % "
+                     f"({out['interval_calibration']['n']} calibration beds of "
+                     f"{out['interval_calibration']['size']} mm)")
+    elif out.get("interval_calibration"):
+        lines.append(out["interval_calibration"]["note"])
     if out["threshold"] is None or out["members"] < 2:
         lines.append("no spread flag (a single network has no spread)")
     elif out["spread_score"] is None:
@@ -252,6 +310,8 @@ def summary(out, output=None):
     reasons = out.get("flag_reasons", [])
     if "non-finite" in reasons:
         lines.append("FLAGGED: the surrogate's prediction is not finite (a damaged model?)")
+    elif reasons == ["interval"]:
+        lines.append("FLAGGED: an interval is wider than the model's limit")
     elif out["flagged"]:
         lines.append("FLAGGED: unlike the training beds")
     else:

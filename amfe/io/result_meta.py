@@ -122,6 +122,7 @@ def predict_block(out):
             "spread": {"relative": out["spread"], "score": score, "threshold": threshold},
             "flags": {"flagged": bool(out["flagged"]), "spread": "spread" in reasons,
                       "fill": "fill" in reasons, "non_finite": "non-finite" in reasons,
+                      "interval": "interval" in reasons,
                       "reasons": list(reasons), "fill_value": out["fill"],
                       "fill_range": fill_range},
             "source": out["source"]}

@@ -1,0 +1,67 @@
+"""Calibrate a checkpoint's split conformal intervals on held-out data sets, one per bed size.
+
+    python run/calibrate_intervals.py MODEL.pt HELDOUT.h5 [HELDOUT.h5 ...] -o OUT.pt
+                                      [--coverage 0.9] [--flag-half-width 0.1]
+
+Each data set holds beds of one size (its ``bed_size`` attribute) that no
+training run or model selection used. The model predicts their images (its
+test-time averaging and ensemble included), amfe.training.conformal.calibrate
+takes the quantile of the scores at the nominal coverage, and the size's
+calibration joins the checkpoint's ``conformal`` entry. The model is written
+to OUT.pt, which may not be MODEL.pt: the shipped model is never rewritten.
+Label rule: the model must predict the data sets' labels as they are, so
+a rule-1 model (whose moduli are converted per bed from the bed's geometry)
+is refused.
+"""
+import argparse
+import os
+import sys
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, ROOT)
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("model")
+    p.add_argument("data", nargs="+")
+    p.add_argument("-o", "--output", required=True)
+    p.add_argument("--coverage", type=float, default=0.9)
+    p.add_argument("--flag-half-width", type=float, default=None)
+    args = p.parse_args(argv)
+    from amfe.errors import AmfeError
+    from amfe.training.checkpoint import save_checkpoint
+    from amfe.training.conformal import calibrate, size_key, store
+    from amfe.training.data import dataset_info, read_rows
+    from amfe.training.predict import Surrogate
+    from amfe.vocab import LABEL_NAMES
+
+    try:
+        if os.path.abspath(args.output) == os.path.abspath(args.model):
+            raise AmfeError("-o may not be the model: write the calibrated model to a new file")
+        sur = Surrogate.load(args.model)
+        if sur.label_rule < 2:
+            raise AmfeError(f"{args.model} predicts label rule 1 converted per bed; calibrate a "
+                            "model trained on the data sets' rule-2 labels")
+        for path in args.data:
+            info = dataset_info(path, sur.inputs)
+            if "bed_size" not in info:
+                raise AmfeError(f"{path} has no bed_size attribute: its beds' size is unknown")
+            images, labels = read_rows(path, info["ok"], sur.inputs)
+            res = sur.predict(images)
+            spread = res["spread"] if sur.n_members > 1 else None
+            cal = calibrate(res["mean"], labels, LABEL_NAMES, spread, args.coverage)
+            key = size_key(info["bed_size"])
+            store(sur.ckpt, key, cal, args.coverage, LABEL_NAMES, args.flag_half_width)
+            print(f"{path}: size {key} mm, {cal['n']} beds, quantiles "
+                  + " ".join(f"{k} {v:.3g}" for k, v in cal["quantile"].items()))
+        save_checkpoint(args.output, sur.ckpt)
+    except AmfeError as exc:
+        print(f"calibrate_intervals: error: {exc}", file=sys.stderr)
+        return 2
+    print(f"wrote {args.output}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
