@@ -106,7 +106,8 @@ def run(args):
     outs = []
     for (path, bed, t_read), (res, image, t_pred) in zip(beds, predictions):
         bed_times = {**times, "read_bed": t_read, **t_pred}
-        outs.append(_one_bed(args, sur, threshold, path, bed, res, image, bed_times, t_start))
+        outs.append(_one_bed(args, sur, threshold, (path, bed), (res, image), bed_times,
+                             t_start))
     if outs[0][1] == 0:
         write_result(outs[0][0] if len(outs) == 1 else batch_result([o for o, _ in outs]),
                      args.output)
@@ -119,8 +120,11 @@ def batch_result(results):
     return {"schema_version": SCHEMA_VERSION, "command": "predict", "beds": results}
 
 
-def _one_bed(args, sur, threshold, path, bed, res, image, times, t_start):
-    """(result dict, rank) of one bed's prediction (and solve, with --check/--fallback)."""
+def _one_bed(args, sur, threshold, item, prediction, times, t_start):
+    """(result dict, rank) of one bed's prediction (and solve, with --check/--fallback).
+
+    item: (path, Bed); prediction: (result, image) of Surrogate.predict_beds."""
+    (path, bed), (res, image) = item, prediction
     from amfe.training.predict import as_properties
 
     score = float(res["score"][0])
