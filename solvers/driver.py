@@ -25,6 +25,7 @@ from amfe.io.result_meta import homogenize_header
 from amfe.io.result import Result
 from amfe.solvers.correction import (moment_corrections, never, relative_size,
                                      second_order_kubc, second_order_loads)
+from amfe.solvers.mgchoice import CHOSEN_OPTIONS, choose_multigrid, multigrid_features
 from amfe.solvers.choice import (USER_METHOD_OPTIONS, Problem, choose_solver, cholesky_package,
                                  solve_features)
 from amfe.solvers.inputs import checked_inputs
@@ -150,6 +151,14 @@ def homogenize_bed(bed, options=None, comm=None, *, input_error=None):
         Problem(singular=any(g.null_modes is not None for g in groups), corrected=corrected),
         check_memory=inp.check_memory)
     log(f"solver: {method} ({reason})")
+    multigrid = None
+    if method == "gamg":  # aggregation per bed (:mod:`amfe.solvers.mgchoice`)
+        mg_options, mg_reason = choose_multigrid(
+            multigrid_features(frame), mpi.size, corrected,
+            [k for k in CHOSEN_OPTIONS if PETSc.Options().hasName(k)
+             or k in {n.lstrip("-") for n in options.ksp_options}])
+        chosen, multigrid = {**chosen, **mg_options}, {"options": mg_options, "reason": mg_reason}
+        log(f"multigrid: {mg_reason}")
     sol = solve_load_cases(frame, comm, groups, rtol=DEFAULT_RTOL if rtol is None else rtol,
                            max_it=options.max_it, log=log,
                            ksp_options={**chosen, **options.ksp_options},
@@ -170,6 +179,8 @@ def homogenize_bed(bed, options=None, comm=None, *, input_error=None):
                     warnings + ([unused] if unused else []), bed)
     d = on_root(mpi, _average, solved, options)
     d["solver"].update(method=method, reason=reason, requested=options.solver)
+    if multigrid is not None:
+        d["solver"]["multigrid"] = multigrid
     fields = None
     if options.fields == "root":
         fields = _fields(solved, options.bc) if mpi.rank == 0 else None
