@@ -66,6 +66,6 @@ def choose_multigrid(features, n_ranks, corrected=False, user_options=()):
         if "matptap_via" not in user_options:
             opts["matptap_via"] = galerkin_algorithm(n_ranks)
         return opts, (f"smoothed aggregation: {share:.3f} of the particles have <= {LOW_BONDS} "
-                      f"bonds (> {LOW_SHARE_MIN:g}: a scanned bed)")
+                      f"bonds (> {LOW_SHARE_MIN:g}) and the constants are first order")
     return {}, (f"unsmoothed aggregation: {share:.3f} of the particles have <= {LOW_BONDS} "
-                f"bonds (<= {LOW_SHARE_MIN:g}: a whole bed)")
+                f"bonds (<= {LOW_SHARE_MIN:g})")
