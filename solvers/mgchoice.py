@@ -6,7 +6,7 @@ scanned bed, where CG takes 7-15 iterations and GAMG's set-up dominates. A
 scanned bed (raster tracks with skipped pieces) has thin tracks and pieces
 joined by few bonds: unsmoothed aggregation then takes 66-75 iterations on a
 paper-scale bed, smoothed aggregation 28-34, for twice the set-up
-(docs/benchmarks.md, "Multigrid per bed"). The solves then dominate, so
+(issue 33; docs/benchmarks.md, "Multigrid per bed"). The solves then dominate, so
 smoothing pays there and not on whole beds.
 
 :func:`multigrid_features` measures, from the frame alone (a user's bed has
