@@ -103,7 +103,8 @@ def homogenize_bed(bed, options=None, comm=None, *, input_error=None):
     volume [m^3], counts, bc, ranks, solver (ksp_type, pc_type, rtol,
     residual_limit, iterations [6], times, residuals and the condition's checks,
     docs/model.md section 9; method and reason of the solver choice,
-    :mod:`amfe.solvers.choice`), material (E, nu, psi, source) and warnings (list
+    :mod:`amfe.solvers.choice`; multigrid: GAMG's aggregation,
+    :mod:`amfe.solvers.mgchoice`), material (E, nu, psi, source) and warnings (list
     of str: accepted unconverged solves, PETSc options never used); with
     ``a_star_cap``, n_capped; with ``diagnose``, diagnostics (per case:
     iterations, true residual, eigenvalue estimates, GAMG levels and

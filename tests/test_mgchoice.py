@@ -41,9 +41,19 @@ def test_the_users_nsmooths_wins():
     assert opts == {"pc_gamg_agg_nsmooths": "1"}
 
 
-@pytest.fixture(scope="module")
-def cut():
-    c, r = round_bed()
+def corner_bed():
+    """The box with one vertical edge cut off by an oblique plane (a skipped piece at a
+    corner): the hull vertices on the cut are free under KUBC."""
+    bed = box_bed()
+    c = bed.centers
+    s = (c - c.min(axis=0)) / (c.max(axis=0) - c.min(axis=0))   # (N, 3) in [0, 1]
+    keep = s[:, 0] + s[:, 1] < 1.5
+    return c[keep], bed.radii[keep]
+
+
+@pytest.fixture(scope="module", params=["round", "corner"])
+def cut(request):
+    c, r = round_bed() if request.param == "round" else corner_bed()
     return c, r, homogenize_arrays(c, r, solver="cholesky")
 
 
