@@ -67,6 +67,15 @@ def test_the_choice_is_recorded_and_keeps_the_contract(cut):
                              ksp_options={"-pc_gamg_agg_nsmooths": "0"})
     assert mine["solver"]["multigrid"]["options"] == {}
     assert error(mine, ref) < 1e-5
+    # on the command line (PETSc's options database, which keeps it: removed after)
+    from amfe.solvers.petsclib import PETSc
+    try:
+        argv = homogenize_arrays(c, r, solver="gamg", rtol=1e-7,
+                                 petsc_args=("-pc_gamg_agg_nsmooths", "0"))
+    finally:
+        PETSc.Options().delValue("pc_gamg_agg_nsmooths")
+    assert argv["solver"]["multigrid"]["options"] == {}
+    assert argv["solver"]["iterations"] == mine["solver"]["iterations"]
     # smoothing changes the iterates: the two runs must differ
     assert mine["solver"]["iterations"] != res["solver"]["iterations"]
 
