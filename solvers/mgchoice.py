@@ -13,7 +13,8 @@ smoothing pays there and not on whole beds.
 no scan record), the share of particles with few bonds: a particle inside a
 whole bed has 12 neighbours, on a face 8-9, on an edge 5-7; the cut sides of
 tracks and the holes a skipped piece leaves add faces and edges, and
-particles left hanging with 1-4 bonds. :func:`choose_multigrid` smooths when
+particles left hanging with 1-4 bonds. Smoothed beds also take Chebyshev of
+degree 2. :func:`choose_multigrid` smooths when
 that share exceeds :data:`LOW_SHARE_MIN` and the constants are first order in
 the solver's error (free hull vertices: rtol 1e-7, many iterations). A user's own
 ``-pc_gamg_agg_nsmooths`` always wins (the choice then adds nothing).
@@ -30,7 +31,8 @@ LOW_SHARE_MIN = 0.02
 """Smoothed aggregation when the share of weakly held particles exceeds this (docs/benchmarks.md,
 "Multigrid per bed")."""
 
-CHOSEN_OPTIONS = ("pc_gamg_agg_nsmooths", "matptap_via")
+CHOSEN_OPTIONS = ("pc_gamg_agg_nsmooths", "matptap_via", "mg_levels_ksp_max_it")
+"""The PETSc options the choice sets; each one the user sets is left to the user."""
 
 
 def multigrid_features(frame):
@@ -62,9 +64,11 @@ def choose_multigrid(features, n_ranks, corrected=False, user_options=()):
         return {}, (f"unsmoothed aggregation: second-order constants (rtol {CORRECTED_RTOL:g}: "
                     "few iterations, set-up dominates)")
     if share > LOW_SHARE_MIN:
-        opts = {"pc_gamg_agg_nsmooths": "1"}
-        if "matptap_via" not in user_options:
-            opts["matptap_via"] = galerkin_algorithm(n_ranks)
+        # Chebyshev of PETSc's degree 2 (the block path's is 1): the same wall on two
+        # paper-scale beds, and every case within 30 iterations (docs/benchmarks.md)
+        opts = {"pc_gamg_agg_nsmooths": "1", "matptap_via": galerkin_algorithm(n_ranks),
+                "mg_levels_ksp_max_it": "2"}
+        opts = {k: v for k, v in opts.items() if k not in user_options}
         return opts, (f"smoothed aggregation: {share:.3f} of the particles have <= {LOW_BONDS} "
                       f"bonds (> {LOW_SHARE_MIN:g}) and the constants are first order")
     return {}, (f"unsmoothed aggregation: {share:.3f} of the particles have <= {LOW_BONDS} "

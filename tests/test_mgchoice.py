@@ -38,7 +38,7 @@ def test_the_users_nsmooths_wins():
         {}, "-pc_gamg_agg_nsmooths given")
     # only the Galerkin algorithm is the user's: the aggregation is still chosen
     opts, _ = choose_multigrid(f, 2, False, ["matptap_via"])
-    assert opts == {"pc_gamg_agg_nsmooths": "1"}
+    assert opts == {"pc_gamg_agg_nsmooths": "1", "mg_levels_ksp_max_it": "2"}
 
 
 def corner_bed():
