@@ -25,6 +25,7 @@ from amfe.io.result_meta import homogenize_header
 from amfe.io.result import Result
 from amfe.solvers.correction import (moment_corrections, never, relative_size,
                                      second_order_kubc, second_order_loads)
+from amfe.solvers.mgchoice import CHOSEN_OPTIONS, choose_multigrid, multigrid_features
 from amfe.solvers.choice import (USER_METHOD_OPTIONS, Problem, choose_solver, cholesky_package,
                                  solve_features)
 from amfe.solvers.inputs import checked_inputs
@@ -102,7 +103,8 @@ def homogenize_bed(bed, options=None, comm=None, *, input_error=None):
     volume [m^3], counts, bc, ranks, solver (ksp_type, pc_type, rtol,
     residual_limit, iterations [6], times, residuals and the condition's checks,
     docs/model.md section 9; method and reason of the solver choice,
-    :mod:`amfe.solvers.choice`), material (E, nu, psi, source) and warnings (list
+    :mod:`amfe.solvers.choice`; multigrid: GAMG's aggregation,
+    :mod:`amfe.solvers.mgchoice`), material (E, nu, psi, source) and warnings (list
     of str: accepted unconverged solves, PETSc options never used); with
     ``a_star_cap``, n_capped; with ``diagnose``, diagnostics (per case:
     iterations, true residual, eigenvalue estimates, GAMG levels and
@@ -150,6 +152,14 @@ def homogenize_bed(bed, options=None, comm=None, *, input_error=None):
         Problem(singular=any(g.null_modes is not None for g in groups), corrected=corrected),
         check_memory=inp.check_memory)
     log(f"solver: {method} ({reason})")
+    multigrid = None
+    if method == "gamg":  # aggregation per bed (:mod:`amfe.solvers.mgchoice`)
+        mg_options, mg_reason = choose_multigrid(
+            multigrid_features(frame), mpi.size, corrected,
+            [k for k in CHOSEN_OPTIONS if PETSc.Options().hasName(k)
+             or k in {n.lstrip("-") for n in options.ksp_options}])
+        chosen, multigrid = {**chosen, **mg_options}, {"options": mg_options, "reason": mg_reason}
+        log(f"multigrid: {mg_reason}")
     sol = solve_load_cases(frame, comm, groups, rtol=DEFAULT_RTOL if rtol is None else rtol,
                            max_it=options.max_it, log=log,
                            ksp_options={**chosen, **options.ksp_options},
@@ -170,6 +180,8 @@ def homogenize_bed(bed, options=None, comm=None, *, input_error=None):
                     warnings + ([unused] if unused else []), bed)
     d = on_root(mpi, _average, solved, options)
     d["solver"].update(method=method, reason=reason, requested=options.solver)
+    if multigrid is not None:
+        d["solver"]["multigrid"] = multigrid
     fields = None
     if options.fields == "root":
         fields = _fields(solved, options.bc) if mpi.rank == 0 else None
