@@ -28,7 +28,7 @@ from amfe.solvers.correction import (moment_corrections, never, relative_size,
 from amfe.solvers.mgchoice import CHOSEN_OPTIONS, choose_multigrid, multigrid_features
 from amfe.solvers.choice import (USER_METHOD_OPTIONS, Problem, choose_solver, cholesky_package,
                                  solve_features)
-from amfe.solvers.inputs import checked_inputs
+from amfe.solvers.inputs import checked_inputs, given_options
 from amfe.solvers.ksp import DEFAULT_RTOL, RESIDUAL_FACTOR
 from amfe.model.kubc import kubc_groups
 from amfe.solvers.loadcases import solve_load_cases
@@ -147,8 +147,7 @@ def homogenize_bed(bed, options=None, comm=None, *, input_error=None):
     method, reason, rtol, chosen = choose_solver(
         lambda: solve_features(frame), mpi.size, options.solver, options.rtol,
         cholesky_package(),
-        [k for k in USER_METHOD_OPTIONS
-         if PETSc.Options().hasName(k) or k in options.ksp_options],
+        given_options(USER_METHOD_OPTIONS, options.ksp_options),
         Problem(singular=any(g.null_modes is not None for g in groups), corrected=corrected),
         check_memory=inp.check_memory)
     log(f"solver: {method} ({reason})")
@@ -156,8 +155,7 @@ def homogenize_bed(bed, options=None, comm=None, *, input_error=None):
     if method == "gamg":  # aggregation per bed (:mod:`amfe.solvers.mgchoice`)
         mg_options, mg_reason = choose_multigrid(
             multigrid_features(frame), mpi.size, corrected,
-            [k for k in CHOSEN_OPTIONS if PETSc.Options().hasName(k)
-             or k in {n.lstrip("-") for n in options.ksp_options}])
+            given_options(CHOSEN_OPTIONS, options.ksp_options))
         chosen, multigrid = {**chosen, **mg_options}, {"options": mg_options, "reason": mg_reason}
         log(f"multigrid: {mg_reason}")
     sol = solve_load_cases(frame, comm, groups, rtol=DEFAULT_RTOL if rtol is None else rtol,

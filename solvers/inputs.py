@@ -38,6 +38,14 @@ def petsc_value(ksp_options, name):
     return PETSc.Options().getString(name) if PETSc.Options().hasName(name) else None
 
 
+def given_options(names, ksp_options):
+    """The options of ``names`` the caller set for this solve: in ``ksp_options`` (with or
+    without the dash, as :func:`amfe.solvers.ksp.petsc_options` takes them) or in the
+    options database (the command line's)."""
+    keys = {k.lstrip("-") for k in ksp_options or {}}
+    return [n for n in names if n in keys or PETSc.Options().hasName(n)]
+
+
 # amfe's argument -> (the PETSc option that would silently override it: make_ksp sets the
 # argument, then KSPSetFromOptions reads the option over it; where the argument is given;
 # what it sets)

@@ -107,3 +107,19 @@ def test_the_data_set_records_which_method_labelled_each_bed(tmp_path):
     assert len(records) >= 5
     assert {r["method"] for r in records} <= {"gamg", "cholesky"}
     assert all(r["reason"].startswith("auto:") for r in records)
+
+
+def test_given_options_reads_both_spellings_and_the_database():
+    # the solver choice and the multigrid choice ask the same question: did the caller set it?
+    from amfe.solvers.inputs import given_options
+    from amfe.solvers.petsclib import PETSc
+    names = ("pc_type", "ksp_type", "pc_gamg_agg_nsmooths")
+    assert given_options(names, {"-pc_type": "lu", "ksp_type": "preonly"}) == ["pc_type",
+                                                                               "ksp_type"]
+    db = PETSc.Options()
+    db.setValue("pc_gamg_agg_nsmooths", "1")
+    try:
+        assert given_options(names, None) == ["pc_gamg_agg_nsmooths"]
+    finally:
+        db.delValue("pc_gamg_agg_nsmooths")
+    assert given_options(names, {}) == []
