@@ -16,9 +16,10 @@ import time
 
 import numpy as np
 
-from amfe.model.bed import generate_bed
+from amfe.model.bed import Bed, generate_bed
 from amfe.model.bonds import find_pairs
 from amfe.model.carrying import component_labels, rule1_factor
+from amfe.model.options import SolveOptions
 from amfe.model.scales import record_seed, sample_bed_params
 from amfe.solvers.driver import homogenize_bed
 from amfe.training.predict import Surrogate
@@ -47,8 +48,8 @@ def main():
     t0 = time.perf_counter()
     for k in range(args.count):
         bed = generate_bed(**sample_bed_params(args.scale, record_seed(args.seed, k)))
-        res = homogenize_bed(bed.centers, bed.radii, bed.material(), solver="auto",
-                             size=bed.attrs["size"])
+        opts = SolveOptions(solver="auto", material=bed.material())
+        res = homogenize_bed(bed, opts).to_dict()
         f = rule1_factor(bed.centers, bed.radii, bed.attrs["size"])
         lab = labels_of(res)
         big = largest_piece(bed)
@@ -58,8 +59,7 @@ def main():
             o[:3] /= f
             extra.append(0)
         else:                                                # rule 1: the largest piece alone
-            r1 = homogenize_bed(bed.centers[big], bed.radii[big], bed.material(), solver="auto",
-                                size=bed.attrs["size"])
+            r1 = homogenize_bed(Bed(bed.centers[big], bed.radii[big], bed.attrs), opts).to_dict()
             o = labels_of(r1)
             o[:3] /= f
             extra.append(res["counts"]["particles_kept"] - big.size)
