@@ -87,6 +87,10 @@ def main(argv=None):
                          "multiscale_small.pt was the initial model")
     ap.add_argument("--init-card", default="docs/model_card.md",
                     help="where that commit describes the initial model")
+    ap.add_argument("--labels", action="append", metavar="TABLE.h5",
+                    help="the committed label tables (labels/, repeat) the training data set "
+                         "is rebuilt from: the card then gives the fresh-clone command "
+                         "`amfe dataset --from-labels` instead of the labelling run")
     ap.add_argument("-o", "--output", default=OUT)
     args = ap.parse_args(argv)
     import numpy as np
@@ -163,10 +167,16 @@ def main(argv=None):
     w("- Made with:")
     w("")
     w("```bash")
-    run_file = f"/work/data/train_seed{ds['seed']}_{args.run_count}.h5"
-    w(f"mpirun -n 2 .venv/bin/amfe dataset -o {run_file} --count {args.run_count} "
-      f"--seed {ds['seed']} --scale {ds['scale']} --solver auto     # resumable")
-    w(f"amfe dataset --prefix-of {run_file} -o {ds['path']} --count {ds['n_ok']}")
+    if args.labels:   # from a fresh clone: the committed tables, no solve (docs/datasets.md)
+        tables = [os.path.relpath(t, ROOT) for t in args.labels]
+        w("# in a clone of amfe after `bash run/setup.sh`; rebuilds the training data set "
+          "bit for bit, solving nothing")
+        w(shlex.join([".venv/bin/amfe", "dataset", "--from-labels", *tables, "-o", ds["path"]]))
+    else:
+        run_file = f"/work/data/train_seed{ds['seed']}_{args.run_count}.h5"
+        w(f"mpirun -n 2 .venv/bin/amfe dataset -o {run_file} --count {args.run_count} "
+          f"--seed {ds['seed']} --scale {ds['scale']} --solver auto     # resumable")
+        w(f"amfe dataset --prefix-of {run_file} -o {ds['path']} --count {ds['n_ok']}")
     init_path = None
     if init:
         init_path = "/work/data/exp/initial.pt"
