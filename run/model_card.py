@@ -195,6 +195,21 @@ def main(argv=None):
         results = {name: {test: evaluate(path, test, cache)} for name, path in models.items()}
         w("")
         L.extend(table(results, test).splitlines()[2:])
+    conf = ck.get("conformal")
+    if conf:   # issue 34: split conformal intervals, per bed size, checked on the held-out beds
+        from calibrate_intervals import coverage_report
+        w("")
+        w("## Intervals")
+        w("")
+        w(f"Split conformal intervals (`training/conformal.py`, `run/calibrate_intervals.py`) at "
+          f"a nominal coverage of {100 * conf['coverage']:g} % per constant, calibrated per bed "
+          "size on held-out beds that no training run or model choice used: "
+          + "; ".join(f"{key} mm: {c['n']} beds" for key, c in conf["sizes"].items())
+          + f". A bed whose interval is wider than {100 * conf['flag_half_width']:g} % "
+          "(relative half-width) is flagged. Measured coverage on the held-out beds above:")
+        for test in args.test:
+            w("")
+            L.extend(coverage_report(sur, test).splitlines())
     w("")
     w("## Speed")
     w("")

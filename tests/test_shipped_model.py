@@ -25,11 +25,17 @@ def test_shipped_model_is_plain_small_and_for_the_small_scale(shipped):
     assert os.path.getsize(shipped) < 20e6             # issue 13's limit
     ck = load_checkpoint(shipped)                      # torch.load(weights_only=True) inside
     assert ck["arch"] == "multiscale" and len(ck["members"]) == 2
-    assert ck["member_seeds"] == [0, 1] and ck["dataset"]["n_train"] == 10450
-    # fine-tuned on seed 6 from the pair fine-tuned on seed 5 (docs/model_card.md)
-    assert ck["init"]["dataset"]["n_train"] == 8550 and ck["init"]["member"] == [0, 1]
-    assert ck["dataset"]["seed"] == 6 and ck["init"]["dataset"]["seed"] == 5
+    assert ck["member_seeds"] == [0, 1] and ck["dataset"]["n_train"] == 3691
+    # fine-tuned on label-rule-2 beds of seed 3 (the committed tables) from the pair
+    # fine-tuned on seed 6 (docs/model_card.md)
+    assert ck["init"]["dataset"]["n_train"] == 10450 and ck["init"]["member"] == [0, 1]
+    assert ck["dataset"]["seed"] == 3 and ck["init"]["dataset"]["seed"] == 6
     assert ck["init"]["training"]["init"]        # which was itself fine-tuned
+    assert ck["label_rule"] == 2
+    # intervals calibrated on the 0.6 mm beds of seed 8, at 90 % (docs/model_card.md)
+    cal = ck["conformal"]
+    assert cal["coverage"] == 0.9 and list(cal["sizes"]) == ["0.6x0.6"]
+    assert cal["sizes"]["0.6x0.6"]["n"] == 500
     assert ck["tta"] == "flips"
     assert ck["inputs"] == ["fill", "bonds"] and ck["image_shape"] == [6, 20, 20]
     sc = get_scale("small")
@@ -52,7 +58,7 @@ def test_shipped_model_predicts_held_out_beds(shipped):
         bed = bed_for(sc, record_seed(2, k))
         res, image, _ = sur.predict_bed(bed)
         assert image.shape == sc.image_shape
-        # label rule 2 (V = the bed's box): the model's rule-1 moduli come converted
+        # label rule 2 (V = the bed's box), as the model was trained
         props = homogenize_arrays(bed.centers, bed.radii, bed.material(),
                                size=bed.attrs["size"])["properties"]
         want = np.array([props[n] for n in LABELS])
@@ -79,16 +85,22 @@ def test_shipped_model_gives_a_mirrored_bed_its_constants(shipped):
     assert np.abs(sur.predict(np.ascontiguousarray(x[..., ::-1]))["mean"] / one - 1).max() > 1e-4
 
 
-def test_shipped_model_is_rule1_and_its_moduli_are_converted_per_bed(shipped):
-    """Trained on label rule 1 (no label_rule in the checkpoint): predict_bed multiplies the
-    network's moduli by the bed's V_hull / V_box and leaves the Poisson ratios alone."""
+def test_shipped_model_is_rule2_and_a_rule1_checkpoint_is_converted_per_bed(shipped):
+    """The shipped model is trained on label rule 2: predict_bed returns the network's
+    numbers. A checkpoint without "label_rule" (trained on rule 1, as the models shipped
+    before 0.3) gets its moduli multiplied by the bed's V_hull / V_box, the Poisson ratios
+    left alone."""
     from amfe.model.carrying import rule1_factor
     sur = Surrogate.load()
-    assert "label_rule" not in load_checkpoint(shipped) and sur.label_rule == 1
-    assert sur.labels.startswith("trained on label rule 1, converted")
+    assert sur.label_rule == 2 and sur.labels == "label rule 2"
     bed = bed_for(get_scale("small"), record_seed(2, 0))
-    converted = sur.predict_bed(bed)[0]["mean"][0]
     raw = sur.predict(sur.inputs_of(bed)[0][None])["mean"][0]
+    np.testing.assert_allclose(sur.predict_bed(bed)[0]["mean"][0], raw, rtol=1e-12)
+    ck = load_checkpoint(shipped)
+    del ck["label_rule"]
+    old = Surrogate(ck, shipped)
+    assert old.label_rule == 1 and old.labels.startswith("trained on label rule 1, converted")
+    converted = old.predict_bed(bed)[0]["mean"][0]
     f = rule1_factor(bed.centers, bed.radii, bed.attrs["size"])
     assert 0.7 < f < 0.85
     np.testing.assert_allclose(converted, raw * np.r_[f, f, f, 1, 1, 1], rtol=1e-12)

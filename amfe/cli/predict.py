@@ -284,6 +284,8 @@ def summary(out, output=None):
     head = f"  {'':6s} {'surrogate':>16s} {'spread':>8s}"
     if check:
         head += f" {'solver':>16s} {'difference':>10s}"
+    if out.get("intervals"):
+        head += f"  {100 * out['coverage']:g} % interval"
     lines.append(head)
     for k in SIX:
         line = f"  {k:6s} {_fmt(k, surrogate[k]):>16s} {_percent(out['spread'][k], 7, '')}"
