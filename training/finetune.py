@@ -56,6 +56,11 @@ def load_init(path, member, n_members):
             "fill_range": ckpt.get("fill_range"), "ckpt": ckpt}
 
 
+#: Architectures whose weights read an image of any in-plane size (global pooling before
+#: the head): training/multiscale.py, training/anysize.py.
+SIZE_FREE_ARCHS = ("multiscale", "anysize")
+
+
 def check_data(start, data_path, info, pixelation, labels):
     """AmfeError unless the new data set's images and labels are what the initial model reads.
 
@@ -64,9 +69,16 @@ def check_data(start, data_path, info, pixelation, labels):
     labels (n, 6): its training labels, positive where the normaliser takes logs.
     """
     path, ckpt = start["record"]["path"], start["ckpt"]
-    check_image_shape(ckpt, info["image_shape"], f"the data set {data_path}", path)
+    # A network that pools globally over its last map reads any H x W with the same
+    # weights: it may start from a model of another bed size (issue 34: fine-tuned on each
+    # size), as long as the layers, channels, cells and sampling are the same.
+    other_size = start["arch"] in SIZE_FREE_ARCHS and \
+        tuple(info["image_shape"])[:1] == tuple(ckpt["image_shape"])[:1]
+    if not other_size:
+        check_image_shape(ckpt, info["image_shape"], f"the data set {data_path}", path)
     theirs = ckpt.get("pixelation") or {}
-    for key in (k for k in pixelation if k != "scale"):   # the grid, not the scale's name
+    skip = ("scale", "bed_size") if other_size else ("scale",)
+    for key in (k for k in pixelation if k not in skip):   # the grid, not the scale's name
         a, b = np.atleast_1d(theirs.get(key, np.nan)), np.atleast_1d(pixelation[key])
         if a.shape != b.shape or not np.allclose(a, b, rtol=1e-9, atol=0):
             raise AmfeError(f"--init {path} was trained on images with {key} {theirs.get(key)}, "

@@ -5,7 +5,8 @@
 
 Pixelates the bed exactly as the model's training data (cells, layers and
 sample spacing are stored in the checkpoint) and runs the network(s); the
-default model is the Custom Net ensemble shipped in amfe/models/. With an
+default model is the ensemble shipped in amfe/models/ for the bed's size
+(training/shipped.py: 0.6 mm and, where shipped, 1.2 mm beds). With an
 ensemble, the members' spread flags beds unlike the training data;
 --fallback then runs the PETSc solve instead, --check always runs it and
 prints both with their difference. Both also work under mpirun.
@@ -49,8 +50,8 @@ def register(sub):
     p.add_argument("bed", metavar="BED.h5", nargs="+",
                    help="bed HDF5 file(s) (/particles/centers, /radii); several: one batch")
     p.add_argument("--model", metavar="MODEL.pt",
-                   help="checkpoint from amfe train (default: the shipped amfe/models/"
-                        "multiscale_small.pt)")
+                   help="checkpoint from amfe train (default: the shipped model for the "
+                        "bed's size, amfe/models/multiscale_SCALE.pt)")
     p.add_argument("-o", "--output", metavar="OUT.json",
                    help="write the result as JSON here (-: to stdout, the table to stderr)")
     p.add_argument("--check", action="store_true",
@@ -80,6 +81,7 @@ def run(args):
     import torch
 
     from amfe.training.predict import Surrogate, check_material
+    from amfe.training.shipped import shipped_model_for
 
     from amfe.io.bedfile import read_bed
 
@@ -87,27 +89,32 @@ def run(args):
         torch.set_num_threads(args.threads)
     # start-up: the interpreter, amfe's and torch's imports (before any work on the bed)
     times = {"start_up": time.perf_counter() - t_start + age} if age is not None else {}
-    t = time.perf_counter()
-    sur = Surrogate.load(args.model)
-    times["load_model"] = time.perf_counter() - t
-    threshold = args.threshold if args.threshold is not None else sur.threshold
-    if args.fallback and threshold is None and not sur.fill_range \
-            and not sur.ckpt.get("conformal"):
-        raise AmfeError(f"--fallback needs a flag threshold: {sur.path} is a single network "
-                        "without a calibrated ensemble spread; use an ensemble (amfe train "
-                        "--members 5) or give --threshold")
     beds = []
     for path in args.bed:
         t = time.perf_counter()
-        bed = read_bed(path)
-        check_material(bed, sur.ckpt, sur.path)
-        beds.append((path, bed, time.perf_counter() - t))
-    predictions = sur.predict_beds([bed for _, bed, _ in beds])
-    outs = []
-    for (path, bed, t_read), (res, image, t_pred) in zip(beds, predictions):
-        bed_times = {**times, "read_bed": t_read, **t_pred}
-        outs.append(_one_bed(args, sur, threshold, (path, bed), (res, image), bed_times,
-                             t_start))
+        beds.append((path, read_bed(path), time.perf_counter() - t))
+    # One model per bed size (training/shipped.py) unless --model names one for all.
+    chosen = [args.model or shipped_model_for(bed) for _, bed, _ in beds]
+    outs = [None] * len(beds)
+    for model in dict.fromkeys(chosen):
+        t = time.perf_counter()
+        sur = Surrogate.load(model)
+        times["load_model"] = time.perf_counter() - t
+        threshold = args.threshold if args.threshold is not None else sur.threshold
+        if args.fallback and threshold is None and not sur.fill_range \
+                and not sur.ckpt.get("conformal"):
+            raise AmfeError(f"--fallback needs a flag threshold: {sur.path} is a single network "
+                            "without a calibrated ensemble spread; use an ensemble (amfe train "
+                            "--members 5) or give --threshold")
+        mine = [k for k, m in enumerate(chosen) if m == model]
+        for k in mine:
+            check_material(beds[k][1], sur.ckpt, sur.path)
+        predictions = sur.predict_beds([beds[k][1] for k in mine])
+        for k, (res, image, t_pred) in zip(mine, predictions):
+            path, bed, t_read = beds[k]
+            bed_times = {**times, "read_bed": t_read, **t_pred}
+            outs[k] = _one_bed(args, sur, threshold, (path, bed), (res, image), bed_times,
+                               t_start)
     if outs[0][1] == 0:
         write_result(outs[0][0] if len(outs) == 1 else batch_result([o for o, _ in outs]),
                      args.output)

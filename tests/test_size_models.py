@@ -1,0 +1,74 @@
+"""One network per bed size (issue 34): fine-tuning across sizes and the shipped model per bed."""
+import numpy as np
+import pytest
+import torch
+
+from amfe.errors import AmfeError
+from amfe.model.bed import Bed
+from amfe.model.scales import bed_for, get_scale, record_seed
+from amfe.training.checkpoint import save_checkpoint
+from amfe.training.predict import Surrogate
+from amfe.training.shipped import SHIPPED, models_dir, shipped_model_for
+from amfe.training.train import TrainConfig, train_model
+
+from test_training import SMALL_ATTRS, write_synthetic
+
+torch.set_num_threads(1)
+QUIET = {"progress": False, "log": lambda line: None}
+MEDIUM_ATTRS = dict(SMALL_ATTRS, scale="medium", bed_size=[1.2e-3, 1.2e-3, 0.3e-3])
+
+
+@pytest.fixture(scope="module")
+def base(tmp_path_factory):
+    d = tmp_path_factory.mktemp("sizes")
+    small = str(write_synthetic(d / "small.h5", n=40, seed=0))
+    medium = str(write_synthetic(d / "medium.h5", n=30, shape=(3, 40, 40), attrs=MEDIUM_ATTRS,
+                                 seed=1, failed=()))
+    ckpt = train_model(small, TrainConfig(arch="multiscale", arch_args={"width": 0.25}, epochs=1,
+                                          batch_size=16, members=1, seed=0), **QUIET)
+    path = d / "small.pt"
+    save_checkpoint(path, ckpt)
+    return {"path": str(path), "ckpt": ckpt, "small": small, "medium": medium, "dir": d}
+
+
+def test_a_size_free_net_fine_tunes_on_another_bed_size(base):
+    """A multi-scale net (global pooling) starts from its weights on 40 x 40 images of 1.2 mm
+    beds: at a vanishing learning rate the tuned member reads them exactly as the small model
+    does, and the new checkpoint is for the new size (shape and pixelation)."""
+    from amfe.training.data import read_rows
+    tuned = train_model(base["medium"], TrainConfig(epochs=1, batch_size=16, seed=0, lr=1e-12,
+                                                    init=base["path"]), **QUIET)
+    assert tuned["image_shape"] == [3, 40, 40]
+    assert np.allclose(tuned["pixelation"]["bed_size"], MEDIUM_ATTRS["bed_size"])
+    images, _ = read_rows(base["medium"])
+    # the small model's checkpoint refuses a 40 x 40 image, so compare the networks directly
+    from amfe.training.checkpoint import build_members
+    x = torch.from_numpy(np.ascontiguousarray(images[:8]))
+    with torch.no_grad():
+        before = build_members(base["ckpt"])[0](x).numpy()
+        after = build_members(tuned)[0](x).numpy()
+    np.testing.assert_allclose(after, before, rtol=1e-5, atol=1e-6)
+    assert np.abs(before).max() > 1e-3   # not two zero outputs
+
+
+def test_a_fixed_size_net_still_refuses_another_bed_size(base, tmp_path):
+    ckpt = train_model(base["small"], TrainConfig(arch="lenet5", epochs=1, batch_size=16,
+                                                  members=1, seed=0), **QUIET)
+    path = tmp_path / "lenet.pt"
+    save_checkpoint(path, ckpt)
+    with pytest.raises(AmfeError, match="shape 3x40x40"):
+        train_model(base["medium"], TrainConfig(epochs=1, init=str(path)), **QUIET)
+
+
+def test_the_shipped_model_is_chosen_by_the_beds_size():
+    small = bed_for(get_scale("small"), record_seed(2, 0))
+    assert shipped_model_for(small) == models_dir() / SHIPPED["small"]
+    # a bed file without a recorded size is imaged in the small box, as before
+    bare = Bed(small.centers, small.radii, {})
+    assert shipped_model_for(bare) == models_dir() / SHIPPED["small"]
+    # a size within a cell's rounding of 0.6 mm is 0.6 mm (whole cells)
+    near = Bed(small.centers, small.radii, {"size": [0.6e-3 + 1e-12, 0.6e-3, 0.3e-3]})
+    assert shipped_model_for(near) == models_dir() / SHIPPED["small"]
+    odd = Bed(small.centers, small.radii, {"size": [0.9e-3, 0.9e-3, 0.3e-3]})
+    with pytest.raises(AmfeError, match=r"no shipped model for a 0\.9 x 0\.9 mm bed.*0\.6 x 0\.6"):
+        shipped_model_for(odd)

@@ -1,0 +1,61 @@
+"""Which shipped model predicts a bed: one network per bed size (issue 34).
+
+The shipped multi-scale net pools its maps globally, so its weights read an
+image of any in-plane size; the label, though, depends on the bed's size as
+well as on its image (KUBC's boundary layer is a smaller share of a larger
+bed), so each size the package predicts has its own fine-tuned checkpoint in
+amfe/models/, named for its scale (amfe.model.scales), with its own
+calibrated intervals. A bed is matched by its imaged in-plane size: the
+recorded size cut to whole cells (amfe.training.anysize.whole_cells); a bed
+file without a recorded size is imaged in the small box, as before.
+"""
+from pathlib import Path
+
+from amfe.errors import AmfeError
+
+#: scale name -> checkpoint file in amfe/models/ (docs/model_card.md, docs/surrogate.md)
+SHIPPED = {"small": "multiscale_small.pt", "medium": "multiscale_medium.pt"}
+
+
+def models_dir():
+    import amfe.version
+    return Path(amfe.version.__file__).resolve().parent / "models"
+
+
+def shipped_sizes():
+    """{(Lx, Ly) in whole cells: (scale name, path)} of the shipped checkpoints present."""
+    from amfe.model.scales import get_scale
+    from amfe.training.anysize import whole_cells
+    out = {}
+    for name, file in SHIPPED.items():
+        path = models_dir() / file
+        if path.is_file():
+            sc = get_scale(name)
+            out[(whole_cells(sc.size[0], sc.cell[0]), whole_cells(sc.size[1], sc.cell[1]))] = \
+                (name, path)
+    return out
+
+
+def shipped_model_for(bed):
+    """The path of the shipped checkpoint for ``bed``'s imaged size; AmfeError naming the
+    sizes there are when none fits (give --model, or solve the bed)."""
+    from amfe.model.scales import get_scale
+    from amfe.training.anysize import whole_cells
+    sizes = shipped_sizes()
+    size = bed.attrs.get("size") if hasattr(bed, "attrs") else None
+    if size is None:   # imaged in the small box (training/predict.py, _image_size)
+        size = get_scale("small").size
+    cell = get_scale("small").cell
+    try:
+        key = (whole_cells(float(size[0]), cell[0]), whole_cells(float(size[1]), cell[1]))
+    except (TypeError, ValueError, IndexError):
+        key = None   # a malformed size: the small model reports it in its own words
+    if key is None:
+        return models_dir() / SHIPPED["small"]
+    if key not in sizes:
+        have = ", ".join(f"{nx * cell[0] * 1e3:g} x {ny * cell[1] * 1e3:g} mm ({name})"
+                         for (nx, ny), (name, _) in sorted(sizes.items()))
+        raise AmfeError(f"no shipped model for a {key[0] * cell[0] * 1e3:g} x "
+                        f"{key[1] * cell[1] * 1e3:g} mm bed (shipped: {have}); give --model "
+                        "MODEL.pt fine-tuned on that size, or solve it with amfe homogenize")
+    return sizes[key][1]
