@@ -29,6 +29,14 @@ def test_a_pure_power_law_is_recovered_exactly(p, sign):
     assert extrapolate(H[perm], f[perm]).value == pytest.approx(e.value, rel=1e-14)
 
 
+def test_sizes_in_metres_give_the_same_answer():
+    f = 0.3 + 0.2 * H ** 0.8
+    e, m = extrapolate(H, f), extrapolate(H * 1e-6, f)      # voxel sizes of a 1 um radius
+    assert m.value == pytest.approx(e.value, rel=1e-12) and m.order == pytest.approx(0.8)
+    f = np.array([0.3538, 0.3202, 0.3060])                   # measured at R/4, R/6, R/8
+    assert math.isfinite(extrapolate(1e-6 / np.array([4, 6, 8]), f).value)
+
+
 def test_the_three_finest_decide_and_a_coarser_triple_widens_the_error():
     f = 5.0 + 2.0 * H ** 1.5
     assert extrapolate(H, f).spread < 1e-12     # every triple of a power law agrees

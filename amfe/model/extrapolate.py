@@ -73,6 +73,7 @@ def observed_order(h, f):
     ln(h3/h2) / ln(h2/h1): the values converge more slowly than any power).
     """
     h, f = _sorted(h, f)
+    h = h / h[0]                        # ratios only: h^p of sizes in metres underflows
     e21, e32 = f[1] - f[0], f[2] - f[1]
     if e21 == 0 or e32 == 0 or (e32 / e21) <= 0:
         return float("nan")
