@@ -8,7 +8,7 @@ report.py does not rerun the voxel ladders (minutes to hours).
 import json
 import os
 
-KEYS = ["Ex", "Ey", "Ez", "G_yz"]
+KEYS = ["Ex", "Ey", "Ez", "E_mean", "G_yz"]
 
 
 def section_voxel(root):

@@ -20,20 +20,28 @@ import numpy as np
 
 from amfe.model.extrapolate import extrapolate
 
-KEYS = ["Ex", "Ey", "Ez", "G_yz", "G_xz", "G_xy"]
+KEYS = ["Ex", "Ey", "Ez", "G_yz", "G_xz", "G_xy", "E_mean"]
+"""E_mean: the mean of Ex, Ey, Ez, extrapolated as one constant (it averages the grid's
+alignment noise of the three axes)."""
 STORE = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "docs",
                      "voxel_model_error.json")
-HEADLINE_BED, HEADLINE_KEY = "periodic48", "Ex"
+HEADLINE_BED, HEADLINE_KEY = "periodic48", "E_mean"
 """The line's bed: a periodic one, where no boundary choice enters (under KUBC on the bed's
 box the continuum's limit H -> 0 loses its grip on faces no sphere reaches; section 10)."""
 
 
+def with_mean(props):
+    """The constants of KEYS from a result's properties (Pa), E_mean added."""
+    out = {k: props[k] for k in KEYS if k != "E_mean"}
+    return out | {"E_mean": (props["Ex"] + props["Ey"] + props["Ez"]) / 3.0}
+
+
 def bed_entry(ladder):
     """The stored record of one ladder: levels, extrapolation, frame, ratio (Pa, s, bytes)."""
-    lv = ladder["levels"]
+    lv = [x | {"properties": with_mean(x["properties"])} for x in ladder["levels"]]
     h = [x["voxel_size"] for x in lv]
     ext = {k: extrapolate(h, [x["properties"][k] for x in lv]).as_dict() for k in KEYS}
-    frame = ladder["frame"]
+    frame = ladder["frame"] | {"properties": with_mean(ladder["frame"]["properties"])}
     ratio = {k: {"value": frame["properties"][k] / ext[k]["value"],
                  "error": frame["properties"][k] / ext[k]["value"] * ext[k]["error"]
                  / ext[k]["value"]} for k in KEYS}
@@ -86,8 +94,9 @@ def headline(path=STORE):
         return f"model error: no stored measurement ({path}: {exc})"
     r = b["ratio"][HEADLINE_KEY]
     c = b["continuum"][HEADLINE_KEY]
+    what = "E (the mean of Ex, Ey, Ez)" if HEADLINE_KEY == "E_mean" else HEADLINE_KEY
     return (f"model error: the paper's springs read {r['value']:.1f} +- {r['error']:.1f} x the "
-            f"continuum of the same spheres ({HEADLINE_KEY} of {b['label']}, {b['bc']}: frame "
+            f"continuum of the same spheres ({what} of {b['label']}, {b['bc']}: frame "
             f"{b['frame']['properties'][HEADLINE_KEY] / 1e9:.0f} GPa, voxel finite elements "
             f"extrapolated to H -> 0 {c['value'] / 1e9:.0f} +- {c['error'] / 1e9:.0f} GPa; "
             f"measured {b['date']}, docs/voxel_model_error.json, docs/model.md section 10)")
