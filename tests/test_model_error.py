@@ -1,4 +1,4 @@
-"""The model-error table and the main job's line, from stored ladders (docs/model.md, section 10)."""
+"""The model-error table and the main job's line, from stored ladders (docs/model.md sec. 10)."""
 import json
 import os
 import sys
