@@ -10,7 +10,6 @@ import os
 import sys
 
 import numpy as np
-
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
@@ -18,6 +17,7 @@ from amfe.io.atomic import atomic_write  # noqa: E402
 from amfe.training.plots import plain_log_axis, spread_labels  # noqa: E402  (no torch)
 
 import report_measure as M  # noqa: E402
+from report_voxel_write import section_voxel  # noqa: E402
 
 PHASES = ("generate", "bonds", "assemble", "setup", "solves", "averages")
 FLOOR = 1e-16  # errors at round-off are drawn here on log axes
@@ -391,6 +391,7 @@ def write_report(data, out, sections):
                "(run/train_surrogate.py makes both, docs/surrogate.md).", ""]
     if 5 in sections:
         section_paper(data, md)
+    md += section_voxel(ROOT)
     text = "\n".join(md) + "\n"
     p_md = os.path.join(out, "report.md")
     atomic_write(p_md, lambda fh: fh.write(text.encode()))

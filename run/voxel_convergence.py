@@ -8,10 +8,9 @@ quantities are the work per unit strain, K_ij = C_ij V / (E R^3), which the
 void does not change. Levels n = nx voxels along L, all of one parity
 (docs/model.md, section 10: an even nx puts the neck plane on a node plane,
 an odd one through voxel centres, and the two converge from far apart).
-Extrapolated to first order (the staircase's) from the two finest levels,
-and, for a ladder of constant ratio, by Richardson from the three finest
-(order p fitted; its change from the three levels before as an error
-estimate).
+Extrapolated to H -> 0 from the three finest levels with an error estimate
+(:func:`amfe.model.extrapolate.extrapolate`: generalised Richardson and
+Roache's GCI; order 1 with safety factor 3 where the values oscillate).
 
     .venv/bin/python run/voxel_convergence.py [--levels 6 12 24 48]
 """
@@ -22,6 +21,7 @@ import time
 
 import numpy as np
 
+from amfe.model.extrapolate import extrapolate
 from amfe.model.material import Material
 from amfe.model.options import SolveOptions
 from amfe.model.voxel import VoxelSolid, grid_over, load_carrying, resolved_share, voxelize
@@ -60,15 +60,6 @@ def pair_run(n, material):
     return {k: C[i, j] for k, i, j in KEYS}, 3 * mesh.n_nodes, seconds, R / h
 
 
-def richardson(f, ratio):
-    """(extrapolated value, order p) of three values at h, h / ratio, h / ratio^2."""
-    d1, d2 = f[1] - f[0], f[2] - f[1]
-    if d1 == 0 or d2 == 0 or d1 / d2 <= 0:
-        return f[2], float("nan")
-    p = math.log(d1 / d2) / math.log(ratio)
-    return f[2] + d2 / (ratio**p - 1.0), p
-
-
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--levels", type=int, nargs="+", default=[6, 12, 24, 48])
@@ -84,21 +75,11 @@ def main():
         rows.append(K)
         print(f"{n:4d} {per_r:6.2f} {dofs:8d} "
               + " ".join(f"{K[k]:9.5f}" for k, _, _ in KEYS) + f" {seconds:8.1f}", flush=True)
-    ratios = np.array(args.levels[1:]) / np.array(args.levels[:-1])
     h = 1.0 / np.array(args.levels, float)
     for k, _, _ in KEYS:
-        f = np.array([r[k] for r in rows])
-        line = f"{k}: finest {f[-1]:.5f}"
-        if len(f) >= 2:  # first order (the staircase's), from the two finest levels
-            lin = (h[-2] * f[-1] - h[-1] * f[-2]) / (h[-2] - h[-1])
-            line += f"; order 1 from the two finest {lin:.5f} ({100 * (f[-1] / lin - 1):+.2f} %)"
-        if len(f) >= 3 and np.allclose(ratios, ratios[0]):
-            ext, p = richardson(f[-3:], ratios[0])
-            err = abs(ext - richardson(f[-4:-1], ratios[0])[0]) if len(f) >= 4 else float("nan")
-            line += (f"; Richardson {ext:.5f} (order {p:.2f}; change from the coarser triple "
-                     f"{err:.1e})")
-        print(line)
-
+        e = extrapolate(h, [r[k] for r in rows])
+        print(f"{k}: finest {e.finest:.5f}; extrapolated {e.value:.5f} +- {e.error:.5f} "
+              f"(order {e.order:.2f}, Fs {e.factor}{'; ' + e.note if e.note else ''})")
 
 if __name__ == "__main__":
     main()

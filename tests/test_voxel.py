@@ -332,7 +332,7 @@ def test_memory_estimate_refuses_before_allocating():
     bed = solid_lattice()
     with pytest.raises(AmfeError, match="memory"):       # the grid alone: 8e12 voxels
         homogenize_voxel(bed, voxel_size=1e-9)
-    # the grid and the frame's estimate of 27 particles (0.5 MB) fit, the 125 nodes' 1.75 MB not
+    # the grid and the frame's estimate of 27 particles (0.5 MB) fit, the 125 nodes' 2 MB not
     with pytest.raises(AmfeError, match="nodes"):
         homogenize_voxel(bed, SolveOptions(max_memory=1_000_000), voxel_size=0.5e-5)
 

@@ -165,11 +165,12 @@ DEFAULT_VOXELS_PER_RADIUS = 4
 GRID_BYTES = 32
 """Bytes per voxel of the grid that every rank holds (solid masks, component labels,
 node numbers)."""
-NODE_BYTES = 14_000
+NODE_BYTES = 16_000
 """Bytes per active node over all ranks: the matrix (about 81 nonzeros a row), its
 constrained copy, GAMG's hierarchy, six cases' vectors and the assembly's temporaries
 (peak RSS less the interpreter's: 10.0 kB per node on one rank at 18 000 and 45 000
-nodes; about 13.4 kB per node over two ranks on the figure-2 bed at R/4, 134 538 nodes)."""
+nodes; on two ranks, twice the largest process's peak: 15.1-16.2 kB per node at
+0.35-0.59 M nodes, docs/model.md section 10, "Memory and the largest beds")."""
 
 
 def voxel_bytes(voxels, nodes, ranks=1):
