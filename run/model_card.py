@@ -25,7 +25,7 @@ OUT = os.path.join(ROOT, "docs", "model_card.md")
 MODEL = "amfe/models/multiscale_small.pt"
 
 
-def train_commands(ck, init_path=None):
+def train_commands(ck, init_path=None, model=MODEL):
     """The `amfe train` lines that made each member, and the merge that made the ensemble.
 
     A fine-tuned model (``ck["init"]``) gets `--init` lines (the network options come from
@@ -40,16 +40,17 @@ def train_commands(ck, init_path=None):
                if tr.get("val_fraction", 0.2) != 0.2 else [])
     if init:
         return _member_lines(ck, data, common, lambda k: ["--init", init_path or init["path"],
-                                                          "--init-member", str(init["member"][k])])
+                                                          "--init-member", str(init["member"][k])],
+                             model)
     common = ["--arch", ck["arch"], *common, "--inputs", ",".join(ck["inputs"])]
     common += [a for k, v in ck["arch_args"].items() if k == "width"
                for a in ("--width", f"{v:g}")]
     common += ["--linear-moduli"] if not tr.get("log_moduli", True) else []
     common += ["--log-poisson", ",".join(tr["log_poisson"])] if tr.get("log_poisson") else []
-    return _member_lines(ck, data, common, lambda k: [])
+    return _member_lines(ck, data, common, lambda k: [], model)
 
 
-def _member_lines(ck, data, common, extra):
+def _member_lines(ck, data, common, extra, model=MODEL):
     stem = "tuned" if ck.get("init") else "member"
     parts = [f"/work/data/exp/{stem}{s}.pt" for s in ck["member_seeds"]]
     lines = [shlex.join([".venv/bin/amfe", "train", data, *common, *extra(k), "--seed", str(s),
@@ -58,7 +59,7 @@ def _member_lines(ck, data, common, extra):
     test = ["--test", ck["metrics"]["test"]["path"]] if "test" in ck["metrics"] else []
     tta = ["--tta", ck["tta"]] if ck.get("tta", "none") != "none" else []
     lines.append(shlex.join([".venv/bin/python", "run/merge_members.py", *parts, "--data", data,
-                             *test, *tta, "-o", MODEL]))
+                             *test, *tta, "-o", model]))
     return lines
 
 
@@ -85,6 +86,8 @@ def main(argv=None):
     ap.add_argument("--init-commit", default="5991b88",
                     help="for a fine-tuned model: the commit whose amfe/models/"
                          "multiscale_small.pt was the initial model")
+    ap.add_argument("--init-model", default=MODEL,
+                    help="for a fine-tuned model: the file, in that commit, it started from")
     ap.add_argument("--init-card", default="docs/model_card.md",
                     help="where that commit describes the initial model")
     ap.add_argument("--labels", action="append", metavar="TABLE.h5",
@@ -112,7 +115,8 @@ def main(argv=None):
     L = []
     w = L.append
     tr, ds = ck["training"], ck["dataset"]
-    w(f"# Model card: {MODEL}")
+    name = os.path.relpath(os.path.abspath(args.model), ROOT)
+    w(f"# Model card: {name}")
     w("")
     w(f"Written by `python run/model_card.py` (the command is in its docstring). The default "
       "model of `amfe predict`; issue 13's measurements and the models it was chosen from "
@@ -147,7 +151,7 @@ def main(argv=None):
     if init:
         ids = init["dataset"]
         w(f"- Fine-tuned (`amfe train --init`): its members started from the members "
-          f"{init['member']} of the model shipped before (commit {args.init_commit}, seeds "
+          f"{init['member']} of `{args.init_model}` as shipped in commit {args.init_commit} (seeds "
           f"{init['member_seeds']}; its card: `git show {args.init_commit}:{args.init_card}`), "
           f"which had been {'fine-tuned' if init['training'].get('init') else 'trained'} on "
           f"{ids['n_train']} beds of the data-set seed {ids['seed']} "
@@ -180,8 +184,8 @@ def main(argv=None):
     init_path = None
     if init:
         init_path = "/work/data/exp/initial.pt"
-        w(f"git show {args.init_commit}:amfe/models/multiscale_small.pt > {init_path}")
-    L.extend(train_commands(ck, init_path))
+        w(f"git show {args.init_commit}:{args.init_model} > {init_path}")
+    L.extend(train_commands(ck, init_path, name))
     w("```")
     w("")
     w("## Held-out errors")
