@@ -17,9 +17,32 @@ the box are left out. It takes about 30 ms for a `small` bed.
 """
 import numpy as np
 
-from amfe.model.bonds import bond_springs, find_bonds
+from amfe.model.bonds import (COINCIDENT, bond_springs, bonded_among, contact_geometry,
+                               find_bonds)
 from amfe.errors import AmfeError
 from amfe.dataset.images import DEFAULT_CELL, DEFAULT_LAYER_THICKNESS, image_box
+from amfe.dataset.pixelkernel import use_kernel
+
+_KERNEL_FROM = 20_000   # particles from which engine "auto" finds the bonds compiled
+
+
+def _find_bonds(centers, radii, engine):
+    """:func:`amfe.model.bonds.find_bonds` of the particles: the same bonds in the same order.
+
+    With the compiled kernel (engine as in amfe.dataset.pixelkernel.use_kernel) a
+    cell list proposes the pairs already sorted, and bonded_among and
+    contact_geometry, find_pairs' own tests, decide and measure them; a bed
+    with coincident centres (or too sparse for the cell table) goes the numpy
+    way, which names them.
+    """
+    centers, radii = np.asarray(centers, float), np.asarray(radii, float)
+    if use_kernel(engine, radii.size >= _KERNEL_FROM) and radii.size:
+        from amfe.dataset._jit import candidate_pairs
+        i, j, ok = candidate_pairs(np.ascontiguousarray(centers), np.ascontiguousarray(radii),
+                                   2.0 * COINCIDENT)
+        if ok:
+            return contact_geometry(centers, radii, *bonded_among(centers, radii, i, j))
+    return find_bonds(centers, radii)
 
 
 def bond_image_of(centers, radii, material, lo, hi, cell_xy=DEFAULT_CELL,
@@ -32,6 +55,15 @@ def bond_image_of(centers, radii, material, lo, hi, cell_xy=DEFAULT_CELL,
     far faces). ``a_star_cap`` as in bond_springs (default: a bond past the
     critical a* is an error).
     """
+    return _image_of(centers, radii, material, (lo, hi, cell_xy, layer_thickness), a_star_cap,
+                     "auto")
+
+
+def _image_of(centers, radii, material, grid, a_star_cap, engine):
+    """:func:`bond_image_of` with grid = (lo, hi, cell_xy, layer_thickness) and the engine
+    ("auto", "numpy" or "compiled": the same image bit for bit, :func:`_find_bonds`)."""
+    use_kernel(engine, False)   # a bad engine is refused whatever the bed
+    lo, hi, cell_xy, layer_thickness = grid
     lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
     cell = np.array([cell_xy[0], cell_xy[1], layer_thickness], np.float64)
     if not (np.all(np.isfinite(cell)) and np.all(cell > 0)):
@@ -41,7 +73,7 @@ def bond_image_of(centers, radii, material, lo, hi, cell_xy=DEFAULT_CELL,
     widths = [np.diff(e) for e in edges]
     volume = widths[2][:, None, None] * widths[1][None, :, None] * widths[0][None, None, :]
 
-    bonds = find_bonds(centers, radii)
+    bonds = _find_bonds(centers, radii, engine)
     image = np.zeros(int(n[2] * n[1] * n[0]))
     if len(bonds):
         k_n = bond_springs(bonds, material, a_star_cap=a_star_cap)[0]
@@ -56,11 +88,12 @@ def bond_image_of(centers, radii, material, lo, hi, cell_xy=DEFAULT_CELL,
     return out.astype(np.float32)
 
 
-def bond_image(bed, cell=DEFAULT_CELL, layer_thickness=None, box=None, a_star_cap=None):
+def bond_image(bed, cell=DEFAULT_CELL, layer_thickness=None, box=None, a_star_cap=None,
+               engine="auto"):
     """The bond-stiffness image of ``bed`` on the grid :func:`amfe.dataset.images.pixelate` uses.
 
     Same arguments as pixelate (box default: [0, attrs['size']], else the
-    spheres' bounding box); the material is ``bed.material()``.
+    spheres' bounding box, and engine); the material is ``bed.material()``.
     Returns (layers, H, W) float32, dimensionless (module docstring).
     """
     if not (hasattr(bed, "centers") and hasattr(bed, "radii")):
@@ -68,5 +101,5 @@ def bond_image(bed, cell=DEFAULT_CELL, layer_thickness=None, box=None, a_star_ca
     if layer_thickness is None:
         layer_thickness = getattr(bed, "attrs", {}).get("layer_thickness", DEFAULT_LAYER_THICKNESS)
     lo, hi = image_box(bed, box)
-    return bond_image_of(bed.centers, bed.radii, bed.material(), lo, hi, cell, layer_thickness,
-                         a_star_cap=a_star_cap)
+    return _image_of(bed.centers, bed.radii, bed.material(), (lo, hi, cell, layer_thickness),
+                     a_star_cap, engine)

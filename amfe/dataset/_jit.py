@@ -1,0 +1,265 @@
+"""The numba-compiled loops of imaging (:mod:`amfe.dataset.pixelkernel`), imported only when they run.
+
+A module of its own so that numba's on-disk cache (cache=True) keeps the
+machine code between processes: only the first run on a machine compiles
+(about 10 s); later ones load it (well under 1 s).
+"""
+import math
+
+import numpy as np
+from numba import njit
+
+_Q_BITS = 17   # bits of a chord end in a key (amfe.dataset.images._Q_BITS)
+
+
+@njit(cache=True)
+def _sort_run(keys, a, b):
+    """Sort keys[a:b] in place (insertion sort: a sample line holds a few chords)."""
+    if b - a > 32:
+        keys[a:b] = np.sort(keys[a:b])
+        return
+    for m in range(a + 1, b):
+        v = keys[m]
+        p = m - 1
+        while p >= a and keys[p] > v:
+            keys[p + 1] = keys[p]
+            p -= 1
+        keys[p + 1] = v
+
+
+@njit(cache=True)
+def _cut(s, e, z, put, buf, m):
+    """Store chord [s, e] of line ``put`` (column) as keyed pieces, one per layer it crosses.
+
+    z = (z_edges, t, z_lo, z_hi, scale, ...): the layer faces [m], thickness
+    [m], the box in z [m] and quantisation levels per metre. buf = (group, key)
+    arrays, m their fill; returns the new fill. A piece of layer l in
+    column ix is group l * columns + ix, key qs << 17 | qe (the numpy path's).
+    """
+    z_edges, t, scale = z[0], z[1], z[4]
+    n_layers = z_edges.size - 1
+    layer = min(max(int(math.floor((s - z_edges[0]) / t)), 0), n_layers - 1)
+    while True:
+        face = z_edges[layer + 1]
+        top = face if (layer < n_layers - 1 and e > face) else e
+        bottom = z_edges[layer]
+        qs = np.int64(np.rint((s - bottom) * scale))
+        qe = np.int64(np.rint((top - bottom) * scale))
+        buf[0][m] = layer * put[1] + put[0]
+        buf[1][m] = (qs << _Q_BITS) | qe
+        m += 1
+        if top == e:
+            return m
+        s = face
+        layer += 1
+
+
+@njit(cache=True)
+def _row_chords(c, r, span, y, xs, z, buf):
+    """Chords of spheres span = (lo, hi) through the sample lines at y; returns their count.
+
+    xs = (xmid, j0): column samples [m] and each sphere's first column at or
+    right of its centre. The covered columns of a row are one run (dx^2 grows
+    away from the centre), scanned out from j0 while (R^2 - dx^2) - dy^2 > 0,
+    the numpy path's test in its order.
+    """
+    xmid, j0 = xs
+    nx = xmid.size
+    z_lo, z_hi = z[2], z[3]
+    m = 0
+    for k in range(span[0], span[1]):
+        dy = y - c[k, 1]
+        dy2 = dy * dy
+        rr = r[k] * r[k]
+        if dy2 >= rr:
+            continue
+        cx, zc = c[k, 0], c[k, 2]
+        for step in (1, -1):
+            ix = j0[k] if step == 1 else j0[k] - 1
+            while 0 <= ix < nx:
+                dx = xmid[ix] - cx
+                half2 = (rr - dx * dx) - dy2
+                if not half2 > 0.0:
+                    break
+                half = math.sqrt(half2)
+                s = max(zc - half, z_lo)
+                e = min(zc + half, z_hi)
+                if e > s:
+                    m = _cut(s, e, z, (ix, nx), buf, m)
+                ix += step
+    return m
+
+
+@njit(cache=True)
+def _row_lines(buf, m, start, keys, weights, pix, part):
+    """Merge the m keyed pieces of one sample row and add each line's volume to part.
+
+    A counting sort by group (layer, column) into keys, a sort of each
+    group's run, the running maximum of the union, and the covered length
+    [m] x weights[g] [m^2] added to part[pix[g]], groups in order (the numpy
+    path's np.bincount order). start: (groups + 1,) scratch.
+    """
+    n_groups = start.size - 1
+    quantum = weights[-1]
+    mask = (1 << _Q_BITS) - 1
+    start[:] = 0
+    for q in range(m):
+        start[buf[0][q] + 1] += 1
+    for g in range(n_groups):
+        start[g + 1] += start[g]
+    fill = start[:-1].copy()
+    for q in range(m):
+        g = buf[0][q]
+        keys[fill[g]] = buf[1][q]
+        fill[g] += 1
+    for g in range(n_groups):
+        a, b = start[g], start[g + 1]
+        if a == b:
+            continue
+        _sort_run(keys, a, b)
+        line = 0.0
+        reach = np.int64(-1)
+        for q in range(a, b):
+            qs, qe = keys[q] >> _Q_BITS, keys[q] & mask
+            line += np.float64(max(qe - max(qs, reach), 0)) * quantum
+            reach = max(reach, qe)
+        line *= weights[g]
+        part[pix[g]] += line
+
+
+@njit(cache=True)
+def union_rows(c, r, xgrid, ygrid, z, shape, image):
+    """Add the union volume [m^3] of spheres c (C,3), r (C,), sorted by c[:, 1], to image.
+
+    xgrid = (mid, w, cell_of, h), ygrid = (mid, w, cell_of): the sample grids of
+    amfe.dataset.images._Axis (sample positions [m], widths [m], cells; spacing [m]);
+    z = (z_edges, t, z_lo, z_hi, scale, quantum); shape = (rows per strip,
+    H, W). Row by row of samples, the chords of the spheres within max(R) of
+    the row go through _row_chords and _row_lines; a strip's pixel sums are
+    added to ``image`` when it ends, as the numpy path adds them.
+    """
+    xmid, xw, xcell, xh = xgrid
+    ymid, yw, ycell = ygrid
+    rows, H, W = shape
+    z_edges, t = z[0], z[1]
+    nx, n = xmid.size, r.size
+    n_layers = z_edges.size - 1
+    j0 = np.searchsorted(xmid, c[:, 0])        # first column with its sample at or right of x_c
+    buf = (np.empty(1 << 16, np.int64), np.empty(1 << 16, np.int64))
+    keys = np.empty(1 << 16, np.int64)
+    start = np.zeros(n_layers * nx + 1, np.int64)
+    weights = np.empty(n_layers * nx + 1)
+    weights[-1] = z[5]
+    pix = np.empty(n_layers * nx, np.int64)
+    part = np.zeros(image.size)
+    reach_y = 1.01 * r.max()
+    lo = 0
+    hi = 0
+    for iy in range(ymid.size):
+        y = ymid[iy]
+        while lo < n and c[lo, 1] < y - reach_y:
+            lo += 1
+        while hi < n and c[hi, 1] <= y + reach_y:
+            hi += 1
+        bound = 0.0   # chords the spheres can give this row: columns x layers they span
+        for k in range(lo, hi):
+            bound += min(2.0 * r[k] / xh + 3.0, nx) * min(2.0 * r[k] / t + 2.0, n_layers)
+        need = int(bound)
+        if need > keys.size:
+            buf = (np.empty(need, np.int64), np.empty(need, np.int64))
+            keys = np.empty(need, np.int64)
+        m = _row_chords(c, r, (lo, hi), y, (xmid, j0), z, buf)
+        if m:
+            for layer in range(n_layers):
+                for ix in range(nx):
+                    g = layer * nx + ix
+                    weights[g] = yw[iy] * xw[ix]
+                    pix[g] = (layer * H + ycell[iy]) * W + xcell[ix]
+            _row_lines(buf, m, start, keys, weights, pix, part)
+        if (iy + 1) % rows == 0 or iy == ymid.size - 1:
+            for p in range(image.size):
+                image[p] += part[p]
+                part[p] = 0.0
+
+
+@njit(cache=True)
+def candidate_pairs(c, r, near):
+    """Pairs (i, j), i < j, sorted by (i, j), that may be bonded: |x_j - x_i|^2 < (R_i + R_j)^2
+    times (1 + 1e-9) (a superset of amfe.model.bonds.bonded_among's bonds, which decides).
+
+    c (N,3) [m], r (N,) [m]; near: a pair closer than near x max(R_i, R_j)
+    stops the search (returns ok False: the caller leaves the bed to
+    amfe.model.bonds.find_pairs, which names coincident centres). A cell
+    list of side 2 max(R): the pairs come out in order without a sort. Also
+    ok False when the bed is too sparse for a dense cell table (more than
+    8 N + 64 cells). Returns (i (M,), j (M,), ok).
+    """
+    n = r.size
+    side = 2.0 * r.max()
+    lo = np.empty(3)
+    dims = np.empty(3, np.int64)
+    for a in range(3):
+        lo[a] = c[:, a].min()
+        dims[a] = int((c[:, a].max() - lo[a]) / side) + 1
+    empty = np.empty(0, np.int64)
+    if dims[0] * dims[1] * dims[2] > 8 * n + 64:
+        return empty, empty, False
+    cell = np.empty((n, 3), np.int64)
+    flat = np.empty(n, np.int64)
+    for k in range(n):
+        for a in range(3):
+            cell[k, a] = min(int((c[k, a] - lo[a]) / side), dims[a] - 1)
+        flat[k] = (cell[k, 0] * dims[1] + cell[k, 1]) * dims[2] + cell[k, 2]
+    n_cells = dims[0] * dims[1] * dims[2]
+    start = np.zeros(n_cells + 1, np.int64)
+    for k in range(n):
+        start[flat[k] + 1] += 1
+    for q in range(n_cells):
+        start[q + 1] += start[q]
+    members = np.empty(n, np.int64)
+    fill = start[:-1].copy()
+    for k in range(n):                     # members of each cell in index order
+        members[fill[flat[k]]] = k
+        fill[flat[k]] += 1
+    cap = 8 * n + 64
+    out_i = np.empty(cap, np.int64)
+    out_j = np.empty(cap, np.int64)
+    buf = np.empty(64, np.int64)
+    m = 0
+    for i in range(n):
+        b = 0
+        for ox in range(max(cell[i, 0] - 1, 0), min(cell[i, 0] + 2, dims[0])):
+            for oy in range(max(cell[i, 1] - 1, 0), min(cell[i, 1] + 2, dims[1])):
+                for oz in range(max(cell[i, 2] - 1, 0), min(cell[i, 2] + 2, dims[2])):
+                    q = (ox * dims[1] + oy) * dims[2] + oz
+                    for p in range(start[q], start[q + 1]):
+                        j = members[p]
+                        if j <= i:
+                            continue
+                        dx = c[j, 0] - c[i, 0]
+                        dy = c[j, 1] - c[i, 1]
+                        dz = c[j, 2] - c[i, 2]
+                        d2 = dx * dx + dy * dy + dz * dz
+                        tiny = near * max(r[i], r[j])
+                        if d2 <= tiny * tiny:
+                            return empty, empty, False
+                        reach = r[i] + r[j]
+                        if d2 < reach * reach * (1.0 + 1e-9):
+                            if b == buf.size:
+                                grown = np.empty(2 * b, np.int64)
+                                grown[:b] = buf
+                                buf = grown
+                            buf[b] = j
+                            b += 1
+        if m + b > out_i.size:
+            grown_i = np.empty(2 * (m + b), np.int64)
+            grown_j = np.empty(2 * (m + b), np.int64)
+            grown_i[:m] = out_i[:m]
+            grown_j[:m] = out_j[:m]
+            out_i, out_j = grown_i, grown_j
+        _sort_run(buf, 0, b)
+        for q in range(b):
+            out_i[m + q] = i
+            out_j[m + q] = buf[q]
+        m += b
+    return out_i[:m].copy(), out_j[:m].copy(), True
