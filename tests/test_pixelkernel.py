@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from amfe.dataset import images
-from amfe.dataset.bondimage import _find_bonds, bond_image
+from amfe.dataset.bondimage import _compiled_sums, _find_bonds, _numpy_sums, bond_image
 from amfe.dataset.images import pixelate, pixelate_spheres
 from amfe.dataset.pixelkernel import union_volumes, use_kernel
 from amfe.errors import AmfeError
@@ -66,6 +66,12 @@ def test_compiled_bonds_equal_find_bonds():
         assert np.array_equal(v, getattr(fast, k)), k
     a = bond_image(bed, engine="numpy")
     assert np.array_equal(a, bond_image(bed, engine="compiled")) and a.max() > 0
+    # the kernel's sums themselves (not a fallback to numpy), float64, on a box of partial cells
+    box = (np.zeros(3), np.array([0.29e-3, 0.25e-3, 0.2e-3]), np.array([30e-6, 30e-6, 70e-6]))
+    n = np.ceil((box[1] - box[0]) / box[2] - 1e-9).astype(np.int64)
+    fast = _compiled_sums(bed.centers, bed.radii, bed.material(), (*box, n))
+    ref = _numpy_sums(bed.centers, bed.radii, bed.material(), (*box, n), None, "numpy")
+    assert fast is not None and np.count_nonzero(ref) == ref.size and np.array_equal(ref, fast)
 
 
 def test_compiled_bonds_leave_coincident_centres_to_numpy_error():
@@ -87,3 +93,24 @@ def test_engine_choice():
     for call in (lambda: pixelate(bed, engine="fast"), lambda: bond_image(bed, engine=None)):
         with pytest.raises(AmfeError, match="engine must be"):
             call()
+
+
+def test_compiled_bond_image_steps_aside_for_a_bond_the_numpy_path_refuses():
+    # two spheres overlapping past the critical a*: the same error either way; with a cap, the
+    # numpy path (the only one that caps) gives the image
+    from amfe.dataset.bondimage import bond_image_of
+    from amfe.model.material import STEEL
+    R = 20e-6
+    half = np.sqrt(1 - 0.498**2) * R                 # a* = 2 a / R = 0.996 > 0.9934
+    c = np.array([[45e-6 - half, 45e-6, 50e-6], [45e-6 + half, 45e-6, 50e-6]])
+    args = (c, np.full(2, R), STEEL, np.zeros(3), [90e-6, 90e-6, 100e-6])
+    grid = (args[3], args[4], (30e-6, 30e-6), 100e-6)
+    from amfe.dataset.bondimage import _image_of
+    errors = []
+    for engine in ("numpy", "compiled"):
+        with pytest.raises(AmfeError, match="a\\* >= ") as err:
+            _image_of(*args[:3], grid, None, engine)
+        errors.append(str(err.value))
+    assert errors[0] == errors[1]
+    capped = bond_image_of(*args, a_star_cap=0.9)
+    assert np.array_equal(capped, _image_of(*args[:3], grid, 0.9, "compiled")) and capped.max() > 0

@@ -221,6 +221,11 @@ def candidate_pairs(c, r, near):
     for k in range(n):                     # members of each cell in index order
         members[fill[flat[k]]] = k
         fill[flat[k]] += 1
+    cs = np.empty((n, 3))                  # their centres and radii in that order (locality)
+    rs = np.empty(n)
+    for p in range(n):
+        cs[p] = c[members[p]]
+        rs[p] = r[members[p]]
     cap = 8 * n + 64
     out_i = np.empty(cap, np.int64)
     out_j = np.empty(cap, np.int64)
@@ -228,22 +233,23 @@ def candidate_pairs(c, r, near):
     m = 0
     for i in range(n):
         b = 0
+        xi, yi, zi, ri = c[i, 0], c[i, 1], c[i, 2], r[i]
         for ox in range(max(cell[i, 0] - 1, 0), min(cell[i, 0] + 2, dims[0])):
             for oy in range(max(cell[i, 1] - 1, 0), min(cell[i, 1] + 2, dims[1])):
-                for oz in range(max(cell[i, 2] - 1, 0), min(cell[i, 2] + 2, dims[2])):
-                    q = (ox * dims[1] + oy) * dims[2] + oz
+                q0 = (ox * dims[1] + oy) * dims[2]
+                for q in range(q0 + max(cell[i, 2] - 1, 0), q0 + min(cell[i, 2] + 2, dims[2])):
                     for p in range(start[q], start[q + 1]):
                         j = members[p]
                         if j <= i:
                             continue
-                        dx = c[j, 0] - c[i, 0]
-                        dy = c[j, 1] - c[i, 1]
-                        dz = c[j, 2] - c[i, 2]
+                        dx = cs[p, 0] - xi
+                        dy = cs[p, 1] - yi
+                        dz = cs[p, 2] - zi
                         d2 = dx * dx + dy * dy + dz * dz
-                        tiny = near * max(r[i], r[j])
+                        tiny = near * max(ri, rs[p])
                         if d2 <= tiny * tiny:
                             return empty, empty, False
-                        reach = r[i] + r[j]
+                        reach = ri + rs[p]
                         if d2 < reach * reach * (1.0 + 1e-9):
                             if b == buf.size:
                                 grown = np.empty(2 * b, np.int64)
@@ -263,3 +269,50 @@ def candidate_pairs(c, r, near):
             out_j[m + q] = buf[q]
         m += b
     return out_i[:m].copy(), out_j[:m].copy(), True
+
+
+@njit(cache=True)
+def bond_sums(c, r, bonds, consts, box, image):
+    """Add k_n L^2 [N m] of every bond to the flat image cell of its midpoint; False if unfit.
+
+    bonds = (i, j, L): the bonds of amfe.model.bonds.find_pairs, in its order, and their
+    lengths [m] as contact_geometry computes them; consts = (E, 1 - nu^2,
+    pi/6 (1 - nu^2), psi, the refused a* from, COINCIDENT); box = (lo, hi,
+    cell, n): (3,) [m] each and the cell counts (3,). The contact geometry and
+    k_n are contact_geometry's and spring_constants' formulas in their order
+    (docs/model.md, section 3; paper eq. 1), so the sums are bond_image_of's
+    np.bincount bit for bit. A bond those functions refuse (coincident centres,
+    a contact plane outside the segment, a* past the limit) returns False at
+    once: the caller takes the numpy path, which names it.
+    """
+    i, j, L_all = bonds
+    E, one_m_nu2, k_br, psi, limit, coincident = consts
+    lo, hi, cell, n = box
+    for b in range(i.size):
+        p, q, L = i[b], j[b], L_all[b]
+        Ri, Rj = r[p], r[q]
+        if L <= coincident * max(Ri, Rj):
+            return False
+        d_i = ((L * L + Ri * Ri) - Rj * Rj) / (2.0 * L)
+        if d_i <= 0.0 or L - d_i <= 0.0:
+            return False
+        heron = (((Ri + Rj - L) * (L + Ri - Rj)) * (L - Ri + Rj)) * (Ri + Rj + L)
+        a = math.sqrt(max(heron, 0.0)) / (2.0 * L)
+        r_eff = Ri * Rj / (Ri + Rj)
+        a_star = a / r_eff
+        if not a_star < limit:
+            return False
+        a = a_star * r_eff
+        s = a / r_eff
+        bracket = k_br * (1.0 + 2.0 * s) - s
+        den = math.sqrt(1.0 - s * s) - psi * (s + s * s * bracket)
+        k_n = E * a / one_m_nu2 * (1.0 + s * bracket) / den
+        flat = 0
+        inside = True
+        for ax in (2, 1, 0):
+            mid = 0.5 * (c[p, ax] + c[q, ax])
+            inside = inside and lo[ax] <= mid < hi[ax]
+            flat = flat * n[ax] + min(int(math.floor((mid - lo[ax]) / cell[ax])), n[ax] - 1)
+        if inside:
+            image[flat] += k_n * (L * L)
+    return True

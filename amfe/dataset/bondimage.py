@@ -19,6 +19,7 @@ import numpy as np
 
 from amfe.model.bonds import (COINCIDENT, bond_springs, bonded_among, contact_geometry,
                                find_bonds)
+from amfe.model.springs import A_STAR_MARGIN, critical_a_star
 from amfe.errors import AmfeError
 from amfe.dataset.images import DEFAULT_CELL, DEFAULT_LAYER_THICKNESS, image_box
 from amfe.dataset.pixelkernel import use_kernel
@@ -43,6 +44,44 @@ def _find_bonds(centers, radii, engine):
         if ok:
             return contact_geometry(centers, radii, *bonded_among(centers, radii, i, j))
     return find_bonds(centers, radii)
+
+
+def _compiled_sums(centers, radii, material, box):
+    """The bond image's per-cell sums of k_n L^2 (flat, float64) by the compiled kernels, or
+    None where they step aside (coincident centres, a bed too sparse, a bond that the numpy
+    path refuses). box = (lo, hi, cell, n) as in amfe.dataset._jit.bond_sums."""
+    from amfe.dataset._jit import bond_sums, candidate_pairs
+    c, r = np.ascontiguousarray(centers, np.float64), np.ascontiguousarray(radii, np.float64)
+    i, j, ok = candidate_pairs(c, r, 2.0 * COINCIDENT)
+    if not ok:
+        return None
+    i, j = bonded_among(c, r, i, j)
+    branch = c[j] - c[i]                               # contact_geometry's lengths, its way
+    length = np.sqrt(np.einsum("ij,ij->i", branch, branch))
+    nu, psi = float(material.nu), float(material.psi)
+    consts = (float(material.E), 1.0 - nu**2, np.pi / 6.0 * (1.0 - nu**2), psi,
+              critical_a_star(material.nu, material.psi) - A_STAR_MARGIN, COINCIDENT)
+    sums = np.zeros(int(np.prod(box[3])))
+    ok = bond_sums(c, r, (i, j, length), consts,
+                   tuple(np.ascontiguousarray(v) for v in box), sums)
+    return sums if ok else None
+
+
+def _numpy_sums(centers, radii, material, box, a_star_cap, engine):
+    """The per-cell sums of k_n L^2 (flat, float64), numpy (the bonds by :func:`_find_bonds`)."""
+    lo, hi, cell, n = box
+    bonds = _find_bonds(centers, radii, engine)
+    if not len(bonds):
+        return np.zeros(int(n[2] * n[1] * n[0]))
+    k_n = bond_springs(bonds, material, a_star_cap=a_star_cap)[0]
+    mid = 0.5 * (np.asarray(centers, np.float64)[bonds.i]
+                 + np.asarray(centers, np.float64)[bonds.j])
+    idx = np.floor((mid - lo) / cell).astype(np.int64)
+    inside = np.all((mid >= lo) & (mid < hi), axis=1)
+    idx = np.minimum(idx, n - 1)[inside]
+    flat = (idx[:, 2] * n[1] + idx[:, 1]) * n[0] + idx[:, 0]
+    return np.bincount(flat, weights=(k_n * bonds.length**2)[inside],
+                       minlength=int(n[2] * n[1] * n[0]))
 
 
 def bond_image_of(centers, radii, material, lo, hi, cell_xy=DEFAULT_CELL,
@@ -73,18 +112,12 @@ def _image_of(centers, radii, material, grid, a_star_cap, engine):
     widths = [np.diff(e) for e in edges]
     volume = widths[2][:, None, None] * widths[1][None, :, None] * widths[0][None, None, :]
 
-    bonds = _find_bonds(centers, radii, engine)
-    image = np.zeros(int(n[2] * n[1] * n[0]))
-    if len(bonds):
-        k_n = bond_springs(bonds, material, a_star_cap=a_star_cap)[0]
-        mid = 0.5 * (np.asarray(centers, np.float64)[bonds.i]
-                     + np.asarray(centers, np.float64)[bonds.j])
-        idx = np.floor((mid - lo) / cell).astype(np.int64)
-        inside = np.all((mid >= lo) & (mid < hi), axis=1)
-        idx = np.minimum(idx, n - 1)[inside]
-        flat = (idx[:, 2] * n[1] + idx[:, 1]) * n[0] + idx[:, 0]
-        image = np.bincount(flat, weights=(k_n * bonds.length**2)[inside], minlength=image.size)
-    out = image.reshape(n[2], n[1], n[0]) / (volume * float(material.E))
+    sums = None
+    if a_star_cap is None and use_kernel(engine, np.size(radii) >= _KERNEL_FROM):
+        sums = _compiled_sums(centers, radii, material, (lo, hi, cell, n.astype(np.int64)))
+    if sums is None:
+        sums = _numpy_sums(centers, radii, material, (lo, hi, cell, n), a_star_cap, engine)
+    out = sums.reshape(n[2], n[1], n[0]) / (volume * float(material.E))
     return out.astype(np.float32)
 
 
