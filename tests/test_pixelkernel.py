@@ -114,3 +114,16 @@ def test_compiled_bond_image_steps_aside_for_a_bond_the_numpy_path_refuses():
     assert errors[0] == errors[1]
     capped = bond_image_of(*args, a_star_cap=0.9)
     assert np.array_equal(capped, _image_of(*args[:3], grid, 0.9, "compiled")) and capped.max() > 0
+
+
+def test_auto_leaves_small_beds_to_numpy_without_importing_numba():
+    # a `small` bed's imaging (what the shipped model reads) pays no numba import
+    import subprocess
+    import sys
+    code = ("import sys\nfrom amfe.model.bed import generate_bed\n"
+            "from amfe.dataset.images import pixelate\nfrom amfe.dataset.bondimage import bond_image\n"
+            "bed = generate_bed((0.3e-3, 0.3e-3, 0.2e-3), seed=1)\npixelate(bed); bond_image(bed)\n"
+            "print('numba' in sys.modules)\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "False"

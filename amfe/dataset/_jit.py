@@ -28,30 +28,9 @@ def _sort_run(keys, a, b):
 
 
 @njit(cache=True)
-def _cut(s, e, z, put, buf, m):
-    """Store chord [s, e] of line ``put`` (column) as keyed pieces, one per layer it crosses.
-
-    z = (z_edges, t, z_lo, z_hi, scale, ...): the layer faces [m], thickness
-    [m], the box in z [m] and quantisation levels per metre. buf = (group, key)
-    arrays, m their fill; returns the new fill. A piece of layer l in
-    column ix is group l * columns + ix, key qs << 17 | qe (the numpy path's).
-    """
-    z_edges, t, scale = z[0], z[1], z[4]
-    n_layers = z_edges.size - 1
-    layer = min(max(int(math.floor((s - z_edges[0]) / t)), 0), n_layers - 1)
-    while True:
-        face = z_edges[layer + 1]
-        top = face if (layer < n_layers - 1 and e > face) else e
-        bottom = z_edges[layer]
-        qs = np.int64(np.rint((s - bottom) * scale))
-        qe = np.int64(np.rint((top - bottom) * scale))
-        buf[0][m] = layer * put[1] + put[0]
-        buf[1][m] = (qs << _Q_BITS) | qe
-        m += 1
-        if top == e:
-            return m
-        s = face
-        layer += 1
+def _layer_of(s, z_edges, t):
+    """The layer of a chord starting at s [m]: floor((s - z_0) / t), clipped (the numpy path's)."""
+    return min(max(int(math.floor((s - z_edges[0]) / t)), 0), z_edges.size - 2)
 
 
 @njit(cache=True)
@@ -59,13 +38,22 @@ def _row_chords(c, r, span, y, xs, z, buf):
     """Chords of spheres span = (lo, hi) through the sample lines at y; returns their count.
 
     xs = (xmid, j0): column samples [m] and each sphere's first column at or
-    right of its centre. The covered columns of a row are one run (dx^2 grows
-    away from the centre), scanned out from j0 while (R^2 - dx^2) - dy^2 > 0,
-    the numpy path's test in its order.
+    right of its centre; z = (z_edges, t, z_lo, z_hi, scale, ...): layer faces
+    [m], thickness [m], the box in z [m], quantisation levels per metre; buf
+    = (group, key) arrays to fill. The covered columns of a row are one run
+    (dx^2 grows away from the centre), scanned out from j0 while
+    (R^2 - dx^2) - dy^2 > 0, the numpy path's test in its order. Each chord is
+    cut at the layer faces it crosses; a piece of layer l in column ix is
+    group l * columns + ix with key qs << 17 | qe, as the numpy path keys it.
+    The layer of a chord's start lies between those of max(z_c - sqrt(R^2), z_lo)
+    and max(z_c, z_lo) (the start does, and the layer is monotone in it): where
+    they agree, no division is needed.
     """
     xmid, j0 = xs
+    z_edges, t, z_lo, z_hi, scale = z[0], z[1], z[2], z[3], z[4]
+    group, keys = buf
     nx = xmid.size
-    z_lo, z_hi = z[2], z[3]
+    top_layer = z_edges.size - 2
     m = 0
     for k in range(span[0], span[1]):
         dy = y - c[k, 1]
@@ -74,6 +62,8 @@ def _row_chords(c, r, span, y, xs, z, buf):
         if dy2 >= rr:
             continue
         cx, zc = c[k, 0], c[k, 2]
+        l_lo = _layer_of(max(zc - math.sqrt(rr), z_lo), z_edges, t)   # half <= sqrt(rr)
+        sure = l_lo == _layer_of(max(zc, z_lo), z_edges, t)
         for step in (1, -1):
             ix = j0[k] if step == 1 else j0[k] - 1
             while 0 <= ix < nx:
@@ -85,7 +75,20 @@ def _row_chords(c, r, span, y, xs, z, buf):
                 s = max(zc - half, z_lo)
                 e = min(zc + half, z_hi)
                 if e > s:
-                    m = _cut(s, e, z, (ix, nx), buf, m)
+                    layer = l_lo if sure else _layer_of(s, z_edges, t)
+                    while True:
+                        face = z_edges[layer + 1]
+                        top = face if (layer < top_layer and e > face) else e
+                        bottom = z_edges[layer]
+                        qs = np.int64(np.rint((s - bottom) * scale))
+                        qe = np.int64(np.rint((top - bottom) * scale))
+                        group[m] = layer * nx + ix
+                        keys[m] = (qs << _Q_BITS) | qe
+                        m += 1
+                        if top == e:
+                            break
+                        s = face
+                        layer += 1
                 ix += step
     return m
 

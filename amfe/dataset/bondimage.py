@@ -13,7 +13,9 @@ V_cell the cell's volume inside the box [m^3]. k_n L^2 / V is the bond's
 share of the Voigt (affine) estimate of the normal stiffness, so a pixel is
 a dimensionless local stiffness density, unchanged by the unit of length or
 of stress (about 0.5 to 3 in `small` beds). Bonds whose midpoint lies outside
-the box are left out. It takes about 30 ms for a `small` bed.
+the box are left out. It takes about 30 ms for a `small` bed; from 20 000
+particles compiled loops (amfe.dataset._jit) give the same image bit for bit,
+3x faster on a 3 mm bed.
 """
 import numpy as np
 
