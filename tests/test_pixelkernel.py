@@ -121,7 +121,8 @@ def test_auto_leaves_small_beds_to_numpy_without_importing_numba():
     import subprocess
     import sys
     code = ("import sys\nfrom amfe.model.bed import generate_bed\n"
-            "from amfe.dataset.images import pixelate\nfrom amfe.dataset.bondimage import bond_image\n"
+            "from amfe.dataset.images import pixelate\n"
+            "from amfe.dataset.bondimage import bond_image\n"
             "bed = generate_bed((0.3e-3, 0.3e-3, 0.2e-3), seed=1)\npixelate(bed); bond_image(bed)\n"
             "print('numba' in sys.modules)\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)

@@ -1,4 +1,4 @@
-"""The numba-compiled loops of imaging (:mod:`amfe.dataset.pixelkernel`), imported only when they run.
+"""The numba-compiled loops of imaging (amfe.dataset.pixelkernel), imported only when they run.
 
 A module of its own so that numba's on-disk cache (cache=True) keeps the
 machine code between processes: only the first run on a machine compiles

@@ -295,8 +295,8 @@ def pixelate_spheres(centers, radii, lo, hi, cell_xy=DEFAULT_CELL,
     cell_xy = (cell_x, cell_y) [m]; layer_thickness [m]; spacing: in-plane
     sample spacing [m] (default: min(median radius / 6, cell_x / 2,
     cell_y / 2); each cell gets ceil(cell / spacing) samples per side);
-    engine: "auto", "numpy" or "compiled" (:func:`amfe.dataset.pixelkernel.use_kernel`): the same image
-    bit for bit, at another speed.
+    engine: "auto", "numpy" or "compiled", the same image bit for bit at
+    another speed (:func:`amfe.dataset.pixelkernel.use_kernel`).
 
     Returns image (layers, H, W) float32 in [0, 1]: H = ceil(Ly / cell_y)
     rows along y, W = ceil(Lx / cell_x) columns along x, layers =

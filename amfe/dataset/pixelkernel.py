@@ -1,4 +1,4 @@
-"""A compiled (numba) kernel for :func:`amfe.dataset.images.pixelate_spheres`, bit for bit its numpy path.
+"""Compiled (numba) imaging: pixelate_spheres' union volumes, bit for bit its numpy path.
 
 The numpy path of amfe.dataset.images generates every (sphere, sample line)
 chord as array elements and sorts them all by one int64 key (6 s for a
