@@ -14,17 +14,22 @@ _Q_BITS = 17   # bits of a chord end in a key (amfe.dataset.images._Q_BITS)
 
 @njit(cache=True)
 def _sort_run(keys, a, b):
-    """Sort keys[a:b] in place (insertion sort: a sample line holds a few chords)."""
+    """Sort keys[a:b] in place: a line holds a few chords (about six in a generated bed).
+
+    Insertion without branches on the data: inserting v into the sorted
+    keys[a:m] gives new[q] = min(keys[q], max(keys[q-1], v)), so every step is
+    a min and a max (no mispredicted jumps, which made a plain insertion sort
+    a third of the kernel's time). Long runs go to np.sort.
+    """
     if b - a > 32:
         keys[a:b] = np.sort(keys[a:b])
         return
     for m in range(a + 1, b):
         v = keys[m]
-        p = m - 1
-        while p >= a and keys[p] > v:
-            keys[p + 1] = keys[p]
-            p -= 1
-        keys[p + 1] = v
+        keys[m] = max(keys[m - 1], v)
+        for q in range(m - 1, a, -1):
+            keys[q] = min(keys[q], max(keys[q - 1], v))
+        keys[a] = min(keys[a], v)
 
 
 @njit(cache=True)
