@@ -37,7 +37,7 @@ strips of sample rows sized so that a strip holds about ``_TILE_CHORDS``
 chords (about 200 MB at most for a 3 x 3 x 0.3 mm bed), whatever the size
 of the bed. Cost: about 120 chords per sphere at the default spacing, 5 s for
 300 000 particles on one core; amfe.dataset.pixelkernel's compiled loops give the
-same image bit for bit about 6x faster (engine "auto" takes them on large beds).
+same image bit for bit 4-6x faster (engine "auto" takes them on large beds).
 """
 import math
 from dataclasses import dataclass
