@@ -128,3 +128,13 @@ def test_auto_leaves_small_beds_to_numpy_without_importing_numba():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "False"
+
+
+def test_compiled_bonds_of_a_far_flung_bed_go_the_numpy_way():
+    # two bonded pairs 1e8 radii apart: a dense cell table would hold ~1e23 cells (past int64)
+    R, far = 10e-6, 1e3
+    c = np.array([[0, 0, 0], [15e-6, 0, 0], [far, far, far], [far + 15e-6, far, far]])
+    r = np.full(4, R)
+    ref = find_bonds(c, r)
+    fast = _find_bonds(c, r, "compiled")
+    assert len(ref) == 2 and np.array_equal(ref.i, fast.i) and np.array_equal(ref.j, fast.j)

@@ -206,12 +206,15 @@ def candidate_pairs(c, r, near):
     side = 2.0 * r.max()
     lo = np.empty(3)
     dims = np.empty(3, np.int64)
+    extent = 1.0
     for a in range(3):
         lo[a] = c[:, a].min()
-        dims[a] = int((c[:, a].max() - lo[a]) / side) + 1
+        extent *= (c[:, a].max() - lo[a]) / side + 1.0
     empty = np.empty(0, np.int64)
-    if dims[0] * dims[1] * dims[2] > 8 * n + 64:
+    if extent > 8 * n + 64:                # in floats: far-flung beds would overflow int64
         return empty, empty, False
+    for a in range(3):
+        dims[a] = int((c[:, a].max() - lo[a]) / side) + 1
     cell = np.empty((n, 3), np.int64)
     flat = np.empty(n, np.int64)
     for k in range(n):
