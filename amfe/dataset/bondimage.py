@@ -13,13 +13,77 @@ V_cell the cell's volume inside the box [m^3]. k_n L^2 / V is the bond's
 share of the Voigt (affine) estimate of the normal stiffness, so a pixel is
 a dimensionless local stiffness density, unchanged by the unit of length or
 of stress (about 0.5 to 3 in `small` beds). Bonds whose midpoint lies outside
-the box are left out. It takes about 30 ms for a `small` bed.
+the box are left out. It takes about 30 ms for a `small` bed; from 20 000
+particles compiled loops (amfe.dataset._jit) give the same image bit for bit,
+3x faster on a 3 mm bed.
 """
 import numpy as np
 
-from amfe.model.bonds import bond_springs, find_bonds
+from amfe.model.bonds import (COINCIDENT, bond_springs, bonded_among, contact_geometry,
+                               find_bonds)
+from amfe.model.springs import A_STAR_MARGIN, critical_a_star
 from amfe.errors import AmfeError
 from amfe.dataset.images import DEFAULT_CELL, DEFAULT_LAYER_THICKNESS, image_box
+from amfe.dataset.pixelkernel import use_kernel
+
+_KERNEL_FROM = 20_000   # particles from which engine "auto" finds the bonds compiled
+
+
+def _find_bonds(centers, radii, engine):
+    """:func:`amfe.model.bonds.find_bonds` of the particles: the same bonds in the same order.
+
+    With the compiled kernel (engine as in amfe.dataset.pixelkernel.use_kernel) a
+    cell list proposes the pairs already sorted, and bonded_among and
+    contact_geometry, find_pairs' own tests, decide and measure them; a bed
+    with coincident centres (or too sparse for the cell table) goes the numpy
+    way, which names them.
+    """
+    centers, radii = np.asarray(centers, float), np.asarray(radii, float)
+    if use_kernel(engine, radii.size >= _KERNEL_FROM) and radii.size:
+        from amfe.dataset._jit import candidate_pairs
+        i, j, ok = candidate_pairs(np.ascontiguousarray(centers), np.ascontiguousarray(radii),
+                                   2.0 * COINCIDENT)
+        if ok:
+            return contact_geometry(centers, radii, *bonded_among(centers, radii, i, j))
+    return find_bonds(centers, radii)
+
+
+def _compiled_sums(centers, radii, material, box):
+    """The bond image's per-cell sums of k_n L^2 (flat, float64) by the compiled kernels, or
+    None where they step aside (coincident centres, a bed too sparse, a bond that the numpy
+    path refuses). box = (lo, hi, cell, n) as in amfe.dataset._jit.bond_sums."""
+    from amfe.dataset._jit import bond_sums, candidate_pairs
+    c, r = np.ascontiguousarray(centers, np.float64), np.ascontiguousarray(radii, np.float64)
+    i, j, ok = candidate_pairs(c, r, 2.0 * COINCIDENT)
+    if not ok:
+        return None
+    i, j = bonded_among(c, r, i, j)
+    branch = c[j] - c[i]                               # contact_geometry's lengths, its way
+    length = np.sqrt(np.einsum("ij,ij->i", branch, branch))
+    nu, psi = float(material.nu), float(material.psi)
+    consts = (float(material.E), 1.0 - nu**2, np.pi / 6.0 * (1.0 - nu**2), psi,
+              critical_a_star(material.nu, material.psi) - A_STAR_MARGIN, COINCIDENT)
+    sums = np.zeros(int(np.prod(box[3])))
+    ok = bond_sums(c, r, (i, j, length), consts,
+                   tuple(np.ascontiguousarray(v) for v in box), sums)
+    return sums if ok else None
+
+
+def _numpy_sums(centers, radii, material, box, a_star_cap, engine):
+    """The per-cell sums of k_n L^2 (flat, float64), numpy (the bonds by :func:`_find_bonds`)."""
+    lo, hi, cell, n = box
+    bonds = _find_bonds(centers, radii, engine)
+    if not len(bonds):
+        return np.zeros(int(n[2] * n[1] * n[0]))
+    k_n = bond_springs(bonds, material, a_star_cap=a_star_cap)[0]
+    mid = 0.5 * (np.asarray(centers, np.float64)[bonds.i]
+                 + np.asarray(centers, np.float64)[bonds.j])
+    idx = np.floor((mid - lo) / cell).astype(np.int64)
+    inside = np.all((mid >= lo) & (mid < hi), axis=1)
+    idx = np.minimum(idx, n - 1)[inside]
+    flat = (idx[:, 2] * n[1] + idx[:, 1]) * n[0] + idx[:, 0]
+    return np.bincount(flat, weights=(k_n * bonds.length**2)[inside],
+                       minlength=int(n[2] * n[1] * n[0]))
 
 
 def bond_image_of(centers, radii, material, lo, hi, cell_xy=DEFAULT_CELL,
@@ -32,6 +96,15 @@ def bond_image_of(centers, radii, material, lo, hi, cell_xy=DEFAULT_CELL,
     far faces). ``a_star_cap`` as in bond_springs (default: a bond past the
     critical a* is an error).
     """
+    return _image_of(centers, radii, material, (lo, hi, cell_xy, layer_thickness), a_star_cap,
+                     "auto")
+
+
+def _image_of(centers, radii, material, grid, a_star_cap, engine):
+    """:func:`bond_image_of` with grid = (lo, hi, cell_xy, layer_thickness) and the engine
+    ("auto", "numpy" or "compiled": the same image bit for bit, :func:`_find_bonds`)."""
+    use_kernel(engine, False)   # a bad engine is refused whatever the bed
+    lo, hi, cell_xy, layer_thickness = grid
     lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
     cell = np.array([cell_xy[0], cell_xy[1], layer_thickness], np.float64)
     if not (np.all(np.isfinite(cell)) and np.all(cell > 0)):
@@ -41,26 +114,21 @@ def bond_image_of(centers, radii, material, lo, hi, cell_xy=DEFAULT_CELL,
     widths = [np.diff(e) for e in edges]
     volume = widths[2][:, None, None] * widths[1][None, :, None] * widths[0][None, None, :]
 
-    bonds = find_bonds(centers, radii)
-    image = np.zeros(int(n[2] * n[1] * n[0]))
-    if len(bonds):
-        k_n = bond_springs(bonds, material, a_star_cap=a_star_cap)[0]
-        mid = 0.5 * (np.asarray(centers, np.float64)[bonds.i]
-                     + np.asarray(centers, np.float64)[bonds.j])
-        idx = np.floor((mid - lo) / cell).astype(np.int64)
-        inside = np.all((mid >= lo) & (mid < hi), axis=1)
-        idx = np.minimum(idx, n - 1)[inside]
-        flat = (idx[:, 2] * n[1] + idx[:, 1]) * n[0] + idx[:, 0]
-        image = np.bincount(flat, weights=(k_n * bonds.length**2)[inside], minlength=image.size)
-    out = image.reshape(n[2], n[1], n[0]) / (volume * float(material.E))
+    sums = None
+    if a_star_cap is None and use_kernel(engine, np.size(radii) >= _KERNEL_FROM):
+        sums = _compiled_sums(centers, radii, material, (lo, hi, cell, n.astype(np.int64)))
+    if sums is None:
+        sums = _numpy_sums(centers, radii, material, (lo, hi, cell, n), a_star_cap, engine)
+    out = sums.reshape(n[2], n[1], n[0]) / (volume * float(material.E))
     return out.astype(np.float32)
 
 
-def bond_image(bed, cell=DEFAULT_CELL, layer_thickness=None, box=None, a_star_cap=None):
+def bond_image(bed, cell=DEFAULT_CELL, layer_thickness=None, box=None, a_star_cap=None,
+               engine="auto"):
     """The bond-stiffness image of ``bed`` on the grid :func:`amfe.dataset.images.pixelate` uses.
 
     Same arguments as pixelate (box default: [0, attrs['size']], else the
-    spheres' bounding box); the material is ``bed.material()``.
+    spheres' bounding box, and engine); the material is ``bed.material()``.
     Returns (layers, H, W) float32, dimensionless (module docstring).
     """
     if not (hasattr(bed, "centers") and hasattr(bed, "radii")):
@@ -68,5 +136,5 @@ def bond_image(bed, cell=DEFAULT_CELL, layer_thickness=None, box=None, a_star_ca
     if layer_thickness is None:
         layer_thickness = getattr(bed, "attrs", {}).get("layer_thickness", DEFAULT_LAYER_THICKNESS)
     lo, hi = image_box(bed, box)
-    return bond_image_of(bed.centers, bed.radii, bed.material(), lo, hi, cell, layer_thickness,
-                         a_star_cap=a_star_cap)
+    return _image_of(bed.centers, bed.radii, bed.material(), (lo, hi, cell, layer_thickness),
+                     a_star_cap, engine)

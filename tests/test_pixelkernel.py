@@ -1,0 +1,140 @@
+"""The compiled imaging kernels (amfe.dataset.pixelkernel, amfe.dataset._jit) give the numpy
+path's images bit for bit: the same imaging, so data sets rebuild identically whichever runs."""
+import numpy as np
+import pytest
+
+from amfe.dataset import images
+from amfe.dataset.bondimage import _compiled_sums, _find_bonds, _numpy_sums, bond_image
+from amfe.dataset.images import pixelate, pixelate_spheres
+from amfe.dataset.pixelkernel import union_volumes, use_kernel
+from amfe.errors import AmfeError
+from amfe.model.bed import generate_bed
+from amfe.model.bonds import find_bonds
+
+pytest.importorskip("numba")
+
+
+def _grid(lo, hi, cell, spacing, t):
+    n = int(np.ceil(cell[0] / spacing))
+    ax = images._Axis(lo[0], hi[0], cell[0], n)
+    ay = images._Axis(lo[1], hi[1], cell[1], int(np.ceil(cell[1] / spacing)))
+    return ax, ay, images._layer_edges(lo[2], hi[2], t)
+
+
+@pytest.mark.parametrize("rows", [1, 7, 10_000])
+def test_union_volumes_equal_numpy_bit_for_bit(rows):
+    # polydisperse overlapping spheres, some reaching out of the box on every side, a
+    # box of partial cells and layers; ``rows`` sets the strips (1: a strip per sample row)
+    rng = np.random.default_rng(5)
+    lo, hi = np.array([0.0, 0.0, 0.0]), np.array([97e-6, 71e-6, 230e-6])
+    n = 400
+    c = rng.uniform(lo - 15e-6, hi + 15e-6, size=(n, 3))
+    r = rng.lognormal(np.log(10e-6), 0.4, size=n)
+    r[0], c[0] = 60e-6, [50e-6, 30e-6, 100e-6]     # one sphere larger than a cell
+    cell, t = (30e-6, 30e-6), 100e-6
+    ax, ay, z = _grid(lo, hi, cell, 2e-6, t)
+    shape = (z.size - 1) * ay.n_cells * ax.n_cells
+    ref, fast = np.zeros(shape), np.zeros(shape)
+    grid = images._Strip(ax, ay, 0, ay.n_sub, z, t, lo[2], hi[2])
+    images._union_numpy(ref, c, r, grid, rows)
+    union_volumes(c, r, grid, rows, images._Q_LEVELS, fast)
+    assert ref.max() > 0 and np.count_nonzero(ref) > shape // 2
+    assert np.array_equal(ref, fast)          # float64 volumes, every bit
+
+
+def test_pixelate_engines_equal_on_generated_bed():
+    bed = generate_bed((0.35e-3, 0.28e-3, 0.27e-3), seed=11)
+    a = pixelate(bed, engine="numpy")
+    b = pixelate(bed, engine="compiled")
+    assert a.shape == (3, 10, 12) and a.dtype == b.dtype == np.float32
+    assert np.array_equal(a, b)
+    # the default spacing and a coarse one, through pixelate_spheres directly
+    for spacing in (None, 7e-6):
+        a = pixelate_spheres(bed.centers, bed.radii, [0, 0, 0], bed.attrs["size"],
+                             spacing=spacing, engine="numpy")
+        b = pixelate_spheres(bed.centers, bed.radii, [0, 0, 0], bed.attrs["size"],
+                             spacing=spacing, engine="compiled")
+        assert np.array_equal(a, b)
+
+
+def test_compiled_bonds_equal_find_bonds():
+    bed = generate_bed((0.3e-3, 0.3e-3, 0.2e-3), seed=4)
+    ref = find_bonds(bed.centers, bed.radii)
+    fast = _find_bonds(bed.centers, bed.radii, "compiled")
+    assert len(ref) > 1000
+    for k, v in ref.__dict__.items():
+        assert np.array_equal(v, getattr(fast, k)), k
+    a = bond_image(bed, engine="numpy")
+    assert np.array_equal(a, bond_image(bed, engine="compiled")) and a.max() > 0
+    # the kernel's sums themselves (not a fallback to numpy), float64, on a box of partial cells
+    box = (np.zeros(3), np.array([0.29e-3, 0.25e-3, 0.2e-3]), np.array([30e-6, 30e-6, 70e-6]))
+    n = np.ceil((box[1] - box[0]) / box[2] - 1e-9).astype(np.int64)
+    fast = _compiled_sums(bed.centers, bed.radii, bed.material(), (*box, n))
+    ref = _numpy_sums(bed.centers, bed.radii, bed.material(), (*box, n), None, "numpy")
+    assert fast is not None and np.count_nonzero(ref) == ref.size and np.array_equal(ref, fast)
+
+
+def test_compiled_bonds_leave_coincident_centres_to_numpy_error():
+    bed = generate_bed((0.15e-3, 0.15e-3, 0.1e-3), seed=2)
+    c = np.vstack([bed.centers, bed.centers[3]])
+    r = np.append(bed.radii, bed.radii[3])
+    with pytest.raises(AmfeError) as ref:
+        find_bonds(c, r)
+    with pytest.raises(AmfeError) as fast:
+        _find_bonds(c, r, "compiled")
+    assert "coincident" in str(fast.value) and str(fast.value) == str(ref.value)
+
+
+def test_engine_choice():
+    assert use_kernel("numpy", True) is False
+    assert use_kernel("auto", False) is False
+    assert use_kernel("auto", True) is True and use_kernel("compiled", False) is True
+    bed = generate_bed((0.1e-3, 0.1e-3, 0.1e-3), seed=1)
+    for call in (lambda: pixelate(bed, engine="fast"), lambda: bond_image(bed, engine=None)):
+        with pytest.raises(AmfeError, match="engine must be"):
+            call()
+
+
+def test_compiled_bond_image_steps_aside_for_a_bond_the_numpy_path_refuses():
+    # two spheres overlapping past the critical a*: the same error either way; with a cap, the
+    # numpy path (the only one that caps) gives the image
+    from amfe.dataset.bondimage import bond_image_of
+    from amfe.model.material import STEEL
+    R = 20e-6
+    half = np.sqrt(1 - 0.498**2) * R                 # a* = 2 a / R = 0.996 > 0.9934
+    c = np.array([[45e-6 - half, 45e-6, 50e-6], [45e-6 + half, 45e-6, 50e-6]])
+    args = (c, np.full(2, R), STEEL, np.zeros(3), [90e-6, 90e-6, 100e-6])
+    grid = (args[3], args[4], (30e-6, 30e-6), 100e-6)
+    from amfe.dataset.bondimage import _image_of
+    errors = []
+    for engine in ("numpy", "compiled"):
+        with pytest.raises(AmfeError, match="a\\* >= ") as err:
+            _image_of(*args[:3], grid, None, engine)
+        errors.append(str(err.value))
+    assert errors[0] == errors[1]
+    capped = bond_image_of(*args, a_star_cap=0.9)
+    assert np.array_equal(capped, _image_of(*args[:3], grid, 0.9, "compiled")) and capped.max() > 0
+
+
+def test_auto_leaves_small_beds_to_numpy_without_importing_numba():
+    # a `small` bed's imaging (what the shipped model reads) pays no numba import
+    import subprocess
+    import sys
+    code = ("import sys\nfrom amfe.model.bed import generate_bed\n"
+            "from amfe.dataset.images import pixelate\n"
+            "from amfe.dataset.bondimage import bond_image\n"
+            "bed = generate_bed((0.3e-3, 0.3e-3, 0.2e-3), seed=1)\npixelate(bed); bond_image(bed)\n"
+            "print('numba' in sys.modules)\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "False"
+
+
+def test_compiled_bonds_of_a_far_flung_bed_go_the_numpy_way():
+    # two bonded pairs 1e8 radii apart: a dense cell table would hold ~1e23 cells (past int64)
+    R, far = 10e-6, 1e3
+    c = np.array([[0, 0, 0], [15e-6, 0, 0], [far, far, far], [far + 15e-6, far, far]])
+    r = np.full(4, R)
+    ref = find_bonds(c, r)
+    fast = _find_bonds(c, r, "compiled")
+    assert len(ref) == 2 and np.array_equal(ref.i, fast.i) and np.array_equal(ref.j, fast.j)
