@@ -32,9 +32,11 @@ reaction stress to second order"): the nine constants within about 1e-7
 relative, closer than the uncorrected stress got at rtol 1e-8, in about half
 the iterations."""
 
-STRAIN_ADJOINT_DEFAULT = "yes"
-"""-amfe_strain_adjoint's default: KUBC beds with free hull vertices solve the strain's six
-adjoints and take :data:`CORRECTED_RTOL` (docs/benchmarks.md, "The strain to second order")."""
+STRAIN_ADJOINT_DEFAULT = "no"
+"""-amfe_strain_adjoint's default. "yes": KUBC beds with free hull vertices solve the strain's six
+adjoints and take :data:`CORRECTED_RTOL`. It does not pay end to end on paper-scale beds (1.25x
+the wall of rtol 1e-7 with the per-bed smoothed aggregation; docs/benchmarks.md, "The strain to
+second order"), so such beds keep the first-order default rtol."""
 
 
 def takes_correction(group):

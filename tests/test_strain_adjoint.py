@@ -10,7 +10,6 @@ import subprocess
 import sys
 
 import numpy as np
-import pytest
 
 from amfe.model.averages import bagi_strain, hull_of, voigt_strain
 from amfe.model.frame import build_frame
