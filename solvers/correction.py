@@ -32,6 +32,12 @@ reaction stress to second order"): the nine constants within about 1e-7
 relative, closer than the uncorrected stress got at rtol 1e-8, in about half
 the iterations."""
 
+STRAIN_ADJOINT_DEFAULT = "no"
+"""-amfe_strain_adjoint's default. "yes": KUBC beds with free hull vertices solve the strain's six
+adjoints and take :data:`CORRECTED_RTOL`. It does not pay end to end on paper-scale beds (1.25x
+the wall of rtol 1e-7 with the per-bed smoothed aggregation; docs/benchmarks.md, "The strain to
+second order"), so such beds keep the first-order default rtol."""
+
 
 def takes_correction(group):
     """Whether a :class:`~amfe.model.loadcase.Group`'s cross products D are computed: six
@@ -55,11 +61,41 @@ def second_order_kubc(frame, groups):
     pieces at a corner). Such beds keep the uncorrected default rtol
     (corrected all the same).
     """
+    free = free_hull_vertices(frame, groups)
+    return free is not None and free.size == 0
+
+
+def free_hull_vertices(frame, groups, hull=None):
+    """KUBC's hull vertices (indices) with a free translation, or None where the groups are not
+    one KUBC group that :func:`takes_correction` (rank 0: qhull)."""
     if not all(g.strains is not None and g.forces is None and takes_correction(g)
                for g in groups):
-        return False
+        return None
     held = np.logical_and.reduce([g.fixed[:, :3].all(axis=1) for g in groups])
-    return bool(held[hull_of(frame.centers).vertices].all())
+    v = (hull or hull_of(frame.centers)).vertices
+    return v[~held[v]]
+
+
+def strain_weights(hull):
+    """(vertices (h,), W (h, 3)) with the Bagi gradient H_ab = sum_v u_v,a W_v,b
+    (:func:`amfe.model.averages.bagi_strain`: W_v = (1/V) sum of A_f n_f / 3 over v's facets)."""
+    w = np.zeros((int(hull.facets.max()) + 1, 3))
+    for c in range(3):
+        np.add.at(w, hull.facets[:, c], hull.areas[:, None] * hull.normals / 3.0)
+    return hull.vertices, w[hull.vertices] / hull.volume
+
+
+def strain_loads(vertices, weights, fixed):
+    """(6, n, 6): the gradients g_m of the six Voigt strain components (engineering shears)
+    with respect to the free DOFs (zero on ``fixed`` (n, 6)), the adjoint loads A z_m = g_m
+    (docs/model.md section 5, "Strain to second order")."""
+    g = np.zeros((6,) + fixed.shape)
+    for m, (a, b) in enumerate(VOIGT_PAIRS):
+        g[m, vertices, a] += weights[:, b]
+        if a != b:
+            g[m, vertices, b] += weights[:, a]
+    g[:, fixed] = 0.0
+    return g
 
 
 def never(frame, groups):

@@ -23,8 +23,9 @@ from amfe.io.mpi import on_root
 from amfe.io.fields import frame_fields
 from amfe.io.result_meta import homogenize_header
 from amfe.io.result import Result
-from amfe.solvers.correction import (moment_corrections, never, relative_size,
-                                     second_order_kubc, second_order_loads)
+from amfe.solvers.adjoint import attach_strain_adjoint
+from amfe.solvers.correction import (STRAIN_ADJOINT_DEFAULT, moment_corrections, never,
+                                     relative_size, second_order_kubc, second_order_loads)
 from amfe.solvers.mgchoice import CHOSEN_OPTIONS, choose_multigrid, multigrid_features
 from amfe.solvers.choice import (USER_METHOD_OPTIONS, Problem, choose_solver, cholesky_package,
                                  solve_features)
@@ -42,11 +43,13 @@ from amfe.solvers.petsclib import PETSc
 LOG = logging.getLogger("amfe.solvers")
 
 
-def bagi_average(frame, groups, u, moments, diagnose=False, cross=None):
+def bagi_average(frame, groups, u, moments, diagnose=False, cross=None, strain_cross=None):
     """KUBC and mixed: (C, V, stats) from the Bagi hull strains and reaction stresses.
 
     cross: per group D_ij = x_i . r_j or None; KUBC's (one group with its
     strains) corrects the moments to second order (:mod:`amfe.solvers.correction`).
+    strain_cross: (6, 6) G_mj = z_m . r_j of the strain's adjoints (free hull vertices,
+    :mod:`amfe.solvers.adjoint`), added to case j's Voigt strain.
     """
     hull = hull_of(frame.centers)
     stats = {}
@@ -59,6 +62,11 @@ def bagi_average(frame, groups, u, moments, diagnose=False, cross=None):
     strains, stresses, stress_asym = [], [], []
     for k in range(6):
         strains.append(voigt_strain(bagi_strain(hull, u[k][:, :3])))
+        if strain_cross is not None:
+            dE = np.asarray(strain_cross)[:, k]
+            stats["strain_correction"] = max(stats.get("strain_correction", 0.0), float(
+                np.linalg.norm(dE) / (np.linalg.norm(strains[-1]) or 1.0)))
+            strains[-1] = strains[-1] + dE
         sigma = moments[k] / frame.volume  # V: the bed's box; the strain stays the hull's
         stress_asym.append(asymmetry(sigma))
         stresses.append(voigt(symmetric(sigma)))
@@ -142,6 +150,10 @@ def homogenize_bed(bed, options=None, comm=None, *, input_error=None):
     # the same on every rank: rank 0 decides (qhull; docs/benchmarks.md, "Figures quoted ...")
     corrected = correction_wanted(options.ksp_options) and mpi.bcast(
         condition.second_order(frame, groups) if mpi.rank == 0 else None)
+    adjoint = False
+    if (correction_wanted(options.ksp_options) and not corrected and condition.second_order
+            is second_order_kubc and strain_adjoint_wanted(options.ksp_options)):
+        adjoint = corrected = attach_strain_adjoint(frame, groups, mpi)  # free hull vertices
     log(f"frame: {frame.n_particles} load-carrying particles ({frame.n_removed} removed), "
         f"{len(frame.bonds)} bonds in {t_frame:.2f} s; {options.bc}, {mpi.size} rank(s)")
     method, reason, rtol, chosen = choose_solver(
@@ -154,7 +166,9 @@ def homogenize_bed(bed, options=None, comm=None, *, input_error=None):
     multigrid = None
     if method == "gamg":  # aggregation per bed (:mod:`amfe.solvers.mgchoice`)
         mg_options, mg_reason = choose_multigrid(
-            multigrid_features(frame), mpi.size, corrected,
+            # the adjoints' beds stay smoothed: unsmoothed aggregation at rtol 1e-5 left paper 301
+            # 2.1e-5 from the reference (docs/benchmarks.md, "The strain to second order")
+            multigrid_features(frame), mpi.size, corrected and not adjoint,
             given_options(CHOSEN_OPTIONS, options.ksp_options))
         chosen, multigrid = {**chosen, **mg_options}, {"options": mg_options, "reason": mg_reason}
         log(f"multigrid: {mg_reason}")
@@ -213,6 +227,18 @@ def correction_wanted(ksp_options):
             else PETSc.Options().getString("amfe_correction", "yes")) != "no"
 
 
+def strain_adjoint_wanted(ksp_options):
+    """-amfe_strain_adjoint (as -amfe_correction): yes or no, default
+    :data:`~amfe.solvers.correction.STRAIN_ADJOINT_DEFAULT`; AmfeError for another value."""
+    given = {k.lstrip("-"): v for k, v in (ksp_options or {}).items()}.get("amfe_strain_adjoint")
+    value = (given if given is not None else PETSc.Options().getString(
+        "amfe_strain_adjoint", STRAIN_ADJOINT_DEFAULT))
+    if value not in ("yes", "no"):
+        raise AmfeError(f"-amfe_strain_adjoint {value!r}: give yes (the strain to second order "
+                        "on beds with free hull vertices) or no")
+    return value == "yes"
+
+
 def _progress(rank):
     """log(line): one progress line to the logger, on rank 0 only (the face decides what
     prints, :func:`amfe.api.homogenize`)."""
@@ -237,8 +263,13 @@ def _average(solved, options):
     """Rank 0: the condition's averages, C, S, constants: the result dict."""
     frame, groups, sol = solved.frame, solved.groups, solved.sol
     t0 = time.perf_counter()
+    G = sol.setups[0].strain_cross
     C, volume, stats = BOUNDARY_CONDITIONS[options.bc].average(
-        frame, groups, sol.u, sol.moments, diagnose=options.diagnose, cross=sol.cross)
+        frame, groups, sol.u, sol.moments, diagnose=options.diagnose, cross=sol.cross,
+        **({} if G is None else {"strain_cross": G}))
+    if G is not None:
+        stats.update(adjoint_iterations=sol.setups[0].adjoint_iterations,
+                     adjoint_seconds=sol.setups[0].adjoint_seconds)
     C = C * frame.stress_scale
     S, props = compliance_and_constants(C)
     for line in frame_warnings(frame, options.bc):   # removed pieces, the box rule: the terminal

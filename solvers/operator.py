@@ -24,6 +24,7 @@ import numpy as np
 
 from amfe.errors import AmfeError
 from amfe.model.averages import bagi_stress
+from amfe.solvers.adjoint import strain_cross
 from amfe.solvers.assembly import aij_from_blocks, sbaij_operator
 from amfe.solvers.blocksolve import (block_path_applies, block_path_expected, solve_block,
                                      with_block_defaults)
@@ -33,7 +34,7 @@ from amfe.solvers.nullspace import near_nullspace, orthonormal_nullspace
 from amfe.solvers.petsclib import PETSc
 
 
-AMFE_OPTIONS = ("amfe_operator_type", "amfe_block", "amfe_correction")
+AMFE_OPTIONS = ("amfe_operator_type", "amfe_block", "amfe_correction", "amfe_strain_adjoint")
 """amfe's own PETSc options (docs/model.md, section 5)."""
 
 
@@ -58,6 +59,9 @@ class SetupRecord:
     unused_options: list = field(default_factory=list)
     path: str = "one at a time"  # or "block" (ConstrainedOperator.solve_all)
     cross: np.ndarray = None  # D_ij = x_i . r_j of the group's solutions (solvers/correction.py)
+    strain_cross: np.ndarray = None  # G_mj = z_m . r_j, the strain's adjoints (solvers/adjoint.py)
+    adjoint_iterations: list = None
+    adjoint_seconds: float = 0.0
 
 
 @dataclass
@@ -252,6 +256,7 @@ class ConstrainedOperator:
                    for k in range(len(names))]
             if correct:
                 self.record.cross = np.array([[xi.dot(rj) for _, rj in keep] for xi, _ in keep])
+                self._strain_adjoint([u for u, _ in keep])
                 for pair in keep:
                     for v in pair:
                         v.destroy()
@@ -262,6 +267,8 @@ class ConstrainedOperator:
             checks[k] = check_solution(cols[k].ksp, f"load case {names[k]}",
                                        cols[k].residual, lambda: self._column_norm(k, cols[k].u),
                                        accept=self.accept_unconverged)
+        if correct:
+            self._strain_adjoint([col.u for col in cols])
         out = []
         for k, (name, col) in enumerate(zip(names, cols)):
             moment, u_root = self._reactions(col.u, center, gather)
@@ -270,6 +277,12 @@ class ConstrainedOperator:
             col.u.destroy()
         self.record.cross = info.get("cross") if correct else None
         return out
+
+    def _strain_adjoint(self, us):
+        """The strain's adjoint cross products G into the record, where the group has loads."""
+        if self.group.adjoint is not None:
+            rec = self.record
+            rec.strain_cross, rec.adjoint_iterations, rec.adjoint_seconds = strain_cross(self, us)
 
     def _corrects(self):
         """Whether this group's cross products D are computed (-amfe_correction, default yes)."""

@@ -49,6 +49,12 @@ def box():
     return bed.centers, bed.radii, homogenize_arrays(bed.centers, bed.radii, solver="cholesky")
 
 
+@pytest.fixture(scope="module")
+def rnd():
+    x, r = round_bed()
+    return x, r, homogenize_arrays(x, r, solver="cholesky")
+
+
 def test_corrections_meet_their_definition():
     rng = np.random.default_rng(0)
     D = rng.normal(size=(6, 6))
@@ -72,16 +78,18 @@ def test_second_order_needs_every_hull_vertex_prescribed():
     assert second_order_loads(frame, subc_groups(frame))
 
 
+def errors_over_rtol(x, r, ref, option):
+    """{(rtol, "yes" or "no"): error} at rtol 1e-3, 1e-4, 1e-5 with the amfe ``option`` on and
+    off; one multigrid for both (the per-bed choice smooths first-order answers)."""
+    return {(rtol, value): error(homogenize_arrays(
+        x, r, solver="gamg", rtol=rtol,
+        ksp_options={option: value, "pc_gamg_agg_nsmooths": "0"}), ref)
+        for rtol in (1e-3, 1e-4, 1e-5) for value in ("yes", "no")}
+
+
 def test_corrected_constants_are_second_order_in_the_residual(box):
     x, r, ref = box
-    err = {}
-    for rtol in (1e-3, 1e-4, 1e-5):
-        for corr in ("yes", "no"):
-            # one multigrid for both (the per-bed choice smooths first-order answers)
-            res = homogenize_arrays(x, r, solver="gamg", rtol=rtol,
-                                    ksp_options={"amfe_correction": corr,
-                                                 "pc_gamg_agg_nsmooths": "0"})
-            err[rtol, corr] = error(res, ref)
+    err = errors_over_rtol(x, r, ref, "amfe_correction")
     for rtol in (1e-3, 1e-4, 1e-5):  # the correction removes the first-order error
         assert err[rtol, "yes"] < 0.03 * err[rtol, "no"], err
     # a decade of rtol gains about two decades of accuracy (one without the correction)
@@ -102,7 +110,8 @@ def test_default_rtol_follows_the_order_of_the_answer(box):
     assert max(s["iterations"]) < 0.75 * max(plain["solver"]["iterations"])
     assert error(res, ref) < 2 * error(plain, ref)  # as accurate as before, or better
     xc, rc = round_bed()
-    rnd = homogenize_arrays(xc, rc, solver="gamg")
+    # free hull vertices without the strain's adjoints (tests/test_strain_adjoint.py): first order
+    rnd = homogenize_arrays(xc, rc, solver="gamg", ksp_options={"amfe_strain_adjoint": "no"})
     assert rnd["solver"]["rtol"] == 1e-8 and rnd["solver"]["correction"] > 0
     assert error(rnd, homogenize_arrays(xc, rc, solver="cholesky")) < 1e-6
 
@@ -115,18 +124,27 @@ def test_the_option_with_petscs_dash_sets_the_default_rtol_too(box):
     assert res["solver"]["rtol"] == 1e-8 and "correction" not in res["solver"]
 
 
-def test_both_paths_are_corrected_alike(box):
-    x, r, ref = box
+# the stress's correction on the box; the strain's adjoints on a bed with free hull vertices
+# (tests/test_strain_adjoint.py): (fixture, option, what the result reports)
+OPTIONS = [("box", "amfe_correction", "correction"),
+           ("rnd", "amfe_strain_adjoint", "strain_correction")]
+
+
+@pytest.mark.parametrize("bed, option, stat", OPTIONS)
+def test_both_paths_are_corrected_alike(request, bed, option, stat):
+    x, r, ref = request.getfixturevalue(bed)
     for block in ("yes", "no"):
-        res = homogenize_arrays(x, r, solver="gamg", rtol=1e-5, ksp_options={"amfe_block": block})
+        res = homogenize_arrays(x, r, solver="gamg", rtol=1e-5,
+                                ksp_options={"amfe_block": block, option: "yes"})
         assert error(res, ref) < 1e-6, block
-        assert res["solver"]["correction"] > 0
+        assert res["solver"][stat] > 0
 
 
-def test_a_bad_correction_option_is_refused(box):
-    x, r, _ = box
-    with pytest.raises(AmfeError, match="-amfe_correction 'maybe': give yes"):
-        homogenize_arrays(x, r, solver="gamg", ksp_options={"amfe_correction": "maybe"})
+@pytest.mark.parametrize("bed, option, stat", OPTIONS)
+def test_a_bad_correction_option_is_refused(request, bed, option, stat):
+    x, r, _ = request.getfixturevalue(bed)
+    with pytest.raises(AmfeError, match=f"-{option} 'maybe': give yes"):
+        homogenize_arrays(x, r, solver="gamg", ksp_options={option: "maybe"})
 
 
 @pytest.mark.parametrize("bc", ["subc", "periodic"])

@@ -37,7 +37,9 @@ class Group:
     strains: optional (k, 3, 3) macro-strains when case i prescribes exactly
     the translations eps_i (x - x_c) (KUBC): the average then corrects the
     reaction moments to second order in the solver's error
-    (:mod:`amfe.solvers.correction`).
+    (:mod:`amfe.solvers.correction`). adjoint: optional (m, n, 6) loads of the averages'
+    adjoint problems (zero on ``fixed``): KUBC's strain on free hull vertices,
+    :func:`amfe.solvers.correction.strain_loads`.
     """
 
     fixed: np.ndarray
@@ -49,6 +51,7 @@ class Group:
     smoothed_aggregation: bool = False
     smoothed_rtol_max: float = float("inf")
     strains: np.ndarray = field(default=None)
+    adjoint: np.ndarray = field(default=None)
 
 
 def rigid_body_modes(points, center=None):
