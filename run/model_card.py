@@ -119,7 +119,7 @@ def main(argv=None):
     w(f"# Model card: {name}")
     w("")
     w(f"Written by `python run/model_card.py` (the command is in its docstring). The default "
-      "model of `amfe predict`; issue 13's measurements and the models it was chosen from "
+      "model of `amfe predict` for beds of its size (`training/shipped.py`); issue 13's measurements and the models it was chosen from "
       "are in [surrogate_scaling.md](surrogate_scaling.md), a summary in "
       "[surrogate.md](surrogate.md); round 1's networks in [surrogate_round1.md](surrogate_round1.md).")
     w("")

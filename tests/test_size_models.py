@@ -72,3 +72,26 @@ def test_the_shipped_model_is_chosen_by_the_beds_size():
     odd = Bed(small.centers, small.radii, {"size": [0.9e-3, 0.9e-3, 0.3e-3]})
     with pytest.raises(AmfeError, match=r"no shipped model for a 0\.9 x 0\.9 mm bed.*0\.6 x 0\.6"):
         shipped_model_for(odd)
+
+
+def test_the_shipped_medium_model_predicts_its_beds():
+    """amfe/models/multiscale_medium.pt: the 1.2 mm beds' own network and intervals; three
+    beds of the held-out seed against the PETSc solve (its test beds' mean errors are
+    1.5-2.9 %, docs/model_card_medium.md)."""
+    from amfe.training.checkpoint import load_checkpoint
+    from helpers import homogenize_arrays
+    from amfe.vocab import LABEL_NAMES
+    path = models_dir() / SHIPPED["medium"]
+    ck = load_checkpoint(path)
+    assert ck["image_shape"] == [6, 40, 40] and ck["label_rule"] == 2
+    assert list(ck["conformal"]["sizes"]) == ["1.2x1.2"]
+    sc = get_scale("medium")
+    sur = Surrogate.load(path)
+    for k in range(3):
+        bed = bed_for(sc, record_seed(12, k))
+        assert shipped_model_for(bed) == path
+        res = sur.predict_bed(bed)[0]["mean"][0]
+        props = homogenize_arrays(bed.centers, bed.radii, bed.material(),
+                                  size=bed.attrs["size"])["properties"]
+        want = np.array([props[n] for n in LABEL_NAMES])
+        assert np.abs(res / want - 1).max() < 0.15, (k, res, want)
