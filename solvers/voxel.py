@@ -6,8 +6,9 @@ built alike on every rank; each rank owns a contiguous block of active nodes
 (a slab in z) and assembles its rows into an AIJ matrix of block size 3. The
 six unit macro-strains are solved with CG + GAMG (near null space: the six
 rigid-body modes of the node coordinates), one operator and set-up for the
-six cases. KUBC prescribes u = eps (x - x_c) on every active node of the
-box's faces; the periodic condition solves for the periodic part on the torus.
+six cases. KUBC prescribes u = eps (x - x_c) on every active node inside
+the frame's boundary particles (the box's faces for a solid built without
+them); the periodic condition solves for the periodic part on the torus.
 C comes from the work of the loads, corrected to second order in the solver's
 error (the dual-weighted residual of :mod:`amfe.solvers.correction`).
 
@@ -117,6 +118,10 @@ def _result(bed, geo, solved, record, ranks, t_geo):
              "box": {"min": geo.grid.lo.tolist(),
                      "max": (geo.grid.lo + geo.grid.n * geo.grid.h).tolist()},
              "geometry_seconds": t_geo}
+    if geo.grip is not None:    # KUBC's grip: the frame's boundary particles (section 10)
+        model["grip"] = {"rule": "nodes inside the frame's boundary particles",
+                         "particles": int(len(geo.grip_particles)),
+                         "nodes": int(mesh.boundary_nodes(geo.grip).size)}
     out = header("homogenize", bed.centers, bed.radii, record)
     out["counts"].update(particles_kept=int(len(geo.kept)), bonds_kept=geo.n_bonds,
                          bonds_input=geo.n_bonds_input)
@@ -166,7 +171,7 @@ def voxel_stiffness(geo, options, comm, *, initial="affine"):
     volume = float(np.prod(geo.grid.n * h))
     t_asm = time.perf_counter() - t1
     cases = _periodic(mesh, Ke, h, r0, r1) if periodic else \
-        _kubc(mesh, x_local, geo.grid.n * h / 2.0, r0, r1)
+        _kubc(mesh.boundary_nodes(geo.grip), x_local, geo.grid.n * h / 2.0, r0, r1)
     sol = _solve(A0, cases, x_local, options, initial)
     W = cases["W0"] - sol["work"] if periodic else sol["work"]
     W, sol["stats"] = dual_corrected(W, [sol["cross"]], -1)
@@ -194,10 +199,10 @@ def _assemble(comm, mesh, Ke, r0, r1):
     return A
 
 
-def _kubc(mesh, x_local, center, r0, r1):
+def _kubc(boundary, x_local, center, r0, r1):
     """KUBC's six cases: prescribed local DOFs and their values (6, 3 nloc) and the affine
-    fields (6, 3 nloc) [units h_x], eps_k (x - x_c) on every local node."""
-    boundary = mesh.boundary_nodes()
+    fields (6, 3 nloc) [units h_x], eps_k (x - x_c) on every local node; boundary: the
+    prescribed active nodes (global numbers, sorted)."""
     mine = boundary[(boundary >= r0) & (boundary < r1)] - r0
     dofs = (3 * mine[:, None] + np.arange(3)).ravel()
     affine = np.array([((x_local - center) @ e.T).ravel() for e in unit_strains()])

@@ -66,3 +66,14 @@ def homogenize_arrays(centers, radii, material=None, *, comm=None, box=None, pet
     if result.fields is not None:
         d["fields"] = result.fields
     return d
+
+
+def brute_grip(mesh, geo, centers=None, radii=None):
+    """KUBC's prescribed active nodes, brute force: every node against every grip sphere
+    (centers (B, 3), radii (B,) [m]), or without spheres the nodes on the box's faces."""
+    ijk = mesh.node_ijk(np.arange(mesh.n_nodes))
+    if centers is None:
+        return np.flatnonzero(np.any((ijk == 0) | (ijk == mesh.n), axis=1))
+    x = geo.grid.lo + ijk * geo.grid.h
+    d2 = ((x[:, None, :] - centers[None]) ** 2).sum(axis=2)
+    return np.flatnonzero(np.any(d2 <= radii ** 2, axis=1))

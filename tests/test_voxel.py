@@ -16,7 +16,7 @@ from amfe.model.voxel import (NECK_ERROR_SHARE, NECK_WARN_SHARE, Grid, VoxelSoli
                               load_carrying, voxel_solid, voxelize)
 from amfe.model.voxelmesh import block_rows, build_mesh
 
-from helpers import run_cli, run_mpi_script
+from helpers import brute_grip, run_cli, run_mpi_script
 
 STEEL_E, STEEL_NU = 210e9, 0.28
 SIDES = [np.ones(3), np.array([1.0, 0.8, 1.3])]
@@ -226,7 +226,7 @@ def test_floating_piece_changes_nothing_once_removed():
     assert np.abs(Cs[0] - Cs[1]).max() <= 1e-10 * STEEL_E
 
 
-def scipy_voxel_C(geo, periodic, E=STEEL_E, nu=STEEL_NU):
+def scipy_voxel_C(geo, periodic, E=STEEL_E, nu=STEEL_NU, bed=None):
     """C [Pa] of a VoxelSolid by scipy's sparse LU on the element-by-element matrix, twice:
     from the work (KUBC: the reactions'; periodic: W0 - F . w) and from the volume
     average of the element stresses over the box (docs/model.md, section 10)."""
@@ -240,7 +240,9 @@ def scipy_voxel_C(geo, periodic, E=STEEL_E, nu=STEEL_NU):
     V = np.prod(geo.grid.n * h)
     n = K.shape[0]
     if not periodic:
-        fixed = (3 * mesh.boundary_nodes()[:, None] + np.arange(3)).ravel()
+        spheres = ((None, None) if geo.grip_particles is None else
+                   (bed.centers[geo.grip_particles], bed.radii[geo.grip_particles]))
+        fixed = (3 * brute_grip(mesh, geo, *spheres)[:, None] + np.arange(3)).ravel()
         g = np.array([((x - geo.grid.n * h / 2) @ e.T).ravel() for e in unit_strains()])
         g[:, np.setdiff1d(np.arange(n), fixed)] = 0.0
         free = np.setdiff1d(np.arange(n), fixed)
@@ -269,7 +271,7 @@ def test_petsc_solve_equals_an_independent_scipy_solve(periodic):
     bc = "periodic" if periodic else "kubc"
     C = voxel_stiffness(geo, SolveOptions(bc=bc, rtol=1e-10, material=Material()),
                         init_petsc().COMM_SELF)[0]
-    want, averaged = scipy_voxel_C(geo, periodic)
+    want, averaged = scipy_voxel_C(geo, periodic, bed=bed)
     assert np.abs(C - want).max() <= 1e-8 * np.abs(want).max()
     assert np.abs(averaged - want).max() <= 1e-10 * np.abs(want).max()  # the same C
     # a loose solve: the second-order correction leaves a small fraction of its own size

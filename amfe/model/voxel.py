@@ -14,6 +14,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from amfe.errors import AmfeError
+from amfe.model.hex8 import VERTICES
 
 NECK_WARN_SHARE = 0.5
 """Below this share of necks resolved by at least 2 voxels across, a warning."""
@@ -70,28 +71,46 @@ def voxelize(centers, radii, grid, periodic=False):
     memory stays bounded whatever N. ``periodic``: the grid is the period box
     and voxels wrap round it (else the spheres are clipped to the box).
     """
+    return _inside(centers, radii, grid, 0.5, grid.n, periodic)
+
+
+def grip_nodes(centers, radii, grid):
+    """Grid-node mask (nz + 1, ny + 1, nx + 1) bool: nodes inside or on any sphere.
+
+    centers (N, 3) [m], radii (N,) [m]: KUBC's grip, the frame's boundary
+    particles (docs/model.md, section 10, "KUBC"); node (ix, iy, iz) lies at
+    grid.lo + (ix, iy, iz) h.
+    """
+    return _inside(centers, radii, grid, 0.0, grid.n + 1, False, strict=False)
+
+
+def _inside(centers, radii, grid, offset, counts, periodic, strict=True):
+    """Mask (counts[::-1]) bool of the lattice points grid.lo + (idx + offset) h, idx <
+    counts (3,), inside any sphere (on it too unless ``strict``), in chunks of spheres."""
     centers = np.asarray(centers, float)
     radii = np.asarray(radii, float)
-    solid = np.zeros(grid.shape, bool)
+    counts = np.asarray(counts, np.int64)
+    mask = np.zeros(tuple(int(k) for k in counts[::-1]), bool)
     if len(radii) == 0:
-        return solid
-    m = np.ceil(2.0 * float(radii.max()) / grid.h).astype(np.int64) + 2   # cube side in voxels
+        return mask
+    m = np.ceil(2.0 * float(radii.max()) / grid.h).astype(np.int64) + 2   # cube side in points
     off = np.stack(np.meshgrid(*(np.arange(k) for k in m), indexing="ij"), -1).reshape(-1, 3)
     chunk = max(1, CHUNK_PAIRS // len(off))
-    flat = solid.reshape(-1)
+    flat = mask.reshape(-1)
     for s in range(0, len(radii), chunk):
         x, r = centers[s:s + chunk], radii[s:s + chunk]
-        first = np.floor((x - r[:, None] - grid.lo) / grid.h - 0.5).astype(np.int64)
+        first = np.floor((x - r[:, None] - grid.lo) / grid.h - offset).astype(np.int64)
         idx = first[:, None, :] + off[None, :, :]                  # (c, M, 3)
-        d = grid.lo + (idx + 0.5) * grid.h - x[:, None, :]
-        inside = np.einsum("cmk,cmk->cm", d, d) < (r * r)[:, None]
+        d = grid.lo + (idx + offset) * grid.h - x[:, None, :]
+        d2, r2 = np.einsum("cmk,cmk->cm", d, d), (r * r)[:, None]
+        inside = d2 < r2 if strict else d2 <= r2
         if periodic:
-            idx = np.mod(idx, grid.n)
+            idx = np.mod(idx, counts)
         else:
-            inside &= np.all((idx >= 0) & (idx < grid.n), axis=2)
+            inside &= np.all((idx >= 0) & (idx < counts), axis=2)
         idx = idx[inside]
-        flat[idx[:, 0] + grid.n[0] * (idx[:, 1] + grid.n[1] * idx[:, 2])] = True
-    return solid
+        flat[idx[:, 0] + counts[0] * (idx[:, 1] + counts[1] * idx[:, 2])] = True
+    return mask
 
 
 def neck_voxels(neck_radii, grid):
@@ -118,22 +137,32 @@ def check_necks(share, voxel_size, warn=NECK_WARN_SHARE, error=NECK_ERROR_SHARE)
     return None
 
 
-def load_carrying(solid, periodic=False):
+def load_carrying(solid, periodic=False, grip=None):
     """(kept mask like solid, pieces removed, voxels removed): the solid pieces that carry load.
 
     Pieces are face-connected (two voxels sharing only an edge or a vertex
-    would hinge). Non-periodic (KUBC): a piece carries load when it touches
-    the box's boundary, where the displacements are prescribed; the others
-    float and are removed. Periodic: the largest piece on the torus (pieces
-    joined across opposite faces are one) is kept, the others removed.
+    would hinge). Non-periodic (KUBC): a piece carries load when its
+    prescribed nodes hold it; the others float and are removed. With ``grip``
+    (grid-node mask (nz + 1, ny + 1, nx + 1) bool, :func:`grip_nodes`) those
+    are the gripped nodes, and a piece is held when one of its voxels has at
+    least 3 gripped vertices (no three vertices of a brick lie on one line);
+    without, the box's faces are prescribed and a piece is held when it
+    touches them. Periodic: the largest piece on the torus (pieces joined
+    across opposite faces are one) is kept, the others removed.
     """
     labels, count = ndimage.label(solid)
     if count == 0:
         raise AmfeError("the voxel model has no solid voxel: the spheres miss every voxel "
                         "centre; give a smaller voxel size")
     if not periodic:
-        faces = [labels[0], labels[-1], labels[:, 0], labels[:, -1], labels[:, :, 0],
-                 labels[:, :, -1]]
+        if grip is None:
+            faces = [labels[0], labels[-1], labels[:, 0], labels[:, -1], labels[:, :, 0],
+                     labels[:, :, -1]]
+        else:
+            nz, ny, nx = solid.shape
+            held = sum(grip[c[2]:c[2] + nz, c[1]:c[1] + ny, c[0]:c[0] + nx].astype(np.int8)
+                       for c in VERTICES) >= 3
+            faces = [labels[held]]
         touching = np.zeros(count + 1, bool)
         for f in faces:
             touching[f.ravel()] = True
@@ -155,8 +184,8 @@ def load_carrying(solid, periodic=False):
     kept = keep[labels]
     pieces = int(count - len(np.unique(labels[kept]))) if kept.any() else count
     if not kept.any():
-        raise AmfeError("no solid piece of the voxel model touches the box's boundary: "
-                        "nothing carries load")
+        raise AmfeError("no solid piece of the voxel model touches its prescribed nodes (the "
+                        "box's faces, or the boundary particles' spheres): nothing carries load")
     return kept, pieces, int(solid.sum() - kept.sum())
 
 
@@ -188,7 +217,11 @@ class VoxelSolid:
     share of their necks >= 2 voxels across; solid_fraction: load-carrying
     solid voxels / all voxels; pieces_removed, voxels_removed: the solid
     pieces taken out at the voxel level; warnings: list of str; removed: the
-    particle pieces removed (:func:`amfe.model.carrying.removed_report`, or None).
+    particle pieces removed (:func:`amfe.model.carrying.removed_report`, or None);
+    grip: KUBC's gripped grid nodes ((nz + 1, ny + 1, nx + 1) bool, those inside
+    the frame's boundary particles, :func:`grip_nodes`), or None: the box's faces
+    (a solid built by hand, e.g. a box cut through a pair's centres);
+    grip_particles: indices of the boundary particles (into the bed), or None.
     """
 
     grid: Grid
@@ -202,6 +235,8 @@ class VoxelSolid:
     voxels_removed: int
     warnings: list
     removed: dict = None
+    grip: np.ndarray = None
+    grip_particles: np.ndarray = None
 
 
 def kubc_box(centers, radii, size=None, kept=None):
@@ -243,6 +278,7 @@ def voxel_solid(centers, radii, voxel_size=None, period=None, size=None, max_mem
     """
     from amfe.model.memory import check_memory
     from amfe.model.bonds import contact_geometry, find_pairs
+    from amfe.model.kubc import boundary_particles
     from amfe.model.carrying import (component_labels, kubc_held, periodic_winding,
                                      removed_report, removed_warning)
     from amfe.model.torus import check_box, find_periodic_pairs, wrap
@@ -282,11 +318,16 @@ def voxel_solid(centers, radii, voxel_size=None, period=None, size=None, max_mem
     warnings += ([neck] if neck else []) + removed_warning(
         removed, "kubc" if period is None else "periodic")
     solid = voxelize(centers[kept], radii[kept], grid, periodic=period is not None)
-    kept_solid, pieces, n_gone = load_carrying(solid, periodic=period is not None)
+    grip = grip_ids = None
+    if period is None:   # gripped where the frame is: its boundary particles (section 10)
+        grip_ids = kept[boundary_particles(centers[kept], radii[kept])]
+        grip = grip_nodes(centers[grip_ids], radii[grip_ids], grid)
+    kept_solid, pieces, n_gone = load_carrying(solid, periodic=period is not None, grip=grip)
     if pieces:
-        warnings.append(f"{pieces} solid piece(s) of {n_gone} voxels carry no load (they touch "
-                        "no prescribed boundary or are not the largest piece) and were removed")
+        warnings.append(f"{pieces} solid piece(s) of {n_gone} voxels carry no load (no prescribed "
+                        "node holds them, or they are not the largest piece) and were removed")
     return VoxelSolid(grid=grid, solid=kept_solid, kept=kept, n_bonds=int(keep[i].sum()),
                       n_bonds_input=int(i.size), neck_share=share,
                       solid_fraction=float(kept_solid.mean()), pieces_removed=pieces,
-                      voxels_removed=n_gone, warnings=warnings, removed=removed)
+                      voxels_removed=n_gone, warnings=warnings, removed=removed, grip=grip,
+                      grip_particles=grip_ids)

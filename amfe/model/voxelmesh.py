@@ -59,10 +59,14 @@ class VoxelMesh:
         mx, my = int(self.m[0]), int(self.m[1])
         return np.stack([g % mx, (g // mx) % my, g // (mx * my)], axis=1)
 
-    def boundary_nodes(self):
-        """Active nodes on the box's faces (KUBC's prescribed set), sorted."""
+    def boundary_nodes(self, grip=None):
+        """KUBC's prescribed active nodes, sorted: those of the grid-node mask ``grip``
+        ((nz + 1, ny + 1, nx + 1) bool, :func:`amfe.model.voxel.grip_nodes`), or with
+        None those on the box's faces."""
         if self.periodic:
             raise AmfeError("a periodic mesh has no boundary")
+        if grip is not None:
+            return np.flatnonzero(np.asarray(grip, bool).reshape(-1)[self.grid_index])
         ijk = self.node_ijk(np.arange(self.n_nodes))
         return np.flatnonzero(np.any((ijk == 0) | (ijk == self.n), axis=1))
 
