@@ -305,6 +305,7 @@ def test_result_follows_the_schema_and_api_dispatch(bed_result, tmp_path):
     from amfe.io.result_meta import validate
     pytest.importorskip("jsonschema")
     validate(bed_result)
+    assert bed_result["model"]["grip"]["nodes"] > 0   # KUBC: gripped where the frame grips
     bed = generate_bed(size=(100e-6, 100e-6, 60e-6), seed=1)
     res = amfe.homogenize(bed, model="voxel", voxel_size=5e-6, rtol=1e-10)
     assert res.extra["model"]["name"] == "voxel"
