@@ -45,15 +45,14 @@ def rule1_factors(test, rows):
     what `amfe predict` multiplies a label-rule-1 checkpoint's moduli by (docs/model.md,
     section 5), so that such a model is scored on rule-2 labels as users get it."""
     import h5py
-    from amfe.model.bed import generate_bed
     from amfe.model.carrying import rule1_factor
-    from amfe.model.scales import get_scale, record_seed, sample_bed_params
+    from amfe.model.scales import bed_for, get_scale, record_seed
     with h5py.File(test, "r") as f:
         scale, seed = get_scale(str(f.attrs["scale"])), int(f.attrs["seed"])
         index = f["index"][()][rows]
     out = np.empty(len(index))
     for n, k in enumerate(index):
-        bed = generate_bed(**sample_bed_params(scale, record_seed(seed, int(k))))
+        bed = bed_for(scale, record_seed(seed, int(k)))
         out[n] = rule1_factor(bed.centers, bed.radii, bed.attrs.get("size"))
     return out
 

@@ -16,11 +16,11 @@ import time
 
 import numpy as np
 
-from amfe.model.bed import Bed, generate_bed
+from amfe.model.bed import Bed
 from amfe.model.bonds import find_pairs
 from amfe.model.carrying import component_labels, rule1_factor
 from amfe.model.options import SolveOptions
-from amfe.model.scales import record_seed, sample_bed_params
+from amfe.model.scales import bed_for, record_seed
 from amfe.solvers.driver import homogenize_bed
 from amfe.training.predict import Surrogate
 from amfe.vocab import LABEL_NAMES
@@ -47,7 +47,7 @@ def main():
     new, old, raw, conv, factor, extra, lost = [], [], [], [], [], [], []
     t0 = time.perf_counter()
     for k in range(args.count):
-        bed = generate_bed(**sample_bed_params(args.scale, record_seed(args.seed, k)))
+        bed = bed_for(args.scale, record_seed(args.seed, k))
         opts = SolveOptions(solver="auto", material=bed.material())
         res = homogenize_bed(bed, opts).to_dict()
         f = rule1_factor(bed.centers, bed.radii, bed.attrs["size"])

@@ -48,9 +48,7 @@ def shipped_model_for(bed):
     cell = get_scale("small").cell
     try:
         key = (whole_cells(float(size[0]), cell[0]), whole_cells(float(size[1]), cell[1]))
-    except (TypeError, ValueError, IndexError):
-        key = None   # a malformed size: the small model reports it in its own words
-    if key is None:
+    except (TypeError, ValueError, IndexError):   # malformed: the small model says so
         return models_dir() / SHIPPED["small"]
     if key not in sizes:
         have = ", ".join(f"{nx * cell[0] * 1e3:g} x {ny * cell[1] * 1e3:g} mm ({name})"
