@@ -309,8 +309,10 @@ def summary(out, output=None):
                      f"{out['interval_calibration']['size']} mm)")
     elif out.get("interval_calibration"):
         lines.append(out["interval_calibration"]["note"])
-    if out["threshold"] is None or out["members"] < 2:
+    if out["members"] < 2:
         lines.append("no spread flag (a single network has no spread)")
+    elif out["threshold"] is None:   # members merged without validation beds to set it
+        lines.append("no spread flag (the model has no spread threshold; its intervals flag)")
     elif out["spread_score"] is None:
         lines.append(f"spread score not finite (threshold {out['threshold']:.3g})")
     else:
