@@ -190,6 +190,11 @@ def _one_bed(args, sur, threshold, item, prediction, times, t_start):
         "image_shape": list(image.shape),
         "density": float(image.mean(dtype="float64")),
     }
+    if "stiffness" in res:   # a stiffness head: C and the nine constants derived from it
+        out["stiffness"] = {"C": [[float(v) for v in row] for row in res["stiffness"][0]],
+                            "constants": _finite_or_none(dict(zip(NINE, map(float,
+                                                                            res["constants9"][0])))),
+                            "voigt": "xx, yy, zz, yz, xz, xy; Pa"}
     if solver is not None:
         solver_props = {k: float(solver["properties"][k]) for k in NINE}
         if args.fallback and flagged:
@@ -303,6 +308,8 @@ def summary(out, output=None):
             lo, hi = out["intervals"][k]
             line += f"  [{_fmt(k, lo)}, {_fmt(k, hi)}]"
         lines.append(line)
+    for k in NINE[6:] if out.get("stiffness") else ():   # shear moduli of the predicted C
+        lines.append(f"  {k:6s} {_fmt(k, out['stiffness']['constants'][k]):>16s}")
     if out.get("coverage"):
         lines.append(f"intervals: split conformal, nominal coverage {100 * out['coverage']:g} % "
                      f"({out['interval_calibration']['n']} calibration beds of "

@@ -1,0 +1,157 @@
+"""A stiffness-head model through the predict path: trained with ``amfe train --head stiffness``
+on a tiny data set, loaded by Surrogate.load / amfe predict like a six-constant model.
+
+What must hold (issue 34, item 3): the predicted C is symmetric positive definite; the six
+constants are those of C; the prediction of a mirrored bed is the mirrored prediction (C moved
+as a tensor); a batch equals one-at-a-time; the six-constant path is unchanged.
+"""
+import itertools
+import json
+
+import h5py
+import numpy as np
+import pytest
+import torch
+
+from cli_fixtures import TINY_ATTRS, _tiny_bed, run_main
+from test_training import write_synthetic
+
+from amfe.training.data import flip_images
+from amfe.training.stiffness import constants_from_stiffness, transform_stiffness
+
+ARCH = {"width": 0.125, "hidden": [16]}
+
+
+def add_stiffness(path, seed=0):
+    """Give the synthetic data set a /C (n, 6, 6) [Pa]: SPD, anisotropic, tied to the images."""
+    rng = np.random.default_rng(seed)
+    with h5py.File(path, "a") as f:
+        d = np.asarray(f["density"])
+        n = d.size
+        C = np.empty((n, 6, 6))
+        for k in range(n):
+            A = 0.15 * rng.standard_normal((6, 6))
+            iso = np.diag([2.0, 2.0, 2.4, 0.6, 0.6, 0.6])
+            iso[:3, :3] += 0.6 * (1 - np.eye(3))
+            C[k] = 1e11 * np.exp(2 * d[k]) * (iso + A @ A.T)
+        f["C"] = C
+    return path
+
+
+@pytest.fixture(scope="module")
+def models(tmp_path_factory):
+    """(six-constant multiscale model, stiffness model, data set, directory)."""
+    from amfe.training.checkpoint import save_checkpoint
+    from amfe.training.train import TrainConfig, train_model
+    d = tmp_path_factory.mktemp("stiffpred")
+    data = str(add_stiffness(write_synthetic(d / "tiny.h5", n=40, shape=(1, 5, 5),
+                                             attrs=TINY_ATTRS)))
+    cfg = TrainConfig(arch="multiscale", arch_args=ARCH, epochs=1, batch_size=8, members=2,
+                      seed=1)
+    six = save_checkpoint(d / "six.pt", train_model(data, cfg, progress=False,
+                                                    log=lambda line: None))
+    torch.set_num_threads(1)
+    code, out, err = run_main(["train", data, "--head", "stiffness", "--init", six,
+                               "--members", "2", "--epochs", "2", "--batch-size", "8",
+                               "--loss", "constants", "--augment", "d4", "--tta", "d4",
+                               "--seed", "1", "--quiet", "-o", d / "stiff.pt"])
+    assert code == 0, err
+    return six, str(d / "stiff.pt"), data, d
+
+
+def images_of(data, n=6):
+    with h5py.File(data, "r") as f:
+        return np.asarray(f["images"][:n], np.float32)
+
+
+def test_predicted_stiffness_is_spd_and_symmetric(models):
+    from amfe.training.predict import Surrogate
+    sur = Surrogate.load(models[1])
+    res = sur.predict(images_of(models[2]))
+    C = res["stiffness"]
+    assert C.shape == (6, 6, 6)
+    np.testing.assert_array_equal(C, np.swapaxes(C, 1, 2))
+    assert np.linalg.eigvalsh(C).min() > 0
+    # Not a trivial output: the beds' C differ.
+    assert np.ptp(C[:, 0, 0]) > 1e-6 * C[0, 0, 0]
+
+
+def test_six_constants_are_those_of_the_predicted_stiffness(models):
+    from amfe.training.predict import Surrogate
+    res = Surrogate.load(models[1]).predict(images_of(models[2]))
+    nine = constants_from_stiffness(res["stiffness"])
+    np.testing.assert_allclose(res["mean"], nine[:, :6], rtol=1e-10)
+    np.testing.assert_allclose(res["constants9"], nine, rtol=1e-10)
+
+
+@pytest.mark.parametrize("sym", [s for s in itertools.product([False, True], repeat=3) if any(s)])
+def test_prediction_is_equivariant(models, sym):
+    """The d4-averaged C of a mirrored / transposed bed is the bed's C moved as a tensor."""
+    from amfe.training.predict import Surrogate
+    sur = Surrogate.load(models[1])
+    x = images_of(models[2])
+    C = sur.predict(x)["stiffness"]
+    Cs = sur.predict(flip_images(torch.from_numpy(x), *sym).numpy())["stiffness"]
+    np.testing.assert_allclose(Cs, transform_stiffness(C, *sym), rtol=1e-5, atol=1e-6 * C.max())
+    if sym[0] or sym[1]:   # a mirror changes the sign of couplings the net does predict
+        assert np.abs(C[:, 0, 4]).max() > 1e-6 * C.max()
+
+
+def test_batch_equals_one_at_a_time(models):
+    from amfe.training.predict import Surrogate
+    sur = Surrogate.load(models[1])
+    x = images_of(models[2], 8)
+    batch = sur.predict(x)
+    for k in range(len(x)):
+        one = sur.predict(x[k:k + 1])
+        for key in ("mean", "stiffness", "constants9", "spread"):
+            np.testing.assert_allclose(batch[key][k], one[key][0], rtol=1e-6, atol=0, err_msg=key)
+
+
+def test_members_mean_stiffness(models):
+    """C is the mean of the members' C; the spread is that of the members' six constants."""
+    from amfe.training.predict import Surrogate
+    from amfe.training.stiffness import predict_stiffness
+    sur = Surrogate.load(models[1])
+    x = torch.from_numpy(images_of(models[2]))
+    scale = sur.ckpt["stiffness_scale"]
+    each = [predict_stiffness(net, x, tta="d4", scale=scale) for net in sur.nets]
+    res = sur.predict(x.numpy())
+    np.testing.assert_allclose(res["stiffness"], np.mean(each, axis=0), rtol=1e-6)
+    six = np.stack([constants_from_stiffness(c)[:, :6] for c in each])
+    np.testing.assert_allclose(sur.member_outputs(x.numpy()), six, rtol=1e-6)
+
+
+def test_six_constant_path_is_unchanged(models):
+    """A six-constant model: the members' TTA-averaged decoded outputs, no stiffness keys."""
+    from amfe.training.predict import Surrogate, predict_raw
+    sur = Surrogate.load(models[0])
+    x = images_of(models[2])
+    res = sur.predict(x)
+    assert "stiffness" not in res and "constants9" not in res
+    want = np.mean([predict_raw(net, torch.from_numpy(x), sur.norm, sur.tta).numpy()
+                    for net in sur.nets], axis=0)
+    np.testing.assert_allclose(res["mean"], want, rtol=1e-12)
+
+
+def test_amfe_predict_writes_stiffness_and_shear(models):
+    six, stiff, data, d = models
+    bed = _tiny_bed(str(d / "bed.h5"))
+    code, out, err = run_main(["predict", bed, "--model", stiff, "-o", d / "p.json"])
+    assert code == 0, err
+    got = json.loads((d / "p.json").read_text())
+    C = np.array(got["stiffness"]["C"])
+    nine = constants_from_stiffness(C)[0]
+    names = ("Ex", "Ey", "Ez", "nu_yz", "nu_xz", "nu_xy", "G_yz", "G_xz", "G_xy")
+    for k, name in enumerate(names):
+        assert got["stiffness"]["constants"][name] == pytest.approx(nine[k], rel=1e-9)
+        if k < 6:
+            assert got["properties"][name] == pytest.approx(nine[k], rel=1e-9)
+    for name in names[6:]:
+        line = next(ln for ln in out.splitlines() if ln.strip().startswith(name))
+        assert float(line.split()[1]) == pytest.approx(nine[names.index(name)] / 1e9, rel=1e-5)
+    # The six-constant model's JSON has no stiffness block.
+    code, out, err = run_main(["predict", bed, "--model", six, "-o", d / "q.json"])
+    assert code == 0, err
+    assert "stiffness" not in json.loads((d / "q.json").read_text())
+    assert "G_yz" not in out
