@@ -155,3 +155,38 @@ def test_amfe_predict_writes_stiffness_and_shear(models):
     assert code == 0, err
     assert "stiffness" not in json.loads((d / "q.json").read_text())
     assert "G_yz" not in out
+
+
+def test_intervals_for_all_nine(models):
+    """run/calibrate_intervals.py calibrates a stiffness model's nine constants (the shear
+    moduli's labels from /C); amfe predict then gives each of the nine its interval."""
+    import importlib.util
+    from pathlib import Path
+    six, stiff, data, d = models
+    spec = importlib.util.spec_from_file_location(
+        "calibrate_intervals", Path(__file__).resolve().parents[1] / "run" / "calibrate_intervals.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    assert mod.main([stiff, data, "-o", str(d / "cal.pt"), "--coverage", "0.8"]) == 0
+    ckpt = torch.load(d / "cal.pt", weights_only=True)
+    cal = next(iter(ckpt["conformal"]["sizes"].values()))
+    assert list(cal["quantile"]) == ["Ex", "Ey", "Ez", "nu_yz", "nu_xz", "nu_xy",
+                                     "G_yz", "G_xz", "G_xy"]
+    # The calibration beds' coverage is the conformal rank's: at least 80 % of them per constant.
+    from amfe.training.conformal import intervals
+    from amfe.training.data import dataset_info
+    from amfe.training.predict import Surrogate
+    sur = Surrogate(ckpt, "cal")
+    names, pred, labels, res = mod.predictions(sur, data, dataset_info(data, sur.inputs))
+    lo, hi = intervals(pred, names, cal, res["spread9"])
+    inside = ((labels >= lo) & (labels <= hi)).mean(axis=0)
+    assert (inside >= 0.8).all() and (inside < 1).any()
+    bed = _tiny_bed(str(d / "bed.h5"))
+    code, out, err = run_main(["predict", bed, "--model", d / "cal.pt", "-o", d / "c.json"])
+    assert code == 0, err
+    got = json.loads((d / "c.json").read_text())
+    assert set(got["intervals"]) == set(names)
+    for name in names:
+        lo_, hi_ = got["intervals"][name]
+        assert lo_ <= got["stiffness"]["constants"][name] <= hi_
+    assert "[" in next(ln for ln in out.splitlines() if ln.strip().startswith("G_xy"))

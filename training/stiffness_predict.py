@@ -84,14 +84,19 @@ def member_constants(sur, x, batch_size=None):
 
 def summarize(sur, images, batch_size=None):
     """Surrogate.predict's ensemble part: {mean, spread, score, nonfinite, flagged}, and for a
-    stiffness head also stiffness (n, 6, 6) [Pa] and constants9 (n, 9) (NINE order)."""
+    stiffness head also stiffness (n, 6, 6) [Pa], constants9 (n, 9) (NINE order) and spread9
+    (n, 9), the members' relative spread of the nine."""
     from amfe.training.data import image_batch
     from amfe.training.predict import summarize_members
     if not is_stiffness(sur.ckpt):
         return summarize_members(sur.member_outputs(images, batch_size), sur.spread_scale,
                                  sur.threshold)
     Cm = member_stiffness(sur, image_batch(images, sur.ckpt, sur.path), batch_size)
-    res = summarize_members(nine_constants(Cm)[..., :6], sur.spread_scale, sur.threshold)
+    per_member = nine_constants(Cm)
+    res = summarize_members(per_member[..., :6], sur.spread_scale, sur.threshold)
+    # The members' relative spread of all nine (the intervals' scale), as summarize_members's.
+    res["spread9"] = ((per_member - per_member[:1]).std(axis=0)
+                      / np.maximum(np.abs(per_member.mean(axis=0)), np.finfo(float).tiny))
     C = Cm.mean(axis=0)
     nine = nine_constants(C)
     bad = ~np.isfinite(nine).all(axis=1)

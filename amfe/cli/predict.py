@@ -218,8 +218,12 @@ def interval_of(sur, bed, res):
     """The bed's interval block (amfe.training.conformal.interval_block) at its imaged size."""
     from amfe.training.conformal import interval_block
     from amfe.training.predict import _image_size
-    return interval_block(res["mean"][0], SIX, sur.ckpt.get("conformal"),
-                          _image_size(bed, sur.ckpt), res["spread"][0])
+    conformal = sur.ckpt.get("conformal")
+    if "constants9" in res and conformal and len(conformal.get("names", ())) == 9:
+        return interval_block(res["constants9"][0], NINE, conformal, _image_size(bed, sur.ckpt),
+                              res["spread9"][0])   # a stiffness head calibrated on all nine
+    return interval_block(res["mean"][0], SIX, conformal, _image_size(bed, sur.ckpt),
+                          res["spread"][0])
 
 
 def process_age():
@@ -309,7 +313,11 @@ def summary(out, output=None):
             line += f"  [{_fmt(k, lo)}, {_fmt(k, hi)}]"
         lines.append(line)
     for k in NINE[6:] if out.get("stiffness") else ():   # shear moduli of the predicted C
-        lines.append(f"  {k:6s} {_fmt(k, out['stiffness']['constants'][k]):>16s}")
+        line = f"  {k:6s} {_fmt(k, out['stiffness']['constants'][k]):>16s}"
+        if k in (out.get("intervals") or {}):
+            lo, hi = out["intervals"][k]
+            line += f" {'':8s}  [{_fmt(k, lo)}, {_fmt(k, hi)}]"
+        lines.append(line)
     if out.get("coverage"):
         lines.append(f"intervals: split conformal, nominal coverage {100 * out['coverage']:g} % "
                      f"({out['interval_calibration']['n']} calibration beds of "
