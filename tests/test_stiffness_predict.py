@@ -190,3 +190,54 @@ def test_intervals_for_all_nine(models):
         lo_, hi_ = got["intervals"][name]
         assert lo_ <= got["stiffness"]["constants"][name] <= hi_
     assert "[" in next(ln for ln in out.splitlines() if ln.strip().startswith("G_xy"))
+
+
+def test_raw_of_stiffness_inverts_the_head():
+    from amfe.training.stiffness import stiffness_from_raw
+    from amfe.training.stiffness_train import raw_of_stiffness
+    rng = np.random.default_rng(3)
+    A = rng.standard_normal((20, 6, 6))
+    C = A @ np.swapaxes(A, 1, 2) + 0.1 * np.eye(6)
+    np.testing.assert_allclose(stiffness_from_raw(raw_of_stiffness(C)).numpy(), C, rtol=1e-9,
+                               atol=1e-12)
+
+
+def test_constants_loss_is_the_mean_relative_error_of_the_nine():
+    from amfe.training.stiffness import stiffness_from_raw
+    from amfe.training.stiffness_train import constants_loss
+    torch.manual_seed(0)
+    raw = torch.randn(7, 21, dtype=torch.float64)
+    C_true = stiffness_from_raw(torch.randn(7, 21, dtype=torch.float64))
+    pred = constants_from_stiffness(stiffness_from_raw(raw).numpy())
+    true = constants_from_stiffness(C_true.numpy())
+    want = np.mean(np.abs(pred - true) / np.abs(true))
+    assert float(constants_loss(raw, C_true)) == pytest.approx(want, rel=1e-10)
+
+
+def test_augmentation_moves_the_stiffness_with_the_image():
+    from amfe.training.stiffness_train import augment_tensor
+    gen = torch.Generator().manual_seed(0)
+    x = torch.rand(64, 2, 5, 5)
+    A = torch.randn(64, 6, 6, dtype=torch.float64)
+    C = A @ A.transpose(1, 2)
+    xa, Ca = augment_tensor(x, C, "d4", gen)
+    seen = set()
+    for k in range(64):
+        sym = next(s for s in itertools.product([False, True], repeat=3)
+                   if torch.equal(flip_images(x[k:k + 1], *s), xa[k:k + 1]))
+        seen.add(sym)
+        np.testing.assert_allclose(Ca[k].numpy(), transform_stiffness(C[k].numpy(), *sym),
+                                   rtol=1e-12)
+    assert len(seen) == 8   # every symmetry drawn, so the check covers them all
+
+
+def test_stiffness_head_options_are_checked(models, tmp_path):
+    from cli_fixtures import assert_one_error
+    six, stiff, data, d = models
+    code, _, err = run_main(["train", data, "--head", "stiffness", "-o", tmp_path / "a.pt"])
+    assert "--init" in assert_one_error(code, err, "train")
+    code, _, err = run_main(["train", data, "--loss", "constants", "-o", tmp_path / "b.pt"])
+    assert "constants" in assert_one_error(code, err, "train")
+    code, _, err = run_main(["train", data, "--head", "stiffness", "--init", six, "--arch",
+                             "vgg", "-o", tmp_path / "c.pt"])
+    assert "--arch" in assert_one_error(code, err, "train")

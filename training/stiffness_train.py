@@ -237,6 +237,10 @@ def train_stiffness(data_path, cfg, log=print):
     if tuple(info["image_shape"]) != tuple(start["ckpt"]["image_shape"]):
         raise AmfeError(f"{data_path} has images {info['image_shape']}, --init "
                         f"{cfg.init} reads {start['ckpt']['image_shape']}")
+    from amfe.dataset.parts import label_rule
+    if label_rule(info) < 2:   # predict converts rule-1 moduli per bed, which C would not follow
+        raise AmfeError(f"{data_path} has label rule 1 labels; a stiffness head is trained on "
+                        "label rule 2 data sets (docs/model.md, section 5)")
     C_train = read_stiffness(data_path, train_rows)
     C_val = read_stiffness(data_path, val_rows)
     for C in (C_train, C_val):
@@ -271,6 +275,7 @@ def train_stiffness(data_path, cfg, log=print):
                     "n_validation": int(len(val_rows)),
                     "validation_rows": [int(r) for r in val_rows]},
         "training": training, "history": hists, "init": start["record"], "metrics": {},
+        "label_rule": label_rule(info),
         "fill_range": widened_fill_range(start["fill_range"], calibrate_fill(x_train[:, :n_fill])),
     })
     return ckpt
