@@ -210,8 +210,11 @@ def test_constants_loss_is_the_mean_relative_error_of_the_nine():
     C_true = stiffness_from_raw(torch.randn(7, 21, dtype=torch.float64))
     pred = constants_from_stiffness(stiffness_from_raw(raw).numpy())
     true = constants_from_stiffness(C_true.numpy())
-    want = np.mean(np.abs(pred - true) / np.abs(true))
-    assert float(constants_loss(raw, C_true)) == pytest.approx(want, rel=1e-10)
+    rel = np.abs(pred - true) / np.abs(true)
+    assert float(constants_loss(raw, C_true)) == pytest.approx(rel.mean(), rel=1e-10)
+    w = np.array([1, 1, 1, 2, 2, 2, 1, 1, 1]) / 12
+    assert float(constants_loss(raw, C_true, nu_weight=2)) == pytest.approx(
+        (rel * w).sum(axis=1).mean(), rel=1e-10)
 
 
 def test_augmentation_moves_the_stiffness_with_the_image():

@@ -59,11 +59,14 @@ class StiffnessConfig:
     tta: str = "flips"
     max_train: int = 0
     ridge: float = 1e-2         # of the last layer's initial fit (features are O(1))
+    nu_weight: float = 1.0      # constants loss: weight of the Poisson ratios (moduli: 1)
 
     def check(self):
         if self.loss not in STIFFNESS_LOSSES:
             raise AmfeError(f"--head stiffness takes --loss {' or '.join(STIFFNESS_LOSSES)}, "
                             f"got {self.loss}")
+        if not (self.nu_weight > 0 and self.nu_weight < float("inf")):
+            raise AmfeError(f"--nu-weight must be a positive number, got {self.nu_weight}")
         if not self.init:
             raise AmfeError("--head stiffness fine-tunes a trained multi-scale model: give "
                             "--init MODEL.pt")
@@ -121,14 +124,21 @@ def nine_from_stiffness(C):
                         1 / d[:, 3], 1 / d[:, 4], 1 / d[:, 5]], dim=1)
 
 
-def constants_loss(raw, C_norm):
-    """Mean relative error of the nine constants of the predicted C against C_norm's."""
+def constants_loss(raw, C_norm, nu_weight=1.0):
+    """Mean relative error of the nine constants of the predicted C against C_norm's, the
+    three Poisson ratios weighted ``nu_weight`` (a weighted mean: weights sum to one)."""
     pred = nine_from_stiffness(stiffness_from_raw(raw.double()))
     true = nine_from_stiffness(C_norm.double())
-    return ((pred - true).abs() / true.abs()).mean()
+    w = torch.ones(9, dtype=pred.dtype)
+    w[3:6] = float(nu_weight)
+    return (((pred - true).abs() / true.abs()) * (w / w.sum())).sum(dim=1).mean()
 
 
-LOSS_FUNCTIONS = {"constants": constants_loss, "mse": stiffness_loss}
+def loss_function(cfg):
+    """loss(raw (n, 21), C_norm (n, 6, 6)) of the configuration."""
+    if cfg.loss == "mse":
+        return stiffness_loss
+    return lambda raw, C: constants_loss(raw, C, cfg.nu_weight)
 
 
 def augment_tensor(images, C, mode, generator):
@@ -173,7 +183,7 @@ def fit_member(net, train, val, cfg, seed, log):
     steps = cfg.epochs * math.ceil(x.shape[0] / cfg.batch_size)
     sched = (torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=steps)
              if cfg.schedule == "cosine" else None)
-    loss_fn = LOSS_FUNCTIONS[cfg.loss]
+    loss_fn = loss_function(cfg)
     hist = {"seed": int(seed), "train_loss": [], "val_loss": [], "val_mre": [],
             "epoch_seconds": []}
     hist["val_mre_initial"] = _val_mre(net, val)

@@ -53,6 +53,9 @@ def register(sub):
                    help="what the network outputs: the six constants (default) or the full "
                         "stiffness C (21 Cholesky outputs; fine-tunes --init's multiscale net, "
                         "amfe.training.stiffness_train)")
+    p.add_argument("--nu-weight", type=positive_float, default=1.0,
+                   help="--head stiffness --loss constants: weight of the Poisson ratios' "
+                        "relative errors against the moduli's (default 1)")
     p.add_argument("--weight-decay", type=nonnegative_float, default=d.weight_decay, help="Adam weight decay")
     p.add_argument("--seed", type=nonnegative_int, default=d.seed,
                    help="seed of the first member (member k: seed + k; default 0)")

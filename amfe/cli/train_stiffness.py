@@ -30,7 +30,8 @@ def run_stiffness(args, curve):
                           seed=args.seed, epochs=args.epochs, batch_size=args.batch_size,
                           lr=args.lr, schedule=args.schedule, loss=args.loss,
                           split_seed=args.split_seed, val_fraction=args.val_fraction,
-                          augment=args.augment, tta=args.tta, max_train=args.max_train or 0)
+                          augment=args.augment, tta=args.tta, max_train=args.max_train or 0,
+                          nu_weight=args.nu_weight)
 
     def log(line):
         if not args.quiet:
