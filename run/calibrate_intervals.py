@@ -37,18 +37,16 @@ def coverage_report(sur, path):
     import numpy as np
     from amfe.errors import AmfeError
     from amfe.training.conformal import intervals, size_key
-    from amfe.training.data import dataset_info, read_rows
-    from amfe.vocab import LABEL_NAMES
+    from amfe.training.data import dataset_info
     info = dataset_info(path, sur.inputs)
     key = size_key(info["bed_size"])
     conf = sur.ckpt["conformal"]
     cal = conf["sizes"].get(key)
     if cal is None:
         raise AmfeError(f"{path}: beds of {key} mm, a size the model has no calibration for")
-    images, labels = read_rows(path, info["ok"], sur.inputs)
-    res = sur.predict(images)
-    spread = res["spread"] if cal.get("uses_spread") else None
-    lo, hi = intervals(res["mean"], LABEL_NAMES, cal, spread)
+    names, pred, labels, res = predictions(sur, path, info)
+    spread = res["spread" + ("9" if len(names) == 9 else "")] if cal.get("uses_spread") else None
+    lo, hi = intervals(pred, names, cal, spread)
     inside = (labels >= lo) & (labels <= hi)
     n = inside.shape[0]
     nominal = float(conf["coverage"])
@@ -56,16 +54,32 @@ def coverage_report(sur, path):
              f"{100 * nominal:g} %, calibrated on {cal['n']} beds):", "",
              "| constant | covered % | 95 % binomial interval | nominal inside | median half-width % |",
              "|---|---|---|---|---|"]
-    for j, name in enumerate(LABEL_NAMES):
+    for j, name in enumerate(names):
         k = int(inside[:, j].sum())
         a, b = binomial_interval(k, n)
-        half = np.median((hi[:, j] - lo[:, j]) / 2 / np.abs(res["mean"][:, j]))
+        half = np.median((hi[:, j] - lo[:, j]) / 2 / np.abs(pred[:, j]))
         lines.append(f"| {name} | {100 * k / n:.1f} | {100 * a:.1f}-{100 * b:.1f} | "
                      f"{'yes' if a <= nominal <= b else 'no'} | {100 * half:.2f} |")
     every = inside.all(axis=1).mean()
-    lines.append(f"\nall six inside at once: {100 * every:.1f} % of the beds (the guarantee is "
-                 "per constant)")
+    lines.append(f"\nall {len(names)} inside at once: {100 * every:.1f} % of the beds (the "
+                 "guarantee is per constant)")
     return "\n".join(lines)
+
+
+def predictions(sur, path, info):
+    """(names, predictions (n, k), labels (n, k), result) of the data set's ok beds: the six
+    constants, or for a stiffness-head model the nine (the shear moduli's labels from /C)."""
+    import numpy as np
+    from amfe.training.data import read_rows
+    from amfe.vocab import LABEL_NAMES
+    images, labels = read_rows(path, info["ok"], sur.inputs)
+    res = sur.predict(images)
+    if "constants9" not in res:
+        return LABEL_NAMES, res["mean"], labels, res
+    from amfe.training.stiffness import NINE, constants_from_stiffness
+    from amfe.training.stiffness_fit import read_stiffness
+    shear = constants_from_stiffness(read_stiffness(path, info["ok"]))[:, 6:]
+    return NINE, res["constants9"], np.concatenate([labels, shear], axis=1), res
 
 
 def main(argv=None):
@@ -82,9 +96,8 @@ def main(argv=None):
     from amfe.errors import AmfeError
     from amfe.training.checkpoint import save_checkpoint
     from amfe.training.conformal import calibrate, size_key, store
-    from amfe.training.data import dataset_info, read_rows
+    from amfe.training.data import dataset_info
     from amfe.training.predict import Surrogate
-    from amfe.vocab import LABEL_NAMES
 
     try:
         if os.path.abspath(args.output) == os.path.abspath(args.model):
@@ -97,12 +110,11 @@ def main(argv=None):
             info = dataset_info(path, sur.inputs)
             if "bed_size" not in info:
                 raise AmfeError(f"{path} has no bed_size attribute: its beds' size is unknown")
-            images, labels = read_rows(path, info["ok"], sur.inputs)
-            res = sur.predict(images)
-            spread = res["spread"] if sur.n_members > 1 else None
-            cal = calibrate(res["mean"], labels, LABEL_NAMES, spread, args.coverage)
+            names, pred, labels, res = predictions(sur, path, info)
+            spread = res["spread" + ("9" if len(names) == 9 else "")] if sur.n_members > 1 else None
+            cal = calibrate(pred, labels, names, spread, args.coverage)
             key = size_key(info["bed_size"])
-            store(sur.ckpt, key, cal, args.coverage, LABEL_NAMES, args.flag_half_width)
+            store(sur.ckpt, key, cal, args.coverage, names, args.flag_half_width)
             print(f"{path}: size {key} mm, {cal['n']} beds, quantiles "
                   + " ".join(f"{k} {v:.3g}" for k, v in cal["quantile"].items()))
         save_checkpoint(args.output, sur.ckpt)

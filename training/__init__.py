@@ -11,6 +11,9 @@
 - :mod:`amfe.training.metrics`, :mod:`amfe.training.plots`: errors per property, curves.
 - :mod:`amfe.training.stiffness`, :mod:`amfe.training.stiffness_fit`: the full stiffness
   through a Cholesky head, its tensor symmetries, fitting and saving such models.
+- :mod:`amfe.training.stiffness_train`, :mod:`amfe.training.stiffness_predict`: a stiffness
+  head on a trained multi-scale model (``amfe train --head stiffness``) and its prediction
+  through the same Surrogate / amfe predict path.
 - :mod:`amfe.training.anysize`: a fully convolutional net for any bed size, the whole-cell rule.
 - :mod:`amfe.training.conformal`: split conformal intervals per bed size.
 

@@ -293,6 +293,23 @@ class Normalizer:
 
 # ---------------------------------------------------------------- symmetries
 
+def image_batch(images, ckpt, path="the model"):
+    """``images`` (n, channels, H, W) or one (channels, H, W) as a float32 tensor (n, channels,
+    H, W); AmfeError unless it is an array of numbers of the checkpoint's image shape."""
+    from amfe.training.checkpoint import check_image_shape
+    try:
+        x = torch.as_tensor(np.asarray(images, np.float32))
+    except (TypeError, ValueError) as exc:
+        raise AmfeError(f"images must be an array of numbers (n, layers, H, W), got "
+                        f"{type(images).__name__} ({exc})") from None
+    if x.ndim == 3:
+        x = x.unsqueeze(0)
+    if x.ndim != 4:
+        raise AmfeError(f"images must be (n, layers, H, W), got shape {tuple(x.shape)}")
+    check_image_shape(ckpt, x.shape[1:], "the image", path)
+    return x
+
+
 def transpose_labels(labels):
     """Labels of the bed with x and y swapped: (Ey, Ex, Ez, nu_xz, nu_yz, nu_xy Ey/Ex)."""
     y = torch.as_tensor(labels)

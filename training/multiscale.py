@@ -29,11 +29,12 @@ class MultiScaleNet(nn.Module):
     """Multi-scale encoder with hole maps and per-scale summaries; see the module docstring.
 
     image_shape: (layers, H, W); channels: per-stage widths (times ``width``);
-    n_fill: how many leading layers are volume fractions (default: all).
+    n_fill: how many leading layers are volume fractions (default: all); outputs: the
+    last layer's width (6 constants; 21 for a stiffness head, amfe.training.stiffness).
     """
 
     def __init__(self, image_shape, width=1.0, channels=(32, 64, 128, 256),
-                 hidden=(512, 256, 128), n_fill=None):
+                 hidden=(512, 256, 128), n_fill=None, outputs=6):
         super().__init__()
         layers_in, H, W = (int(s) for s in image_shape)
         if min(H, W) < 1 or layers_in < 1:
@@ -60,7 +61,7 @@ class MultiScaleNet(nn.Module):
         for h in hidden:
             layers += [nn.Linear(w, int(h)), nn.ReLU(inplace=True)]
             w = int(h)
-        layers.append(nn.Linear(w, 6))
+        layers.append(nn.Linear(w, int(outputs)))
         self.head = nn.Sequential(*layers)
 
     def forward(self, x):

@@ -33,7 +33,9 @@ from amfe.errors import AmfeError
 
 from amfe.training.checkpoint import build_members, check_image_shape, load_checkpoint
 from amfe.training.device import device_of
-from amfe.training.data import DEFAULT_INPUTS, Normalizer, check_inputs, flip_images, transpose_labels
+from amfe.training.data import (DEFAULT_INPUTS, Normalizer, check_inputs, flip_images,
+                                 image_batch, transpose_labels)
+from amfe.training.stiffness_predict import is_stiffness, member_constants, summarize
 
 DEFAULT_MODEL_NAME = "multiscale_small.pt"
 TRAIN_HINT = ("train it with the commands of docs/model_card.md (`amfe train` per member, "
@@ -111,16 +113,9 @@ class Surrogate:
 
     def member_outputs(self, images, batch_size=None):
         """Raw predictions of every member, float64 array (members, n, 6)."""
-        try:
-            x = torch.as_tensor(np.asarray(images, np.float32))
-        except (TypeError, ValueError) as exc:
-            raise AmfeError(f"images must be an array of numbers (n, layers, H, W), got "
-                            f"{type(images).__name__} ({exc})") from None
-        if x.ndim == 3:
-            x = x.unsqueeze(0)
-        if x.ndim != 4:
-            raise AmfeError(f"images must be (n, layers, H, W), got shape {tuple(x.shape)}")
-        check_image_shape(self.ckpt, x.shape[1:], "the image", self.path)
+        x = image_batch(images, self.ckpt, self.path)
+        if is_stiffness(self.ckpt):   # the six constants of each member's C
+            return member_constants(self, x, batch_size)
         out = np.empty((self.n_members, x.shape[0], 6))
         for k, net in enumerate(self.nets):
             out[k] = predict_raw(net, x, self.norm, self.tta, batch_size).numpy()
@@ -144,8 +139,7 @@ class Surrogate:
                 raise AmfeError("predict takes a bed, a bed file, a list of those, or an image "
                                 "array; got a list mixing beds with other things")
             images = np.stack([self.inputs_of(_read(b))[0] for b in images])
-        members = self.member_outputs(images, batch_size)
-        res = summarize_members(members, self.spread_scale, self.threshold)
+        res = summarize(self, images, batch_size)   # a stiffness head: also C, nine constants
         x = np.asarray(images)
         res["fill"] = fill_statistic((x[None] if x.ndim == 3 else x)[:, :self.n_fill])
         if self.fill_range:

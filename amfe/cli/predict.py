@@ -190,6 +190,11 @@ def _one_bed(args, sur, threshold, item, prediction, times, t_start):
         "image_shape": list(image.shape),
         "density": float(image.mean(dtype="float64")),
     }
+    if "stiffness" in res:   # a stiffness head: C and the nine constants derived from it
+        out["stiffness"] = {"C": [[float(v) for v in row] for row in res["stiffness"][0]],
+                            "constants": _finite_or_none(dict(zip(NINE, map(float,
+                                                                            res["constants9"][0])))),
+                            "voigt": "xx, yy, zz, yz, xz, xy; Pa"}
     if solver is not None:
         solver_props = {k: float(solver["properties"][k]) for k in NINE}
         if args.fallback and flagged:
@@ -213,8 +218,12 @@ def interval_of(sur, bed, res):
     """The bed's interval block (amfe.training.conformal.interval_block) at its imaged size."""
     from amfe.training.conformal import interval_block
     from amfe.training.predict import _image_size
-    return interval_block(res["mean"][0], SIX, sur.ckpt.get("conformal"),
-                          _image_size(bed, sur.ckpt), res["spread"][0])
+    conformal = sur.ckpt.get("conformal")
+    if "constants9" in res and conformal and len(conformal.get("names", ())) == 9:
+        return interval_block(res["constants9"][0], NINE, conformal, _image_size(bed, sur.ckpt),
+                              res["spread9"][0])   # a stiffness head calibrated on all nine
+    return interval_block(res["mean"][0], SIX, conformal, _image_size(bed, sur.ckpt),
+                          res["spread"][0])
 
 
 def process_age():
@@ -302,6 +311,12 @@ def summary(out, output=None):
         if out.get("intervals"):
             lo, hi = out["intervals"][k]
             line += f"  [{_fmt(k, lo)}, {_fmt(k, hi)}]"
+        lines.append(line)
+    for k in NINE[6:] if out.get("stiffness") else ():   # shear moduli of the predicted C
+        line = f"  {k:6s} {_fmt(k, out['stiffness']['constants'][k]):>16s}"
+        if k in (out.get("intervals") or {}):
+            lo, hi = out["intervals"][k]
+            line += f" {'':8s}  [{_fmt(k, lo)}, {_fmt(k, hi)}]"
         lines.append(line)
     if out.get("coverage"):
         lines.append(f"intervals: split conformal, nominal coverage {100 * out['coverage']:g} % "

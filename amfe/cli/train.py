@@ -45,8 +45,17 @@ def register(sub):
     p.add_argument("--lr", type=positive_float, default=d.lr, help=f"Adam learning rate (default {d.lr:g})")
     p.add_argument("--schedule", choices=SCHEDULES, default=d.schedule,
                    help="learning rate: constant (the paper's) or cosine decay to 0")
-    p.add_argument("--loss", choices=LOSSES, default=d.loss,
-                   help="on the normalised labels: mse (the paper's) or l1 (aims at the median)")
+    p.add_argument("--loss", choices=LOSSES + ("constants",), default=d.loss,
+                   help="on the normalised labels: mse (the paper's) or l1 (aims at the median); "
+                        "--head stiffness: mse (C's 21 entries) or constants (the nine's mean "
+                        "relative error)")
+    p.add_argument("--head", choices=("constants", "stiffness"), default="constants",
+                   help="what the network outputs: the six constants (default) or the full "
+                        "stiffness C (21 Cholesky outputs; fine-tunes --init's multiscale net, "
+                        "amfe.training.stiffness_train)")
+    p.add_argument("--nu-weight", type=positive_float, default=1.0,
+                   help="--head stiffness --loss constants: weight of the Poisson ratios' "
+                        "relative errors against the moduli's (default 1)")
     p.add_argument("--weight-decay", type=nonnegative_float, default=d.weight_decay, help="Adam weight decay")
     p.add_argument("--seed", type=nonnegative_int, default=d.seed,
                    help="seed of the first member (member k: seed + k; default 0)")
@@ -179,6 +188,9 @@ def check_init_options(args):
 
 def run(args):
     curve = check_paths(args)
+    if args.head == "stiffness":
+        from amfe.cli.train_stiffness import run_stiffness
+        return run_stiffness(args, curve)
     import torch
 
     from amfe.training.checkpoint import save_checkpoint
