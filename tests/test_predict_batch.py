@@ -106,3 +106,10 @@ def test_predict_claims_no_interval_at_an_uncalibrated_size(model_and_beds):
     assert got["intervals"] is None and got["coverage"] is None
     assert "no calibration beds of size 0.15x0.15 mm" in got["interval_calibration"]["note"]
     assert "no interval claimed" in out
+
+
+def test_stiffness_and_model_together_are_refused(model_and_beds):
+    model, beds, d = model_and_beds
+    code, _, err = run_main(["predict", beds[0], "--model", model, "--stiffness"])
+    assert code != 0 and "give --model or --stiffness, not both" in err
+    assert "Traceback" not in err

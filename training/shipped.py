@@ -14,7 +14,11 @@ from pathlib import Path
 from amfe.errors import AmfeError
 
 #: scale name -> checkpoint file in amfe/models/ (docs/model_card.md, docs/surrogate.md)
-SHIPPED = {"small": "multiscale_small.pt", "medium": "multiscale_medium.pt"}
+SHIPPED = {"small": "multiscale_small.pt", "medium": "multiscale_medium.pt",
+           "paper": "multiscale_paper.pt"}
+#: scale name -> a shipped full-stiffness model (21 Cholesky outputs: C and all nine
+#: constants, amfe.training.stiffness_predict), chosen by ``amfe predict --stiffness``
+STIFFNESS = {"small": "stiffness_small.pt"}
 
 
 def models_dir():
@@ -22,12 +26,13 @@ def models_dir():
     return Path(amfe.version.__file__).resolve().parent / "models"
 
 
-def shipped_sizes():
-    """{(Lx, Ly) in whole cells: (scale name, path)} of the shipped checkpoints present."""
+def shipped_sizes(stiffness=False):
+    """{(Lx, Ly) in whole cells: (scale name, path)} of the shipped checkpoints present
+    (the full-stiffness ones with ``stiffness``)."""
     from amfe.model.scales import get_scale
     from amfe.training.anysize import whole_cells
     out = {}
-    for name, file in SHIPPED.items():
+    for name, file in (STIFFNESS if stiffness else SHIPPED).items():
         path = models_dir() / file
         if path.is_file():
             sc = get_scale(name)
@@ -36,12 +41,14 @@ def shipped_sizes():
     return out
 
 
-def shipped_model_for(bed):
-    """The path of the shipped checkpoint for ``bed``'s imaged size; AmfeError naming the
-    sizes there are when none fits (give --model, or solve the bed)."""
+def shipped_model_for(bed, stiffness=False):
+    """The path of the shipped checkpoint for ``bed``'s imaged size (a full-stiffness one with
+    ``stiffness``); AmfeError naming the sizes there are when none fits (give --model, or
+    solve the bed)."""
     from amfe.model.scales import get_scale
     from amfe.training.anysize import whole_cells
-    sizes = shipped_sizes()
+    table = STIFFNESS if stiffness else SHIPPED
+    sizes = shipped_sizes(stiffness)
     size = bed.attrs.get("size") if hasattr(bed, "attrs") else None
     if size is None:   # imaged in the small box (training/predict.py, _image_size)
         size = get_scale("small").size
@@ -49,11 +56,12 @@ def shipped_model_for(bed):
     try:
         key = (whole_cells(float(size[0]), cell[0]), whole_cells(float(size[1]), cell[1]))
     except (TypeError, ValueError, IndexError):   # malformed: the small model says so
-        return models_dir() / SHIPPED["small"]
+        return models_dir() / table["small"]
     if key not in sizes:
         have = ", ".join(f"{nx * cell[0] * 1e3:g} x {ny * cell[1] * 1e3:g} mm ({name})"
                          for (nx, ny), (name, _) in sorted(sizes.items()))
-        raise AmfeError(f"no shipped model for a {key[0] * cell[0] * 1e3:g} x "
+        kind = "full-stiffness model" if stiffness else "model"
+        raise AmfeError(f"no shipped {kind} for a {key[0] * cell[0] * 1e3:g} x "
                         f"{key[1] * cell[1] * 1e3:g} mm bed (shipped: {have}); give --model "
                         "MODEL.pt fine-tuned on that size, or solve it with amfe homogenize")
     return sizes[key][1]

@@ -52,6 +52,10 @@ def register(sub):
     p.add_argument("--model", metavar="MODEL.pt",
                    help="checkpoint from amfe train (default: the shipped model for the "
                         "bed's size, amfe/models/multiscale_SCALE.pt)")
+    p.add_argument("--stiffness", action="store_true",
+                   help="use the shipped full-stiffness model for the bed's size "
+                        "(amfe/models/stiffness_SCALE.pt): C, the shear moduli and their "
+                        "intervals as well (0.6 mm beds)")
     p.add_argument("-o", "--output", metavar="OUT.json",
                    help="write the result as JSON here (-: to stdout, the table to stderr)")
     p.add_argument("--check", action="store_true",
@@ -70,6 +74,9 @@ def check_args(args):
     if args.petsc_args and not (args.check or args.fallback):
         raise AmfeError(f"unknown option(s) {' '.join(args.petsc_args)}: single-dash options go "
                         "to PETSc, which amfe predict runs only with --check or --fallback")
+    if args.stiffness and args.model:
+        raise AmfeError("give --model or --stiffness, not both: --stiffness picks the shipped "
+                        "full-stiffness model")
     if args.output is not None:
         check_output(args.output, inputs=[*args.bed, args.model], allow_stdout=True)
 
@@ -94,7 +101,7 @@ def run(args):
         t = time.perf_counter()
         beds.append((path, read_bed(path), time.perf_counter() - t))
     # One model per bed size (training/shipped.py) unless --model names one for all.
-    chosen = [args.model or shipped_model_for(bed) for _, bed, _ in beds]
+    chosen = [args.model or shipped_model_for(bed, args.stiffness) for _, bed, _ in beds]
     outs = [None] * len(beds)
     for model in dict.fromkeys(chosen):
         t = time.perf_counter()
