@@ -30,10 +30,10 @@ def binomial_interval(k, n, level=0.95):
     return float(lo), float(hi)
 
 
-def coverage_report(sur, path):
-    """Markdown lines: per constant, the share of ``path``'s beds whose label lies in its
-    interval, its 95 % binomial interval, whether the nominal coverage lies inside, and the
-    median relative half-width."""
+def coverage_numbers(sur, path):
+    """Per constant of ``path``'s beds: {names, n, nominal, key (size), calibrated (beds),
+    covered (k,) shares, binomial (k, 2) 95 % intervals, half_width (k,) median relative
+    half-widths, all_inside (share of beds with every constant inside)}."""
     import numpy as np
     from amfe.errors import AmfeError
     from amfe.training.conformal import intervals, size_key
@@ -49,20 +49,29 @@ def coverage_report(sur, path):
     lo, hi = intervals(pred, names, cal, spread)
     inside = (labels >= lo) & (labels <= hi)
     n = inside.shape[0]
-    nominal = float(conf["coverage"])
-    lines = [f"coverage on {os.path.basename(path)} ({n} beds of {key} mm, nominal "
-             f"{100 * nominal:g} %, calibrated on {cal['n']} beds):", "",
+    k = inside.sum(axis=0)
+    return {"names": list(names), "n": int(n), "nominal": float(conf["coverage"]), "key": key,
+            "calibrated": int(cal["n"]), "covered": (k / n).tolist(),
+            "binomial": [list(binomial_interval(int(c), n)) for c in k],
+            "half_width": np.median((hi - lo) / 2 / np.abs(pred), axis=0).tolist(),
+            "all_inside": float(inside.all(axis=1).mean())}
+
+
+def coverage_report(sur, path):
+    """Markdown lines: per constant, the share of ``path``'s beds whose label lies in its
+    interval, its 95 % binomial interval, whether the nominal coverage lies inside, and the
+    median relative half-width."""
+    c = coverage_numbers(sur, path)
+    nominal = c["nominal"]
+    lines = [f"coverage on {os.path.basename(path)} ({c['n']} beds of {c['key']} mm, nominal "
+             f"{100 * nominal:g} %, calibrated on {c['calibrated']} beds):", "",
              "| constant | covered % | 95 % binomial interval | nominal inside | median half-width % |",
              "|---|---|---|---|---|"]
-    for j, name in enumerate(names):
-        k = int(inside[:, j].sum())
-        a, b = binomial_interval(k, n)
-        half = np.median((hi[:, j] - lo[:, j]) / 2 / np.abs(pred[:, j]))
-        lines.append(f"| {name} | {100 * k / n:.1f} | {100 * a:.1f}-{100 * b:.1f} | "
+    for name, cov, (a, b), half in zip(c["names"], c["covered"], c["binomial"], c["half_width"]):
+        lines.append(f"| {name} | {100 * cov:.1f} | {100 * a:.1f}-{100 * b:.1f} | "
                      f"{'yes' if a <= nominal <= b else 'no'} | {100 * half:.2f} |")
-    every = inside.all(axis=1).mean()
-    lines.append(f"\nall {len(names)} inside at once: {100 * every:.1f} % of the beds (the "
-                 "guarantee is per constant)")
+    lines.append(f"\nall {len(c['names'])} inside at once: {100 * c['all_inside']:.1f} % of the "
+                 "beds (the guarantee is per constant)")
     return "\n".join(lines)
 
 

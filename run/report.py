@@ -52,6 +52,9 @@ def parse(argv):
     ap.add_argument("--sections", default="1,2,3,4,5", help="comma list of sections to run")
     ap.add_argument("--test", default="/work/data/small_test.h5",
                     help="held-out data set of section 4")
+    ap.add_argument("--size-test", action="append", default=[], metavar="SCALE=PATH",
+                    help="section 4 by bed size: a scale's held-out data set (repeat; default: "
+                         "run/report_sizes.py's that exist)")
     ap.add_argument("--models", default="/work/data/surrogate",
                     help="folder of run/train_surrogate.py's checkpoints (section 4)")
     ap.add_argument("--rewrite", action="store_true",
@@ -153,6 +156,9 @@ def main(argv=None):
                 data["surrogate"] = None
                 log(f"  skipped: no held-out data set at {args.test} or no trained model "
                     "(run/train_surrogate.py makes both; see docs/surrogate.md)")
+            from report_sizes import measure_sizes, parse_size_tests
+            if args.size_test or not args.tiny:   # the test suite's report reads no /work/data
+                data["sizes"] = measure_sizes(parse_size_tests(args.size_test), log)
     data["elapsed_seconds"] = seconds = time.perf_counter() - t_start
     if base is not None:  # the sections not rerun keep their numbers, and the page says so
         rerun = {"sections": sorted(sections), "date": data["machine"]["date"],

@@ -1,8 +1,7 @@
 """Plots and markdown of the speed-against-error report (run/report.py) from its measured data.
 
-write_report(data, out, sections) writes out/report.md, out/report_*.png and
-out/report.json atomically and returns their paths. Nothing here measures:
-every number comes from ``data``.
+write_report(data, out, sections) writes out/report.md, out/report_*.png and out/report.json
+atomically and returns their paths. Nothing here measures: every number comes from ``data``.
 """
 import io
 import json
@@ -17,6 +16,7 @@ from amfe.io.atomic import atomic_write  # noqa: E402
 from amfe.training.plots import plain_log_axis, spread_labels  # noqa: E402  (no torch)
 
 import report_measure as M  # noqa: E402
+from report_sizes import section_sizes  # noqa: E402
 from report_voxel_write import section_voxel  # noqa: E402
 
 PHASES = ("generate", "bonds", "assemble", "setup", "solves", "averages")
@@ -385,10 +385,10 @@ def write_report(data, out, sections):
         paths += section_rve(data["rve"], out, md)
     if data.get("surrogate"):
         paths += section_surrogate(data["surrogate"], out, md)
+        section_sizes(data.get("sizes"), md)
     elif "surrogate" in data:
-        md += ["## 4. Surrogate against solver", "",
-               "Not run: no held-out data set or trained model on this machine "
-               "(run/train_surrogate.py makes both, docs/surrogate.md).", ""]
+        md += ["## 4. Surrogate against solver", "", "Not run: no held-out data set or trained "
+               "model on this machine (run/train_surrogate.py makes both, docs/surrogate.md).", ""]
     if 5 in sections:
         section_paper(data, md)
     md += section_voxel(ROOT)

@@ -128,3 +128,26 @@ def test_bad_arguments_exit_2(args):
     p = subprocess.run([sys.executable, os.path.join(ROOT, "run", "report.py"), *args],
                        cwd=ROOT, env=MPI_ENV, capture_output=True, text=True, timeout=120)
     assert p.returncode == 2 and "report.py:" in p.stderr and "Traceback" not in p.stderr
+
+
+def test_by_size_section_lists_each_size_and_its_coverage_band():
+    """run/report_sizes.section_sizes: one row per size; the band of the six coverages and how
+    many of the six have the nominal inside their binomial interval (counted, not copied)."""
+    import sys
+    sys.path.insert(0, os.path.join(ROOT, "run"))
+    from report_sizes import parse_size_tests, section_sizes
+    cov = {"nominal": 0.9, "covered": [0.96, 0.89, 0.9, 0.873, 0.913, 0.893],
+           "binomial": [[0.915, 0.985]] + [[0.83, 0.94]] * 5}
+    rows = [{"size_mm": 1.2, "model": "m.pt", "n": 150, "mre": [0.02] * 6, "se": [0.002] * 6,
+             "tail10": 0.073, "coverage": cov, "predict_seconds": 0.7},
+            {"size_mm": 3.0, "model": "p.pt", "n": 150, "mre": [0.03] * 6, "se": [0.003] * 6,
+             "tail10": 0.1, "coverage": None, "predict_seconds": 1.5}]
+    md = []
+    section_sizes(rows, md)
+    lines = [line for line in md if line.startswith("| 1.2 mm") or line.startswith("| 3 mm")]
+    assert len(lines) == 2
+    assert "| 87.3-96.0 | 5 of 6 |" in lines[0]
+    assert "no interval claimed" in lines[1]
+    assert parse_size_tests(["paper=/x.h5"]) == {"paper": "/x.h5"}
+    with pytest.raises(ValueError, match="SCALE=PATH"):
+        parse_size_tests(["paper"])
