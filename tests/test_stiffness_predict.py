@@ -244,3 +244,35 @@ def test_stiffness_head_options_are_checked(models, tmp_path):
     code, _, err = run_main(["train", data, "--head", "stiffness", "--init", six, "--arch",
                              "vgg", "-o", tmp_path / "c.pt"])
     assert "--arch" in assert_one_error(code, err, "train")
+
+
+def test_a_stiffness_model_is_fine_tuned_on_another_bed_size_with_its_own_head(models, tmp_path):
+    """--init a stiffness model, data of another in-plane size (7 x 7 against 5 x 5): accepted;
+    the last layer and stiffness_scale are the initial model's (no ridge re-fit: with lr 1e-9
+    Adam moves a weight by at most ~1e-9 a step), the image shape the new data's."""
+    from amfe.training.checkpoint import load_checkpoint
+    from amfe.training.stiffness import N_CHOLESKY
+    six, stiff, data, d = models
+    other = str(add_stiffness(write_synthetic(tmp_path / "seven.h5", n=30, shape=(1, 7, 7),
+                                              attrs=TINY_ATTRS, seed=3), seed=5))
+    code, out, err = run_main(["train", other, "--head", "stiffness", "--init", stiff,
+                               "--init-member", "1", "--epochs", "1", "--batch-size", "8",
+                               "--lr", "1e-9", "--loss", "constants", "--seed", "4", "--quiet",
+                               "-o", tmp_path / "tuned.pt"])
+    assert code == 0, err
+    start, tuned = load_checkpoint(stiff), load_checkpoint(tmp_path / "tuned.pt")
+    assert list(tuned["image_shape"]) == [1, 7, 7] and list(start["image_shape"]) == [1, 5, 5]
+    assert tuned["stiffness_scale"] == start["stiffness_scale"]
+    last = [k for k, v in start["members"][1].items() if v.shape[:1] == (N_CHOLESKY,)]
+    assert len(last) == 2   # the last layer's weight and bias
+    for k in last:
+        torch.testing.assert_close(tuned["members"][0][k], start["members"][1][k],
+                                   rtol=0, atol=1e-7)
+    # a six-constant --init of the same data gets a fitted head: not the stiffness model's
+    code, out, err = run_main(["train", other, "--head", "stiffness", "--init", six,
+                               "--init-member", "1", "--epochs", "1", "--batch-size", "8",
+                               "--lr", "1e-9", "--loss", "constants", "--seed", "4", "--quiet",
+                               "-o", tmp_path / "fitted.pt"])
+    assert code == 0, err
+    fitted = load_checkpoint(tmp_path / "fitted.pt")
+    assert not torch.allclose(fitted["members"][0][last[0]], start["members"][1][last[0]])

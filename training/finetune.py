@@ -68,6 +68,17 @@ def check_data(start, data_path, info, pixelation, labels):
     how its images were made (:func:`amfe.training.train.pixelation_of`);
     labels (n, 6): its training labels, positive where the normaliser takes logs.
     """
+    check_grid(start, data_path, info, pixelation)
+    bad = Normalizer.nonpositive_logs(labels, start["normalizer"].log.numpy())
+    if bad:
+        raise AmfeError(f"--init {start['record']['path']} standardises these labels as "
+                        f"logarithms, but the data set {data_path} has non-positive values of "
+                        f"them: {bad}")
+
+
+def check_grid(start, data_path, info, pixelation):
+    """AmfeError unless the new data set's images are made as the initial model's: the same
+    layers, cells and sampling; another in-plane size only for a size-free network."""
     path, ckpt = start["record"]["path"], start["ckpt"]
     # A network that pools globally over its last map reads any H x W with the same
     # weights: it may start from a model of another bed size (issue 34: fine-tuned on each
@@ -84,10 +95,6 @@ def check_data(start, data_path, info, pixelation, labels):
             raise AmfeError(f"--init {path} was trained on images with {key} {theirs.get(key)}, "
                             f"the data set {data_path} has {pixelation[key]}: fine-tune on a "
                             "data set of the same scale")
-    bad = Normalizer.nonpositive_logs(labels, start["normalizer"].log.numpy())
-    if bad:
-        raise AmfeError(f"--init {path} standardises these labels as logarithms, but the data "
-                        f"set {data_path} has non-positive values of them: {bad}")
 
 
 def widened_fill_range(old, new):

@@ -8,7 +8,9 @@ the Cholesky factor of C (amfe.training.stiffness). The new layer starts
 from a ridge regression of the training beds' Cholesky outputs on the
 trunk's features (:func:`init_head`), so the first epoch starts near the
 training beds' C (at worst near their mean C) rather than from noise, and a
-short fine-tune of the whole net follows.
+short fine-tune of the whole net follows. An ``init`` that is itself a
+stiffness model (another bed size, issue 34) keeps its own last layer and
+its ``stiffness_scale``: the fine-tune starts from its C, not from a ridge fit.
 
 Loss (``loss``):
 
@@ -159,13 +161,14 @@ def augment_tensor(images, C, mode, generator):
     return images, C
 
 
-def stiffness_members(start, n):
-    """``n`` stiffness nets from the initial members: every weight but the last layer's."""
+def stiffness_members(start, n, image_shape):
+    """``n`` stiffness nets from the initial members reading images (layers, H, W): every
+    weight but a six-constant model's last layer (a stiffness model's is kept)."""
     from amfe.training.nets import build_net
     args = dict(start["arch_args"], outputs=N_CHOLESKY)
     nets = []
     for state in start["states"][:n]:
-        net = build_net(start["arch"], start["ckpt"]["image_shape"], args)
+        net = build_net(start["arch"], image_shape, args)
         own = net.state_dict()
         keep = {k: v for k, v in state.items() if k in own and own[k].shape == v.shape}
         net.load_state_dict(keep, strict=False)
@@ -173,12 +176,14 @@ def stiffness_members(start, n):
     return nets, args
 
 
-def fit_member(net, train, val, cfg, seed, log):
-    """Fine-tune one net; train/val: (images float32 tensor, C_norm float64 tensor). History dict."""
+def fit_member(net, train, val, cfg, seed, log, keep_head=False):
+    """Fine-tune one net; train/val: (images float32 tensor, C_norm float64 tensor). History
+    dict. keep_head: the net's last layer is already a stiffness head (no ridge fit)."""
     torch.manual_seed(seed)
     gen = torch.Generator().manual_seed(int(seed))
     x, C = train
-    init_head(net, x, C, cfg.ridge)
+    if not keep_head:
+        init_head(net, x, C, cfg.ridge)
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
     steps = cfg.epochs * math.ceil(x.shape[0] / cfg.batch_size)
     sched = (torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=steps)
@@ -231,7 +236,7 @@ def _val_mre(net, val):
 
 def train_stiffness(data_path, cfg, log=print):
     """Fine-tune ``cfg.members`` stiffness nets on the data set: the checkpoint dict."""
-    from amfe.training.finetune import load_init, widened_fill_range
+    from amfe.training.finetune import check_grid, load_init, widened_fill_range
     from amfe.training.predict import calibrate_fill
     from amfe.training.train import pixelation_of
     cfg.check()
@@ -244,9 +249,8 @@ def train_stiffness(data_path, cfg, log=print):
     train_rows, val_rows = split_indices(info["ok"], cfg.val_fraction, cfg.split_seed)
     if cfg.max_train:
         train_rows = train_rows[:cfg.max_train]
-    if tuple(info["image_shape"]) != tuple(start["ckpt"]["image_shape"]):
-        raise AmfeError(f"{data_path} has images {info['image_shape']}, --init "
-                        f"{cfg.init} reads {start['ckpt']['image_shape']}")
+    check_grid(start, data_path, info, pixelation_of(info))   # another bed size is fine
+    keep_head = start["ckpt"].get("head") == HEAD
     from amfe.dataset.parts import label_rule
     if label_rule(info) < 2:   # predict converts rule-1 moduli per bed, which C would not follow
         raise AmfeError(f"{data_path} has label rule 1 labels; a stiffness head is trained on "
@@ -256,18 +260,21 @@ def train_stiffness(data_path, cfg, log=print):
     for C in (C_train, C_val):
         if not (np.isfinite(C).all() and (np.linalg.eigvalsh(C)[:, 0] > 0).all()):
             raise AmfeError(f"{data_path}: a bed's /C is not finite and positive definite")
-    scale = float(np.median(C_train[:, 0, 0]))
+    # a kept head's outputs are in its own unit
+    scale = float(start["ckpt"]["stiffness_scale"] if keep_head else np.median(C_train[:, 0, 0]))
     x_train, _ = read_rows(data_path, train_rows, inputs)
     x_val, _ = read_rows(data_path, val_rows, inputs)
     train = (torch.from_numpy(x_train).float(), torch.from_numpy(C_train / scale))
     val = (torch.from_numpy(x_val).float(), torch.from_numpy(C_val / scale))
     log(f"{data_path}: train {len(train_rows)}, validation {len(val_rows)} (split seed "
-        f"{cfg.split_seed}); stiffness head on {cfg.init} member {cfg.init_member}+; "
+        f"{cfg.split_seed}); stiffness head on {cfg.init} member {cfg.init_member}+ "
+        f"({'its own head kept' if keep_head else 'head fitted'}); "
         f"scale {scale:.4g} Pa; loss {cfg.loss}, {cfg.epochs} epochs, lr {cfg.lr:g} "
         f"({cfg.schedule}), augment {cfg.augment}")
-    nets, arch_args = stiffness_members(start, cfg.members)
+    nets, arch_args = stiffness_members(start, cfg.members, info["image_shape"])
     seeds = [cfg.seed + k for k in range(cfg.members)]
-    hists = [fit_member(net, train, val, cfg, seed, log) for net, seed in zip(nets, seeds)]
+    hists = [fit_member(net, train, val, cfg, seed, log, keep_head)
+             for net, seed in zip(nets, seeds)]
     ckpt = dict(start["ckpt"])
     for key in ("conformal", "metrics", "created", "spread", "history", "init"):
         ckpt.pop(key, None)
@@ -276,6 +283,7 @@ def train_stiffness(data_path, cfg, log=print):
     training["seconds"] = float(sum(h["seconds"] for h in hists))
     from amfe.training.nets import count_parameters
     ckpt.update({
+        "image_shape": [int(s) for s in info["image_shape"]],
         "arch_args": arch_args, "n_parameters": count_parameters(nets[0]), "members": [n.state_dict() for n in nets], "member_seeds": seeds,
         "head": HEAD, "outputs": "cholesky21", "stiffness_scale": scale,
         "pixelation": pixelation_of(info), "tta": cfg.tta, "spread": None,
