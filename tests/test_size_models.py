@@ -97,22 +97,25 @@ def test_the_shipped_medium_model_predicts_its_beds():
         assert np.abs(res / want - 1).max() < 0.15, (k, res, want)
 
 
-def test_the_shipped_stiffness_model_gives_the_nine_constants_of_held_out_beds():
-    """amfe/models/stiffness_small.pt (`amfe predict --stiffness`): C SPD, all nine constants
-    from it, against two held-out beds of seed 4 (their committed labels' C, the PETSc
-    solves); no full-stiffness model is shipped for 1.2 mm beds, which is said in one line."""
+@pytest.mark.parametrize("scale, seed", [("small", 4), ("medium", 12)])
+def test_the_shipped_stiffness_model_gives_the_nine_constants_of_held_out_beds(scale, seed):
+    """amfe/models/stiffness_{small,medium}.pt (`amfe predict --stiffness`): C SPD, all nine
+    constants from it, against two held-out beds of seed 4 (0.6 mm) or 12 (1.2 mm; their
+    committed labels' C, the PETSc solves)."""
     import glob
     import os
     from amfe.dataset.labels import read_tables
     from amfe.model.averages import compliance_and_constants
     from amfe.training.shipped import STIFFNESS
-    path = models_dir() / STIFFNESS["small"]
+    path = models_dir() / STIFFNESS[scale]
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    table = read_tables(sorted(glob.glob(os.path.join(root, "labels", "small_seed4_labels_*.h5"))))
+    table = read_tables(sorted(glob.glob(os.path.join(root, "labels",
+                                                      f"{scale}_seed{seed}_labels_*.h5"))))
     sur = Surrogate.load(path)
     names = ("Ex", "Ey", "Ez", "nu_yz", "nu_xz", "nu_xy", "G_yz", "G_xz", "G_xy")
     for k in range(2):
-        bed = bed_for(get_scale("small"), record_seed(4, k))
+        bed = bed_for(get_scale(scale), record_seed(seed, k))
+        assert table["bed_seed"][k] == record_seed(seed, k)   # the label is this bed's
         assert shipped_model_for(bed, stiffness=True) == path
         res = sur.predict_bed(bed)[0]
         C = np.asarray(res["stiffness"][0])
@@ -122,6 +125,10 @@ def test_the_shipped_stiffness_model_gives_the_nine_constants_of_held_out_beds()
         want = compliance_and_constants(table["C"][k])[1]
         err = [abs(props[n] / want[n] - 1) for n in names]
         assert max(err) < 0.2, (k, dict(zip(names, err)))
-    medium = bed_for(get_scale("medium"), record_seed(12, 0))
-    with pytest.raises(AmfeError, match="no shipped full-stiffness model for a 1.2 x 1.2 mm"):
-        shipped_model_for(medium, stiffness=True)
+
+
+def test_a_size_without_a_full_stiffness_model_is_refused_in_one_line():
+    small = bed_for(get_scale("small"), record_seed(2, 0))
+    odd = Bed(small.centers, small.radii, {"size": [0.9e-3, 0.9e-3, 0.3e-3]})
+    with pytest.raises(AmfeError, match=r"no shipped full-stiffness model for a 0\.9 x 0\.9 mm"):
+        shipped_model_for(odd, stiffness=True)
