@@ -132,3 +132,31 @@ def test_a_size_without_a_full_stiffness_model_is_refused_in_one_line():
     odd = Bed(small.centers, small.radii, {"size": [0.9e-3, 0.9e-3, 0.3e-3]})
     with pytest.raises(AmfeError, match=r"no shipped full-stiffness model for a 0\.9 x 0\.9 mm"):
         shipped_model_for(odd, stiffness=True)
+
+
+def test_the_shipped_paper_model_predicts_its_held_out_beds():
+    """amfe/models/multiscale_paper.pt: the 3 mm beds' own network and intervals. Two beds of
+    the held-out seed 22 against their committed labels (the PETSc solves of
+    labels/paper_seed22_labels_*.h5; its 150 test beds' mean errors are in
+    docs/model_card_paper.md)."""
+    import glob
+    import os
+    from amfe.dataset.labels import read_tables
+    from amfe.model.averages import compliance_and_constants
+    from amfe.training.checkpoint import load_checkpoint
+    from amfe.vocab import LABEL_NAMES
+    path = models_dir() / SHIPPED["paper"]
+    ck = load_checkpoint(path)
+    assert ck["image_shape"] == [6, 100, 100] and ck["label_rule"] == 2
+    assert list(ck["conformal"]["sizes"]) == ["3x3"]
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    table = read_tables(sorted(glob.glob(os.path.join(root, "labels", "paper_seed22_labels_*.h5"))))
+    sc = get_scale("paper")
+    sur = Surrogate.load(path)
+    for k in range(2):
+        bed = bed_for(sc, record_seed(22, k))
+        assert shipped_model_for(bed) == path
+        got = sur.predict_bed(bed)[0]["mean"][0]
+        props = compliance_and_constants(table["C"][k])[1]
+        want = np.array([props[n] for n in LABEL_NAMES])
+        assert np.abs(got / want - 1).max() < 0.15, (k, got, want)
