@@ -102,6 +102,7 @@ def main(argv=None):
                    help="fresh held-out beds (repeat; never the calibration beds): print the "
                         "measured coverage per constant with its 95 %% binomial interval")
     args = p.parse_args(argv)
+    import numpy as np
     from amfe.errors import AmfeError
     from amfe.training.checkpoint import save_checkpoint
     from amfe.training.conformal import calibrate, size_key, store
@@ -115,16 +116,20 @@ def main(argv=None):
         if sur.label_rule < 2:
             raise AmfeError(f"{args.model} predicts label rule 1 converted per bed; calibrate a "
                             "model trained on the data sets' rule-2 labels")
+        pooled = {}   # size -> [(pred, labels, spread)]: data sets of one size calibrate together
         for path in args.data:
             info = dataset_info(path, sur.inputs)
             if "bed_size" not in info:
                 raise AmfeError(f"{path} has no bed_size attribute: its beds' size is unknown")
             names, pred, labels, res = predictions(sur, path, info)
             spread = res["spread" + ("9" if len(names) == 9 else "")] if sur.n_members > 1 else None
+            pooled.setdefault(size_key(info["bed_size"]), []).append((pred, labels, spread))
+        for key, parts in pooled.items():
+            pred, labels = (np.concatenate([p[i] for p in parts]) for i in (0, 1))
+            spread = None if parts[0][2] is None else np.concatenate([p[2] for p in parts])
             cal = calibrate(pred, labels, names, spread, args.coverage)
-            key = size_key(info["bed_size"])
             store(sur.ckpt, key, cal, args.coverage, names, args.flag_half_width)
-            print(f"{path}: size {key} mm, {cal['n']} beds, quantiles "
+            print(f"size {key} mm: {cal['n']} beds of {len(parts)} data set(s), quantiles "
                   + " ".join(f"{k} {v:.3g}" for k, v in cal["quantile"].items()))
         save_checkpoint(args.output, sur.ckpt)
         for path in args.check:

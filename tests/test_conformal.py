@@ -120,3 +120,41 @@ def test_calibrate_script_stores_the_sizes_calibration(tmp_path):
         assert have[key] == pytest.approx(want[key], rel=1e-6)
     got = interval_block(res["mean"][0], LABEL_NAMES, conf, (0.15e-3, 0.15e-3), res["spread"][0])
     assert got["coverage"] == 0.8 and got["calibration"]["n"] == 30
+
+
+def test_two_data_sets_of_one_size_calibrate_together(tmp_path):
+    """Held-out sets of the same bed size are pooled (not the last one kept): the quantiles
+    are calibrate()'s on both sets' predictions together, n their sum."""
+    import importlib.util
+    import os
+
+    from cli_fixtures import TINY_ATTRS, tiny_model
+    from test_training import write_synthetic
+    from amfe.training.checkpoint import load_checkpoint
+    from amfe.training.data import dataset_info, read_rows
+    from amfe.training.predict import Surrogate
+    from amfe.vocab import LABEL_NAMES
+
+    model, bed = tiny_model(str(tmp_path))
+    a = write_synthetic(str(tmp_path / "a.h5"), n=20, shape=(1, 5, 5), attrs=TINY_ATTRS,
+                        failed=(), seed=1)
+    b = write_synthetic(str(tmp_path / "b.h5"), n=15, shape=(1, 5, 5), attrs=TINY_ATTRS,
+                        failed=(), seed=2)
+    spec = importlib.util.spec_from_file_location(
+        "calibrate_intervals", os.path.join(os.path.dirname(__file__), "..", "run",
+                                            "calibrate_intervals.py"))
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    out = tmp_path / "cal.pt"
+    assert script.main([str(model), str(a), str(b), "-o", str(out)]) == 0
+    have = load_checkpoint(out)["conformal"]["sizes"]["0.15x0.15"]
+    sur = Surrogate.load(model)
+    preds, labels, spreads = [], [], []
+    for path in (a, b):
+        images, y = read_rows(path, dataset_info(path)["ok"], sur.inputs)
+        res = sur.predict(images)
+        preds.append(res["mean"]), labels.append(y), spreads.append(res["spread"])
+    want = calibrate(np.concatenate(preds), np.concatenate(labels), LABEL_NAMES,
+                     np.concatenate(spreads), 0.9)
+    assert have["n"] == want["n"] == 35
+    assert have["quantile"] == pytest.approx(want["quantile"], rel=1e-6)
