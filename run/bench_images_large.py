@@ -30,8 +30,10 @@ CPU = []
 def grid():
     """The shipped model's pixelation (cells, layer, spacing) and the model (None if absent)."""
     from amfe.training.predict import Surrogate
-    try:
-        model = Surrogate.load()
+    from amfe.training.shipped import SHIPPED, models_dir
+    try:   # the 3 mm network amfe predict uses, else the default one (it refuses 3 mm)
+        paper = models_dir() / SHIPPED["paper"]
+        model = Surrogate.load(paper if paper.is_file() else None)
     except AmfeError:
         model = None
     px = model.ckpt["pixelation"] if model else {
