@@ -14,7 +14,7 @@ import amfe
 from amfe.io.pvd import case_fields
 from amfe.io.vtu import read_case
 from amfe.model.element import particle_resultants
-from amfe.viz.pvrun import paraview_command
+from amfe.viz.pvrun import paraview_command, run_pvpython
 from helpers import MPI_ENV, ROOT, run_cli
 
 CASES = ("xx", "yy", "zz", "yz", "xz", "xy")
@@ -261,16 +261,15 @@ def test_paraview_opens_the_collection_reads_every_array_and_the_state(kubc, tmp
     result, out, _ = kubc
     png, state = tmp_path / "pvd.png", tmp_path / "pvd.pvsm"
     cmd = paraview_command()
-    proc = subprocess.run(cmd + [str(Path(amfe.__file__).parent / "viz" / "amfe_view_pv.py"),
-                                 str(out / "cases.pvd"), "--png", str(png), "--size", "400",
-                                 "300", "--state", str(state)],
-                          capture_output=True, text=True, timeout=300)
+    # on an X server of its own, retried if Xvfb refuses (as amfe view runs it)
+    proc = run_pvpython(cmd + [str(Path(amfe.__file__).parent / "viz" / "amfe_view_pv.py"),
+                               str(out / "cases.pvd"), "--png", str(png), "--size", "400",
+                               "300", "--state", str(state)])
     assert png_size(png) == (400, 300), proc.stdout + proc.stderr
     check = tmp_path / "check.py"
     check.write_text(PV_CHECK)
-    proc = subprocess.run(cmd + [str(check), str(out / "cases.pvd"), str(state),
-                                 str(tmp_path / "state.png")],
-                          capture_output=True, text=True, timeout=300)
+    proc = run_pvpython(cmd + [str(check), str(out / "cases.pvd"), str(state),
+                               str(tmp_path / "state.png")])
     lines = proc.stdout.splitlines()
     assert "times [0, 1, 2, 3, 4, 5]" in lines, proc.stdout + proc.stderr
     n = result["counts"]

@@ -59,6 +59,17 @@ def _with_server_number(cmd):
     return cmd
 
 
+def run_pvpython(args, timeout=TIMEOUT_S):
+    """``subprocess.run`` of a pvpython command line (``paraview_command() + [...]``) on an X
+    server of its own, run again when Xvfb refused the connection (:data:`X_ATTEMPTS`)."""
+    for _ in range(X_ATTEMPTS):
+        proc = subprocess.run(_with_server_number(args), capture_output=True, text=True,
+                              timeout=timeout)
+        if "bad X server connection" not in proc.stdout + proc.stderr:
+            break
+    return proc
+
+
 def _what_failed(output, lines=5):
     """ParaView's error lines from its output (not the stack trace), else the last lines."""
     text = [line.strip() for line in output.splitlines() if line.strip()]
@@ -85,11 +96,7 @@ def render(cmd, scene, png, size, state=None):
     if state:
         args += ["--state", state]
     try:
-        for _ in range(X_ATTEMPTS):
-            proc = subprocess.run(_with_server_number(args), capture_output=True, text=True,
-                                  timeout=TIMEOUT_S)
-            if "bad X server connection" not in proc.stdout + proc.stderr:
-                break
+        proc = run_pvpython(args)
         ok = proc.returncode == 0 and os.path.isfile(tmp) and os.path.getsize(tmp) > 0
         if ok:
             os.replace(tmp, png)
