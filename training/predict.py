@@ -281,12 +281,18 @@ def predict_raw(net, images, norm, tta="none", batch_size=None):
     return torch.cat(out) if out else torch.zeros(0, 6, dtype=torch.float64)
 
 
+def relative_spread(members):
+    """The members' standard deviation over |mean|, (n, k) of (members, n, k) predictions."""
+    members = np.asarray(members, np.float64)
+    std = (members - members[:1]).std(axis=0)   # shift-invariant; exactly 0 for equal members
+    return std / np.maximum(np.abs(members.mean(axis=0)), np.finfo(float).tiny)
+
+
 def summarize_members(members, spread_scale=None, threshold=None):
     """Ensemble mean, relative spread, flag score and flag from (members, n, 6) predictions."""
     members = np.asarray(members, np.float64)
     mean = members.mean(axis=0)
-    std = (members - members[:1]).std(axis=0)   # shift-invariant; exactly 0 for equal members
-    rel = std / np.maximum(np.abs(mean), np.finfo(float).tiny)
+    rel = relative_spread(members)
     scale = np.ones(6) if spread_scale is None else np.asarray(spread_scale, np.float64)
     score = np.max(rel / scale, axis=1)
     # NaN > threshold is False: a non-finite prediction is flagged on its own.

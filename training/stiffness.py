@@ -97,6 +97,21 @@ def augment_stiffness(images, C, generator=None, square=True):
     return torch.cat(xs), torch.cat(cs)
 
 
+def nine_from_stiffness(C):
+    """The nine constants (..., 9) of C (..., 6, 6) as a torch tensor, NINE order;
+    differentiable (the stiffness head's loss) and batched (its predictions).
+
+    Ex = 1/S11, Ey = 1/S22, Ez = 1/S33, nu_yz = -S32/S22, nu_xz = -S31/S11,
+    nu_xy = -S21/S11, G_yz = 1/S44, G_xz = 1/S55, G_xy = 1/S66 with S = C^-1:
+    amfe.model.averages.compliance_and_constants's formulas, without its checks.
+    """
+    S = torch.linalg.inv(C)
+    d = torch.diagonal(S, dim1=-2, dim2=-1)
+    return torch.stack([1 / d[..., 0], 1 / d[..., 1], 1 / d[..., 2], -S[..., 2, 1] / d[..., 1],
+                        -S[..., 2, 0] / d[..., 0], -S[..., 1, 0] / d[..., 0],
+                        1 / d[..., 3], 1 / d[..., 4], 1 / d[..., 5]], dim=-1)
+
+
 def constants_from_stiffness(C):
     """The nine constants (n, 9) float64 [Pa, -] of stiffnesses C (n, 6, 6) [Pa], in NINE order.
 
@@ -115,19 +130,25 @@ def constants_from_stiffness(C):
 def predict_stiffness(net, images, extra=None, tta="none", scale=1.0):
     """C (n, 6, 6) float64 [Pa] of a stiffness network, averaged over the TTA symmetries as a tensor.
 
-    ``net(images)`` (or ``net(images, extra)``) returns raw (n, 21) outputs;
-    each symmetric image's C is mapped back (M^T C' M) before the average, so
-    the result of a mirrored image is exactly the mirrored result (to rounding).
+    ``net(images)`` (or ``net(images, extra)``, ``extra`` (n, ...) per image) returns raw
+    (n, 21) outputs; the symmetric images go through the network as one batch on its
+    device, and each image's C is mapped back (M^T C' M) before the average, so the
+    result of a mirrored image is exactly the mirrored result (to rounding).
     """
     from amfe.training.data import flip_images
+    from amfe.training.device import device_of
     from amfe.training.predict import symmetries, tta_mode
     net.eval()
     syms = symmetries(tta_mode(tta), images.shape[-1] == images.shape[-2])
-    acc = 0.0
+    dev = device_of(net)
+    views = torch.cat([flip_images(images, *sym) for sym in syms]).to(dev)
     with torch.inference_mode():
-        for fx, fy, tr in syms:
-            view = flip_images(images, fx, fy, tr)
-            raw = net(view) if extra is None else net(view, extra)
-            C = stiffness_from_raw(raw.double())
-            acc = acc + transform_stiffness(C, fx, fy, tr, inverse=True)
+        if extra is None:
+            raw = net(views)
+        else:
+            raw = net(views, extra.repeat(len(syms), *([1] * (extra.dim() - 1))).to(dev))
+    C = stiffness_from_raw(raw.cpu().double()).view(len(syms), images.shape[0], 6, 6)
+    acc = 0.0
+    for k, sym in enumerate(syms):
+        acc = acc + transform_stiffness(C[k], *sym, inverse=True)
     return (acc / len(syms)).numpy() * float(scale)

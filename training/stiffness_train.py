@@ -37,11 +37,12 @@ import torch
 from amfe.errors import AmfeError
 
 from amfe.training.data import dataset_hash, dataset_info, flip_images, read_rows, split_indices
-from amfe.training.stiffness import EIG_FLOOR, N_CHOLESKY, stiffness_from_raw, transform_stiffness
+from amfe.training.stiffness import (EIG_FLOOR, N_CHOLESKY, nine_from_stiffness,
+                                     stiffness_from_raw, transform_stiffness)
 from amfe.training.stiffness_fit import read_stiffness, stiffness_loss
+from amfe.training.stiffness_predict import HEAD, is_stiffness
 
 STIFFNESS_LOSSES = ("constants", "mse")
-HEAD = "stiffness"
 
 
 @dataclass
@@ -115,15 +116,6 @@ def init_head(net, images, C_norm, ridge=1e-2):
     with torch.no_grad():
         last.weight.copy_(W.float())
         last.bias.copy_((mu_t - W @ mu_f).float())
-
-
-def nine_from_stiffness(C):
-    """The nine constants (n, 9) of C (n, 6, 6), differentiable (torch), NINE order."""
-    S = torch.linalg.inv(C)
-    d = torch.diagonal(S, dim1=-2, dim2=-1)
-    return torch.stack([1 / d[:, 0], 1 / d[:, 1], 1 / d[:, 2], -S[:, 2, 1] / d[:, 1],
-                        -S[:, 2, 0] / d[:, 0], -S[:, 1, 0] / d[:, 0],
-                        1 / d[:, 3], 1 / d[:, 4], 1 / d[:, 5]], dim=1)
 
 
 def constants_loss(raw, C_norm, nu_weight=1.0):
@@ -250,7 +242,7 @@ def train_stiffness(data_path, cfg, log=print):
     if cfg.max_train:
         train_rows = train_rows[:cfg.max_train]
     check_grid(start, data_path, info, pixelation_of(info))   # another bed size is fine
-    keep_head = start["ckpt"].get("head") == HEAD
+    keep_head = is_stiffness(start["ckpt"])
     from amfe.dataset.parts import label_rule
     if label_rule(info) < 2:   # predict converts rule-1 moduli per bed, which C would not follow
         raise AmfeError(f"{data_path} has label rule 1 labels; a stiffness head is trained on "
@@ -279,12 +271,13 @@ def train_stiffness(data_path, cfg, log=print):
     for key in ("conformal", "metrics", "created", "spread", "history", "init"):
         ckpt.pop(key, None)
     n_fill = x_train.shape[1] // len(inputs)
-    training = {k: v for k, v in asdict(cfg).items()}
+    training = asdict(cfg)
     training["seconds"] = float(sum(h["seconds"] for h in hists))
     from amfe.training.nets import count_parameters
     ckpt.update({
         "image_shape": [int(s) for s in info["image_shape"]],
-        "arch_args": arch_args, "n_parameters": count_parameters(nets[0]), "members": [n.state_dict() for n in nets], "member_seeds": seeds,
+        "arch_args": arch_args, "n_parameters": count_parameters(nets[0]),
+        "members": [n.state_dict() for n in nets], "member_seeds": seeds,
         "head": HEAD, "outputs": "cholesky21", "stiffness_scale": scale,
         "pixelation": pixelation_of(info), "tta": cfg.tta, "spread": None,
         "dataset": {"path": str(data_path), "sha256": dataset_hash(data_path, info["ok"], inputs),

@@ -8,16 +8,11 @@ The options that train a six-constant model from scratch (--arch, --width,
 import os
 import sys
 
-from amfe.errors import AmfeError
-
 
 def run_stiffness(args, curve):
     """Train, evaluate on --test (the six constants), save; 0 on success."""
     from amfe.cli.train import _write, check_init_options
-    if not args.init:
-        raise AmfeError("--head stiffness fine-tunes a trained multiscale model: give "
-                        "--init MODEL.pt")
-    check_init_options(args)
+    check_init_options(args)   # a missing --init: StiffnessConfig.check says so
     import torch
 
     from amfe.training.checkpoint import save_checkpoint
