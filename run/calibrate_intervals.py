@@ -44,9 +44,8 @@ def coverage_numbers(sur, path):
     cal = conf["sizes"].get(key)
     if cal is None:
         raise AmfeError(f"{path}: beds of {key} mm, a size the model has no calibration for")
-    names, pred, labels, res = predictions(sur, path, info)
-    spread = res["spread" + ("9" if len(names) == 9 else "")] if cal.get("uses_spread") else None
-    lo, hi = intervals(pred, names, cal, spread)
+    names, pred, labels, spread = predictions(sur, path, info)
+    lo, hi = intervals(pred, names, cal, spread if cal.get("uses_spread") else None)
     inside = (labels >= lo) & (labels <= hi)
     n = inside.shape[0]
     k = inside.sum(axis=0)
@@ -76,19 +75,20 @@ def coverage_report(sur, path):
 
 
 def predictions(sur, path, info):
-    """(names, predictions (n, k), labels (n, k), result) of the data set's ok beds: the six
-    constants, or for a stiffness-head model the nine (the shear moduli's labels from /C)."""
+    """(names, predictions (n, k), labels (n, k), the members' relative spread (n, k)) of the
+    data set's ok beds: the six constants, or for a stiffness-head model the nine (the shear
+    moduli's labels from /C)."""
     import numpy as np
     from amfe.training.data import read_rows
     from amfe.vocab import LABEL_NAMES
     images, labels = read_rows(path, info["ok"], sur.inputs)
     res = sur.predict(images)
     if "constants9" not in res:
-        return LABEL_NAMES, res["mean"], labels, res
+        return LABEL_NAMES, res["mean"], labels, res["spread"]
     from amfe.training.stiffness import NINE, constants_from_stiffness
     from amfe.training.stiffness_fit import read_stiffness
     shear = constants_from_stiffness(read_stiffness(path, info["ok"]))[:, 6:]
-    return NINE, res["constants9"], np.concatenate([labels, shear], axis=1), res
+    return NINE, res["constants9"], np.concatenate([labels, shear], axis=1), res["spread9"]
 
 
 def main(argv=None):
@@ -121,8 +121,8 @@ def main(argv=None):
             info = dataset_info(path, sur.inputs)
             if "bed_size" not in info:
                 raise AmfeError(f"{path} has no bed_size attribute: its beds' size is unknown")
-            names, pred, labels, res = predictions(sur, path, info)
-            spread = res["spread" + ("9" if len(names) == 9 else "")] if sur.n_members > 1 else None
+            names, pred, labels, spread = predictions(sur, path, info)
+            spread = spread if sur.n_members > 1 else None
             pooled.setdefault(size_key(info["bed_size"]), []).append((pred, labels, spread))
         for key, parts in pooled.items():
             pred, labels = (np.concatenate([p[i] for p in parts]) for i in (0, 1))

@@ -18,12 +18,11 @@ import sys
 
 import numpy as np
 
-SIX = ("Ex", "Ey", "Ez", "nu_yz", "nu_xz", "nu_xy")
-SHEAR = ("G_yz", "G_xz", "G_xy")
+from amfe.training.metrics import relative_errors as relative
+from amfe.training.stiffness import NINE
+from amfe.vocab import LABEL_NAMES as SIX
 
-
-def relative(pred, true):
-    return np.abs(pred - true) / np.abs(true)
+SHEAR = NINE[6:]
 
 
 def evaluate(data, model_path, tta=None):

@@ -97,25 +97,33 @@ def test_the_shipped_medium_model_predicts_its_beds():
         assert np.abs(res / want - 1).max() < 0.15, (k, res, want)
 
 
+def committed_labels(scale, seed, first=2):
+    """The committed label table labels/{scale}_seed{seed}_labels_*.h5 (the PETSc solves), after
+    checking that its records 0..first-1 are the beds bed_for regenerates from the seed."""
+    import glob
+    import os
+    from amfe.dataset.labels import read_tables
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    table = read_tables(sorted(glob.glob(os.path.join(root, "labels",
+                                                      f"{scale}_seed{seed}_labels_*.h5"))))
+    for k in range(first):
+        assert table["bed_seed"][k] == record_seed(seed, k)   # the label is this bed's
+    return table
+
+
 @pytest.mark.parametrize("scale, seed", [("small", 4), ("medium", 12)])
 def test_the_shipped_stiffness_model_gives_the_nine_constants_of_held_out_beds(scale, seed):
     """amfe/models/stiffness_{small,medium}.pt (`amfe predict --stiffness`): C SPD, all nine
     constants from it, against two held-out beds of seed 4 (0.6 mm) or 12 (1.2 mm; their
     committed labels' C, the PETSc solves)."""
-    import glob
-    import os
-    from amfe.dataset.labels import read_tables
     from amfe.model.averages import compliance_and_constants
     from amfe.training.shipped import STIFFNESS
     path = models_dir() / STIFFNESS[scale]
-    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    table = read_tables(sorted(glob.glob(os.path.join(root, "labels",
-                                                      f"{scale}_seed{seed}_labels_*.h5"))))
+    table = committed_labels(scale, seed)
     sur = Surrogate.load(path)
     names = ("Ex", "Ey", "Ez", "nu_yz", "nu_xz", "nu_xy", "G_yz", "G_xz", "G_xy")
     for k in range(2):
         bed = bed_for(get_scale(scale), record_seed(seed, k))
-        assert table["bed_seed"][k] == record_seed(seed, k)   # the label is this bed's
         assert shipped_model_for(bed, stiffness=True) == path
         res = sur.predict_bed(bed)[0]
         C = np.asarray(res["stiffness"][0])
@@ -139,9 +147,6 @@ def test_the_shipped_paper_model_predicts_its_held_out_beds():
     the held-out seed 22 against their committed labels (the PETSc solves of
     labels/paper_seed22_labels_*.h5; its 150 test beds' mean errors are in
     docs/model_card_paper.md)."""
-    import glob
-    import os
-    from amfe.dataset.labels import read_tables
     from amfe.model.averages import compliance_and_constants
     from amfe.training.checkpoint import load_checkpoint
     from amfe.vocab import LABEL_NAMES
@@ -149,8 +154,7 @@ def test_the_shipped_paper_model_predicts_its_held_out_beds():
     ck = load_checkpoint(path)
     assert ck["image_shape"] == [6, 100, 100] and ck["label_rule"] == 2
     assert list(ck["conformal"]["sizes"]) == ["3x3"]
-    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    table = read_tables(sorted(glob.glob(os.path.join(root, "labels", "paper_seed22_labels_*.h5"))))
+    table = committed_labels("paper", 22)
     sc = get_scale("paper")
     sur = Surrogate.load(path)
     for k in range(2):

@@ -177,8 +177,8 @@ def test_intervals_for_all_nine(models):
     from amfe.training.data import dataset_info
     from amfe.training.predict import Surrogate
     sur = Surrogate(ckpt, "cal")
-    names, pred, labels, res = mod.predictions(sur, data, dataset_info(data, sur.inputs))
-    lo, hi = intervals(pred, names, cal, res["spread9"])
+    names, pred, labels, spread9 = mod.predictions(sur, data, dataset_info(data, sur.inputs))
+    lo, hi = intervals(pred, names, cal, spread9)
     inside = ((labels >= lo) & (labels <= hi)).mean(axis=0)
     assert (inside >= 0.8).all() and (inside < 1).any()
     bed = _tiny_bed(str(d / "bed.h5"))
