@@ -1,0 +1,41 @@
+"""run/join_datasets.py: held-out sets of one kind joined record after record, others refused."""
+import os
+import sys
+
+import h5py
+import numpy as np
+
+from test_training import TINY_ATTRS, write_synthetic
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(__file__)), "run"))
+import join_datasets  # noqa: E402
+
+
+def _set(path, n, seed, **attrs):
+    write_synthetic(path, n=n, shape=(1, 5, 5), attrs={**TINY_ATTRS, **attrs}, seed=seed,
+                    failed=(1,))
+    with h5py.File(path, "a") as f:
+        f.attrs["seed"] = seed
+    return path
+
+
+def test_join_concatenates_every_record_dataset_and_keeps_the_bed_seeds(tmp_path):
+    a, b = _set(str(tmp_path / "a.h5"), 7, 11), _set(str(tmp_path / "b.h5"), 5, 12)
+    out = str(tmp_path / "j.h5")
+    assert join_datasets.main([a, b, "-o", out]) == 0
+    with h5py.File(a) as fa, h5py.File(b) as fb, h5py.File(out) as g:
+        for name in ("images", "labels", "status", "index"):
+            np.testing.assert_array_equal(g[name][()], np.concatenate([fa[name][()],
+                                                                       fb[name][()]]))
+        assert g.attrs["count"] == 12 and list(g.attrs["joined_seeds"]) == [11, 12]
+        assert "seed" not in g.attrs and g.attrs["scale"] == "tiny"
+
+
+def test_join_refuses_sets_of_another_kind_and_writes_nothing(tmp_path, capsys):
+    a = _set(str(tmp_path / "a.h5"), 6, 1)
+    b = _set(str(tmp_path / "b.h5"), 6, 2, bed_size=[0.3e-3, 0.3e-3, 0.1e-3])
+    out = tmp_path / "j.h5"
+    assert join_datasets.main([a, b, "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "bed_size" in err and len(err.strip().splitlines()) == 1
+    assert not out.exists() and not (tmp_path / "j.h5.tmp").exists()
