@@ -35,7 +35,7 @@ def test_shipped_model_is_plain_small_and_for_the_small_scale(shipped):
     # intervals calibrated on the 0.6 mm beds of seed 8, at 90 % (docs/model_card.md)
     cal = ck["conformal"]
     assert cal["coverage"] == 0.9 and list(cal["sizes"]) == ["0.6x0.6"]
-    assert cal["sizes"]["0.6x0.6"]["n"] == 500
+    assert cal["sizes"]["0.6x0.6"]["n"] == 1500
     assert ck["tta"] == "flips"
     assert ck["inputs"] == ["fill", "bonds"] and ck["image_shape"] == [6, 20, 20]
     sc = get_scale("small")
