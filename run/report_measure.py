@@ -335,7 +335,7 @@ def surrogate_vs_solver(test_path, models_dir, n_solver_beds, rtols, log=print):
     """Section 4 on the held-out beds of ``test_path``: networks and the solver at loose rtol.
 
     Networks: mean relative error over the six labels and all held-out beds,
-    ms per bed batched (one torch thread), and the pixelation of a bed
+    ms per bed batched (one torch thread, and two), and the pixelation of a bed
     measured on ``n_solver_beds`` beds (and its bond image, for the networks
     that read it). Solver: the first ``n_solver_beds``
     beds regenerated from their seeds (amfe.model.scales.bed_for) and solved at each
@@ -368,10 +368,10 @@ def surrogate_vs_solver(test_path, models_dir, n_solver_beds, rtols, log=print):
         images, _ = read_rows(test_path, ok, sur.inputs)
         pred = sur.predict(images)["mean"]
         m = property_metrics(pred, labels)
-        ms = next(iter(bench_batched(sur, images, threads=(1,), batches=(None,),
-                                     repeats=3).values()))
+        ms, ms2 = bench_batched(sur, images, threads=(1, 2), batches=(None,),
+                                repeats=3).values()   # one torch thread, then both cores
         out["networks"][name] = {
-            "description": desc, "ms_per_bed": float(ms),
+            "description": desc, "ms_per_bed": float(ms), "ms_per_bed_2threads": float(ms2),
             "mre": {k: float(m[k]["mre"]) for k in LABELS},
             "r2": {k: float(m[k]["r2"]) for k in LABELS},
             "mean_error": float(np.mean([m[k]["mre"] for k in LABELS])),

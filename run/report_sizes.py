@@ -15,8 +15,8 @@ import time
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.join(ROOT, "run"))
 
-DEFAULT_TESTS = {"small": "/work/data/heldout_seed4_1000.h5",
-                 "medium": "/work/data/medium_seed12_test150.h5",
+DEFAULT_TESTS = {"small": "/work/data/test_seed10_1000.h5",
+                 "medium": "/work/data/medium_test450.h5",
                  "paper": "/work/data/paper_seed22_150.h5"}
 
 

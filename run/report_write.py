@@ -40,8 +40,7 @@ def _save(fig, path):
 
 def _loglog(ax, xlabel, ylabel, title, handles=None, legend_title=None):
     """Log-log axes with labels, grid and legend (``handles``: extra legend keys)."""
-    ax.set_xscale("log")
-    ax.set_yscale("log")
+    ax.set(xscale="log", yscale="log")
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
     ax.set_title(title)
@@ -278,20 +277,21 @@ def section_surrogate(sur, out, md):
     md += ["## 4. Surrogate against solver", "",
            f"Held-out beds: `{sur['test']}` ({sur['n_test']} beds, a data-set seed no network "
            "trained on). Networks: mean relative error over all of them, inference batched on "
-           f"one torch thread; pixelating a bed adds {_s(pix)}, its bond image "
-           f"{_s(sur.get('bond_image_seconds', float('nan')))} for the networks that read it "
-           "(open circles). Solver: the "
-           f"first {s[0]['beds']} of those beds regenerated from their seeds and solved on one "
-           "core at each rtol, time from the bed's particles to its constants (bonds, assembly, "
-           "set-up, solves, averages), error against the data set's labels (rtol 1e-8).", "",
+           f"one torch thread (and two); pixelating a bed adds {_s(pix)}, its bond image "
+           f"{_s(sur.get('bond_image_seconds', np.nan))} for the networks that read it (open "
+           f"circles). Solver: the first {s[0]['beds']} of those beds regenerated from their "
+           "seeds and solved on one core at each rtol, time from the bed's particles to its "
+           "constants (bonds, assembly, set-up, solves, averages), error against the data set's "
+           "labels (rtol 1e-8).", "",
            "![surrogate against solver](report_surrogate.png)", "",
-           "| model | parameters | training | ms per bed | mean error | Ex | Ey | Ez | nu_yz "
-           "| nu_xz | nu_xy |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+           "| model | parameters | training | ms per bed (1 thread; 2) | mean error | Ex | Ey "
+           "| Ez | nu_yz | nu_xz | nu_xy |", "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in sur["networks"].values():
         md.append(f"| {r['description']} | {r['params']:,}" + (f" x {r['members']}"
                   if r["members"] > 1 else "") + f" | {_s(r['train_seconds'])}"
                   + (" of fine-tuning" if r.get("fine_tuned") else "") + " | "
-                  f"{r['ms_per_bed']:.3f} | {100 * r['mean_error']:.2f} % | "
+                  f"{r['ms_per_bed']:.3f}; {r.get('ms_per_bed_2threads', np.nan):.3f} | "
+                  f"{100 * r['mean_error']:.2f} % | "
                   + " | ".join(f"{100 * r['mre'][k]:.2f} %" for k in M.LABELS) + " |")
     for r in s:
         md.append(f"| solver, rtol {r['rtol']:.0e} | - | - | {1e3 * r['seconds']:.0f} | "
