@@ -3,6 +3,8 @@ section 10), from stored ladders; and the one line the main job prints from it.
 
     .venv/bin/python run/voxel_model_error.py --ladder fig2=fig2.json per48=per48.json \
         [--rg rg.json] -o docs/voxel_model_error.json      # assemble, print the tables
+    .venv/bin/python run/voxel_model_error.py --update docs/voxel_model_error.json \
+        --ladder fig2grip=new.json -o docs/voxel_model_error.json   # add or replace beds
     .venv/bin/python run/voxel_model_error.py --headline   # the main job's line (no solve)
 
 Ladders come from run/voxel_ladder.py --frame, Roberts and Garboczi's cells from
@@ -108,12 +110,17 @@ def main():
     ap.add_argument("--rg", default=None, help="run/roberts_garboczi.py's JSON")
     ap.add_argument("-o", "--output", default=None)
     ap.add_argument("--headline", action="store_true")
+    ap.add_argument("--update", default=None, metavar="STORE.json",
+                    help="start from this store: the ladders given add or replace its beds")
     args = ap.parse_args()
     if args.headline:
         print(headline())
         return
     store = {"source": "run/voxel_ladder.py --frame and run/roberts_garboczi.py, assembled by "
              "run/voxel_model_error.py (docs/model.md, section 10)", "beds": {}}
+    if args.update:
+        with open(args.update) as fh:
+            store = json.load(fh)
     for item in args.ladder:
         key, _, path = item.partition("=")
         with open(path) as fh:
