@@ -104,7 +104,7 @@ def headline(path=STORE):
             f"measured {b['date']}, docs/voxel_model_error.json, docs/model.md section 10)")
 
 
-def main():
+def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--ladder", nargs="*", default=[], metavar="KEY=JSON")
     ap.add_argument("--rg", default=None, help="run/roberts_garboczi.py's JSON")
@@ -112,7 +112,7 @@ def main():
     ap.add_argument("--headline", action="store_true")
     ap.add_argument("--update", default=None, metavar="STORE.json",
                     help="start from this store: the ladders given add or replace its beds")
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     if args.headline:
         print(headline())
         return

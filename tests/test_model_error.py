@@ -57,3 +57,20 @@ def test_the_table_extrapolates_and_divides(tmp_path):
 def test_without_a_store_the_line_says_so_and_the_report_skips(tmp_path):
     assert V.headline(str(tmp_path / "none.json")).startswith("model error: no stored")
     assert section_voxel(str(tmp_path)) == []
+
+
+def test_update_adds_a_ladder_and_keeps_the_stored_beds(tmp_path, capsys):
+    old = {"source": "s", "beds": {"kept": V.bed_entry(ladder())},
+           "roberts_garboczi": {"cells": []}}
+    store, new, out = tmp_path / "store.json", tmp_path / "new.json", tmp_path / "out.json"
+    store.write_text(json.dumps(old))
+    lad = ladder()
+    lad["label"] = "added"
+    lad["frame"]["properties"] = {k: 2.0 * v for k, v in C0.items()}
+    new.write_text(json.dumps(lad))
+    assert V.main(["--update", str(store), "--ladder", f"added={new}", "-o", str(out)]) == 0
+    got = json.loads(out.read_text())
+    assert sorted(got["beds"]) == ["added", "kept"] and "roberts_garboczi" in got
+    assert got["beds"]["kept"] == json.loads(json.dumps(old["beds"]["kept"]))
+    assert got["beds"]["added"]["ratio"]["Ex"]["value"] == pytest.approx(2.0, rel=1e-10)
+    capsys.readouterr()
