@@ -18,7 +18,8 @@ SHIPPED = {"small": "multiscale_small.pt", "medium": "multiscale_medium.pt",
            "paper": "multiscale_paper.pt"}
 #: scale name -> a shipped full-stiffness model (21 Cholesky outputs: C and all nine
 #: constants, amfe.training.stiffness_predict), chosen by ``amfe predict --stiffness``
-STIFFNESS = {"small": "stiffness_small.pt", "medium": "stiffness_medium.pt"}
+STIFFNESS = {"small": "stiffness_small.pt", "medium": "stiffness_medium.pt",
+             "paper": "stiffness_paper.pt"}
 
 
 def models_dir():

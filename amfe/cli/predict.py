@@ -55,7 +55,7 @@ def register(sub):
     p.add_argument("--stiffness", action="store_true",
                    help="use the shipped full-stiffness model for the bed's size "
                         "(amfe/models/stiffness_SCALE.pt): C, the shear moduli and their "
-                        "intervals as well (0.6 and 1.2 mm beds)")
+                        "intervals as well (0.6, 1.2 and 3 mm beds)")
     p.add_argument("-o", "--output", metavar="OUT.json",
                    help="write the result as JSON here (-: to stdout, the table to stderr)")
     p.add_argument("--check", action="store_true",
