@@ -12,11 +12,15 @@ refused in one line. Every dataset whose first axis is the record axis is
 concatenated; the first file's root attributes are kept, its ``seed``
 becomes ``joined_seeds`` (one per file) and ``joined_of`` names the files.
 Per-record ``seed`` (each bed's own) is kept, so every bed still
-regenerates. The output is written to a temporary name and renamed.
+regenerates; a dataset that is not per record is the first file's. The
+output is written atomically (amfe.io.atomic), as run/split_dataset.py's,
+whose copy_tree writes it.
 """
 import argparse
 import os
 import sys
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))   # split_dataset
 
 MUST_AGREE = ("scale", "bed_size", "image_shape", "image_cell", "imaging_version",
               "label_names", "label_rule_version", "rtol", "format_version")
@@ -36,11 +40,17 @@ def join(paths, output):
     import h5py
     import numpy as np
     from amfe.errors import AmfeError
+    from amfe.io.atomic import atomic_write
+    from split_dataset import copy_tree
     if len(paths) < 2:
         raise AmfeError("give at least two data sets to join")
     files = [h5py.File(p, "r") for p in paths]
     try:
         first = files[0]
+        for path, f in zip(paths, files):
+            if "status" not in f or "seed" not in f.attrs:
+                raise AmfeError(f"{path} is not a data set that a run wrote (no /status or no "
+                                "seed attribute): join those, not a joined or other file")
         counts = [int(f["status"].shape[0]) for f in files]
         for path, f in zip(paths[1:], files[1:]):
             for key in MUST_AGREE:
@@ -54,39 +64,24 @@ def join(paths, output):
             if sorted(part) != names:
                 raise AmfeError(f"{path} holds other record datasets than {paths[0]}: "
                                 f"{sorted(set(part) ^ set(names))}")
-        tmp = output + ".tmp"
-        try:
-            _write(tmp, first, files, paths, parts, names, counts)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.remove(tmp)
-            raise
-        os.replace(tmp, output)
+
+        def data_of(name, obj):   # a dataset not per record: the first file's
+            return (np.concatenate([part[name][()] for part in parts]) if name in parts[0]
+                    else obj[()])
+
+        def write(tmp):
+            with h5py.File(tmp, "w") as g:
+                g.attrs.update({k: v for k, v in first.attrs.items()
+                                if k not in ("seed", "split_of", "split_first", "split_end")})
+                g.attrs.update(count=sum(counts), joined_of=[os.path.basename(p) for p in paths],
+                               joined_seeds=[int(f.attrs["seed"]) for f in files],
+                               joined_counts=counts)
+                copy_tree(first, g, data_of)
+        atomic_write(output, write, by_name=True)
     finally:
         for f in files:
             f.close()
     return sum(counts)
-
-
-def _write(tmp, first, files, paths, parts, names, counts):
-    """The joined file at ``tmp``: root attributes, every record dataset, the groups' attributes."""
-    import h5py
-    import numpy as np
-    with h5py.File(tmp, "w") as g:
-        attrs = {k: v for k, v in first.attrs.items()
-                 if k not in ("seed", "split_of", "split_first", "split_end")}
-        g.attrs.update(attrs)
-        g.attrs.update(count=sum(counts), joined_of=[os.path.basename(p) for p in paths],
-                       joined_seeds=[int(f.attrs["seed"]) for f in files],
-                       joined_counts=counts)
-        for name in names:
-            data = np.concatenate([part[name][()] for part in parts])
-            src = parts[0][name]
-            g.create_dataset(name, data=data, dtype=src.dtype,
-                             compression="gzip" if data.ndim > 1 else None)
-            g[name].attrs.update(dict(src.attrs))
-        first.visititems(lambda name, obj: g.require_group(name).attrs.update(dict(obj.attrs))
-                         if isinstance(obj, h5py.Group) else None)
 
 
 def main(argv=None):

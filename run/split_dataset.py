@@ -7,40 +7,48 @@ seed 12 are split into test beds and interval-calibration beds), so each
 purpose reads a file of its own and no bed is used for both. Every dataset
 whose first axis is the record axis is cut; the root attributes are kept
 and `split_of`, `split_first`, `split_end` record where the rows came from.
-The output is written to a temporary name and renamed (never half a file).
+The output is written atomically (amfe.io.atomic: never half a file).
 """
 import argparse
 import os
 import sys
 
 
-def split(source, first, end, output):
+def copy_tree(src, dst, data_of):
+    """Every dataset of the open h5py file ``src`` into ``dst`` as the array ``data_of(name,
+    dataset)`` (gzip for two axes or more), with its attributes, and every group's attributes."""
     import h5py
     import numpy as np
+
+    def copy(name, obj):
+        if isinstance(obj, h5py.Dataset):
+            data = data_of(name, obj)
+            dst.create_dataset(name, data=data, dtype=obj.dtype,
+                               compression="gzip" if np.ndim(data) > 1 else None)
+            dst[name].attrs.update(dict(obj.attrs))
+        elif isinstance(obj, h5py.Group):
+            dst.require_group(name).attrs.update(dict(obj.attrs))
+    src.visititems(copy)
+
+
+def split(source, first, end, output):
+    import h5py
     from amfe.errors import AmfeError
+    from amfe.io.atomic import atomic_write
     with h5py.File(source, "r") as f:
         n = int(f["status"].shape[0])
         if not 0 <= first < end <= n:
             raise AmfeError(f"{source} has {n} records: FIRST..END must lie in 0..{n}, got "
                             f"{first}..{end}")
-        tmp = output + ".tmp"
-        with h5py.File(tmp, "w") as g:
-            g.attrs.update(dict(f.attrs))
-            g.attrs.update(split_of=os.path.basename(source), split_first=first, split_end=end,
-                           count=end - first)
 
-            def copy(name, obj):
-                if isinstance(obj, h5py.Dataset):
-                    data = obj[()]
-                    if obj.ndim and obj.shape[0] == n:
-                        data = data[first:end]
-                    g.create_dataset(name, data=data, dtype=obj.dtype,
-                                     compression="gzip" if np.ndim(data) > 1 else None)
-                    g[name].attrs.update(dict(obj.attrs))
-                elif isinstance(obj, h5py.Group):
-                    g.require_group(name).attrs.update(dict(obj.attrs))
-            f.visititems(copy)
-    os.replace(tmp, output)
+        def write(tmp):
+            with h5py.File(tmp, "w") as g:
+                g.attrs.update(dict(f.attrs))
+                g.attrs.update(split_of=os.path.basename(source), split_first=first,
+                               split_end=end, count=end - first)
+                copy_tree(f, g, lambda name, obj: obj[first:end] if obj.ndim and
+                          obj.shape[0] == n else obj[()])
+        atomic_write(output, write, by_name=True)
 
 
 def main(argv=None):

@@ -1,4 +1,5 @@
-"""run/join_datasets.py: held-out sets of one kind joined record after record, others refused."""
+"""run/join_datasets.py and run/split_dataset.py: held-out sets of one kind joined record after
+record, others refused; a split joined again gives the records back."""
 import os
 import sys
 
@@ -9,6 +10,7 @@ from test_training import TINY_ATTRS, write_synthetic
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(__file__)), "run"))
 import join_datasets  # noqa: E402
+import split_dataset  # noqa: E402
 
 
 def _set(path, n, seed, **attrs):
@@ -38,4 +40,30 @@ def test_join_refuses_sets_of_another_kind_and_writes_nothing(tmp_path, capsys):
     assert join_datasets.main([a, b, "-o", str(out)]) == 2
     err = capsys.readouterr().err
     assert "bed_size" in err and len(err.strip().splitlines()) == 1
-    assert not out.exists() and not (tmp_path / "j.h5.tmp").exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.h5", "b.h5"]   # no file, no tmp
+
+
+def test_a_joined_file_is_refused_as_an_input_in_one_line(tmp_path, capsys):
+    a, b = _set(str(tmp_path / "a.h5"), 4, 1), _set(str(tmp_path / "b.h5"), 4, 2)
+    joined = str(tmp_path / "j.h5")
+    assert join_datasets.main([a, b, "-o", joined]) == 0
+    capsys.readouterr()
+    assert join_datasets.main([joined, a, "-o", str(tmp_path / "k.h5")]) == 2
+    err = capsys.readouterr().err
+    assert "no /status or no seed attribute" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "k.h5").exists()
+
+
+def test_a_split_joined_again_gives_the_records_back(tmp_path):
+    a = _set(str(tmp_path / "a.h5"), 9, 5)
+    parts = [str(tmp_path / "p0.h5"), str(tmp_path / "p1.h5")]
+    assert split_dataset.main([a, "0", "4", "-o", parts[0]]) == 0
+    assert split_dataset.main([a, "4", "9", "-o", parts[1]]) == 0
+    with h5py.File(parts[1]) as f:
+        assert f.attrs["split_first"] == 4 and f.attrs["count"] == 5 and f.attrs["seed"] == 5
+    out = str(tmp_path / "j.h5")
+    assert join_datasets.main(parts + ["-o", out]) == 0
+    with h5py.File(a) as fa, h5py.File(out) as g:
+        for name in ("images", "labels", "status", "index", "seed", "density"):
+            np.testing.assert_array_equal(g[name][()], fa[name][()])
+        assert list(g.attrs["joined_counts"]) == [4, 5] and "split_of" not in g.attrs

@@ -59,7 +59,7 @@ def test_without_a_store_the_line_says_so_and_the_report_skips(tmp_path):
     assert section_voxel(str(tmp_path)) == []
 
 
-def test_update_adds_a_ladder_and_keeps_the_stored_beds(tmp_path, capsys):
+def test_update_adds_a_ladder_and_keeps_the_stored_beds(tmp_path):
     old = {"source": "s", "beds": {"kept": V.bed_entry(ladder())},
            "roberts_garboczi": {"cells": []}}
     store, new, out = tmp_path / "store.json", tmp_path / "new.json", tmp_path / "out.json"
@@ -73,4 +73,3 @@ def test_update_adds_a_ladder_and_keeps_the_stored_beds(tmp_path, capsys):
     assert sorted(got["beds"]) == ["added", "kept"] and "roberts_garboczi" in got
     assert got["beds"]["kept"] == json.loads(json.dumps(old["beds"]["kept"]))
     assert got["beds"]["added"]["ratio"]["Ex"]["value"] == pytest.approx(2.0, rel=1e-10)
-    capsys.readouterr()
