@@ -1,6 +1,6 @@
 """The package's shape, checked from the source: one top-level package, layers, file sizes.
 
-Layers, bottom to top (README, Layout): core (errors, vocab, version), model,
+Layers, bottom to top (README, Layout): core (errors, vocab, version, signals), model,
 io, solvers, dataset, training, face (amfe/__init__, api, cli). No module
 imports from a layer above its own, indented (lazy) imports included.
 """
@@ -37,7 +37,7 @@ def layer_of(module):
         return None
     if len(parts) == 1 or parts[1] in ("api", "cli", "__main__"):
         return "face"
-    if parts[1] in ("errors", "vocab", "version"):
+    if parts[1] in ("errors", "vocab", "version", "signals"):
         return "core"
     if parts[1] in ("model", "io", "solvers", "dataset", "training"):
         return parts[1]

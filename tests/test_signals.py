@@ -250,3 +250,45 @@ def test_sigint_to_rank_0_during_a_gamg_solve_ends_every_rank(bed, tmp_path):
     while any(_alive(pid) for pid in pids.values()):
         assert time.time() < deadline, f"ranks still running: {pids}"
         time.sleep(0.1)
+
+
+# --------------------------------------------------------------------------- #
+# A signal inside scipy's qhull (amfe.signals): held until the hull is built
+# --------------------------------------------------------------------------- #
+def test_signals_deferred_delivers_the_signal_when_the_block_ends():
+    """Inside the block a SIGTERM is held; at its end the old handler runs once, with it."""
+    from amfe.cli.interrupt import Interrupted, signals_raise
+    from amfe.signals import signals_deferred
+    done = []
+    with signals_raise():
+        handler = signal.getsignal(signal.SIGTERM)
+        with pytest.raises(Interrupted) as exc:
+            with signals_deferred():
+                os.kill(os.getpid(), signal.SIGTERM)
+                sum(range(10_000))   # Python would run a handler here
+                done.append(True)
+        assert done == [True] and exc.value.signum == signal.SIGTERM
+        assert signal.getsignal(signal.SIGTERM) is handler
+
+
+def test_a_signal_during_the_hull_waits_for_qhull(monkeypatch):
+    """`amfe dataset` ended 59 (PETSc's SEGV banner) in 1 of 30 SIGTERMs: the signal's
+    exception cut scipy's ConvexHull in the middle (scipy issue 19383), which crashed at exit.
+    hull_of now lets qhull finish first; the interrupt comes after it."""
+    from scipy.spatial import ConvexHull
+    from amfe.cli.interrupt import Interrupted, signals_raise
+    from amfe.model import averages
+    finished = []
+
+    def hull_hit_by_a_signal(points, **kw):
+        os.kill(os.getpid(), signal.SIGTERM)
+        sum(range(10_000))
+        hull = ConvexHull(points, **kw)
+        finished.append(hull)
+        return hull
+
+    monkeypatch.setattr(averages, "ConvexHull", hull_hit_by_a_signal)
+    cube = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)], float)
+    with signals_raise(), pytest.raises(Interrupted):
+        averages.hull_of(cube)
+    assert len(finished) == 1

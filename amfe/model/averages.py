@@ -21,6 +21,7 @@ import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
 from amfe.errors import AmfeError
+from amfe.signals import signals_deferred
 
 #: Keys of the dict returned by :func:`compliance_and_constants`, in docs/model.md's order.
 from amfe.vocab import CONSTANT_NAMES as CONSTANT_KEYS, VOIGT_PAIRS as _VOIGT_PAIRS
@@ -89,7 +90,8 @@ def hull_of(centers) -> Hull:
     try:
         # 'Qt' (triangulated output) is always on in scipy; coplanar points of
         # a lattice face are merged into one facet and re-triangulated.
-        qh = ConvexHull(xr, qhull_options="Qt")
+        with signals_deferred():   # a signal inside qhull crashes it (amfe.signals)
+            qh = ConvexHull(xr, qhull_options="Qt")
     except QhullError as exc:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
         raise AmfeError(f"{_DEGENERATE_MSG} [qhull: {first}]") from None
