@@ -130,6 +130,39 @@ def test_shards_join_and_count_takes_the_first_records(made, tmp_path):
     assert_rebuilt(data, out, slice(0, 4))
 
 
+def test_solve_rest_continues_a_labelling_run_from_its_tables(made, tmp_path):
+    """--from-labels SHARD --solve-rest --count M: the shard's records rebuilt, the rest
+    solved with the tables' method; the result's labels equal the run that solved all,
+    and its next shard is the bytes of that run's."""
+    data, _ = made
+    shards, whole = tmp_path / "labels", tmp_path / "whole"
+    shards.mkdir()
+    whole.mkdir()
+    ok(run_cli(["dataset", "--export-labels", str(data), "-o", str(shards), "--count", "5"]))
+    first = next(shards.iterdir())
+    out = tmp_path / "grown.h5"
+    proc = run_cli(["dataset", "--from-labels", str(first), "-o", str(out), "--count", "9"])
+    assert proc.returncode == 2 and "--solve-rest" in proc.stderr and not out.exists()
+    proc = run_cli(["dataset", "--solve-rest", "-o", str(out), "--count", "9"])
+    assert proc.returncode == 2 and "--from-labels" in proc.stderr
+    ok(run_cli(["dataset", "--from-labels", str(first), "--solve-rest", "-o", str(out),
+                "--count", str(COUNT), "--max-failed-share", "1", "--no-progress"], ranks=2))
+    a, b = read(data), read(out)
+    for key in SAME:
+        x, y = a[key], b[key]
+        assert x.dtype == y.dtype and np.array_equal(x, y, equal_nan=x.dtype.kind == "f"), key
+        assert x.dtype.kind == "O" or x.tobytes() == y.tobytes(), key
+    assert np.all(b["iterations"][:5] == -1) and np.all(b["seconds"][:5, 2] == 0)
+    solved = (b["status"][5:] == 0)
+    assert solved.any() and np.all(b["seconds"][5:, 2][solved] > 0)
+    assert b["attrs"]["solved_from"] == 5
+    ok(run_cli(["dataset", "--export-labels", str(out), "-o", str(shards)]))
+    ok(run_cli(["dataset", "--export-labels", str(data), "-o", str(whole), "--count", "5"]))
+    ok(run_cli(["dataset", "--export-labels", str(data), "-o", str(whole)]))
+    name = f"tiny_seed{SEED}_labels_00000005-{COUNT:08d}.h5"
+    assert (shards / name).read_bytes() == (whole / name).read_bytes()
+
+
 def tampered(table, dest, change):
     shutil.copyfile(table, dest)
     with h5py.File(dest, "r+") as f:

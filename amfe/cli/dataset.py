@@ -68,6 +68,10 @@ def register(sub):
                    help="make -o DATA.h5 from label tables (every shard, from the first): beds "
                         "and images regenerated and checked, labels copied, nothing solved; "
                         "the tables give scale, seed and method")
+    p.add_argument("--solve-rest", action="store_true",
+                   help="with --from-labels: a --count beyond the tables' records solves the "
+                        "rest with the tables' method (continues a labelling run from its "
+                        "committed tables)")
     p.set_defaults(func=run)
 
 
@@ -86,6 +90,8 @@ def run(args):
         return _export_labels(args.export_labels, args.output, args.count)
     if args.from_labels:
         return _from_labels(args)
+    if args.solve_rest:
+        raise AmfeError("--solve-rest continues the run of label tables: give --from-labels too")
     if not args.output or args.count is None:
         raise AmfeError("give -o DATA.h5 and --count M (or --check DATA.h5)")
     from amfe.dataset.driver import run_dataset
@@ -169,7 +175,7 @@ def _from_labels(args):
         raise AmfeError(f"--from-labels takes the data set's {', '.join(given)} from its tables; "
                         "give none")
     run_dataset(args.output, args.count, from_labels=tuple(args.from_labels),
-                progress=not args.no_progress,
+                solve_rest=args.solve_rest, progress=not args.no_progress,
                 max_failed_share=DEFAULT_MAX_FAILED_SHARE if args.max_failed_share is None
                 else args.max_failed_share)
     return 0

@@ -97,7 +97,8 @@ def run_dataset(output, count, *, comm=None, progress=True, pixelate=None, out=N
     :mod:`amfe.dataset.labels`) the tables give the scale, seeds and labels:
     each record's bed and images are regenerated, the bed checked against its
     digest, and nothing is solved; ``count`` None takes every record of the
-    tables.
+    tables; with ``solve_rest`` a larger ``count`` solves the records beyond
+    the tables with their method.
 
     Returns, on world rank 0, a dict: complete_before (the file was already
     there), records, ok, failed, failures [(n, reason)], rejected [(k, why,
@@ -125,7 +126,8 @@ def run_dataset(output, count, *, comm=None, progress=True, pixelate=None, out=N
     table = None
     if opts.from_labels:
         table = on_root(world, read_tables, opts.from_labels)
-        count, opts = table_run(table, count), table_options(table, opts)
+        count = table_run(table, count, opts.solve_rest)
+        opts = table_options(table, opts)
     sc = get_scale(opts.scale)
     choose_solver({}, 2, opts.solver)  # an unknown method is refused before any work
     rtol = opts.rtol
@@ -135,7 +137,7 @@ def run_dataset(output, count, *, comm=None, progress=True, pixelate=None, out=N
                     world.size)
     params = run_params(sc.name, opts.seed, count, rtol, opts.solver, opts.bc)
     if table is not None:
-        params.update(table_params(table))
+        params.update(table_params(table, count))
     job = _Job(world, os.fspath(output), params, sc, opts, progress, pixelate, t_start, table)
     lock = DatasetLock(job.output, world.gather(this_process(), root=0))
 
@@ -237,8 +239,11 @@ def _announce(job, plan, ranks_per_bed):
     if job.progress:
         size = job.world.size
         n_groups = (size + ranks_per_bed - 1) // ranks_per_bed
-        source = (f" rebuilt from the labels of {', '.join(job.opts.from_labels)} (no solve)"
-                  if job.table is not None else "")
+        source = "" if job.table is None else (
+            f" rebuilt from the labels of {', '.join(job.opts.from_labels)} (no solve)"
+            if "solved_from" not in job.params else
+            f": 0-{job.params['solved_from'] - 1} rebuilt from the labels of "
+            f"{', '.join(job.opts.from_labels)}, the rest solved")
         print(f"amfe dataset: {job.sc.describe()}; {job.params['count']} records{source}, "
               f"{plan['n_done']} done before, {len(plan['todo'])} to do on {size} rank(s) in "
               f"{n_groups} group(s) of {ranks_per_bed}", file=sys.stderr, flush=True)
@@ -261,7 +266,7 @@ def _work(job, group, window, todo, parts):
         if pos >= len(todo):
             return stats, error
         tb = time.perf_counter()
-        if job.table is not None:
+        if job.table is not None and todo[pos] < job.table["index"].shape[0]:
             rec, refused = rebuild_record(todo[pos], job.table, job.sc, group, job.pixelate)
             if refused:
                 error = refused

@@ -31,6 +31,7 @@ import numpy as np
 from amfe.dataset.datafile import check_dataset
 from amfe.dataset.images import IMAGING_VERSION
 from amfe.dataset.parts import LABEL_RULE_VERSION, STATUS_FAILED, STATUS_OK
+from amfe.dataset.plan import MAX_COUNT
 from amfe.dataset.record import regenerate
 from amfe.errors import AmfeError, _list_items
 from amfe.io.atomic import atomic_write_h5
@@ -254,14 +255,20 @@ def _describe(ident):
 
 # ---------------------------------------------------------------- rebuild
 
-def table_run(table, count):
-    """The record count of a rebuild of ``table`` (all its records for None)."""
+def table_run(table, count, solve_rest=False):
+    """The record count of a rebuild of ``table`` (all its records for None).
+
+    With ``solve_rest`` the count may pass the tables' records: the records
+    beyond them are solved (a labelling run continued from its tables).
+    """
     n = table["index"].shape[0]
     if count is None:
         return n
-    if not isinstance(count, (int, np.integer)) or not 1 <= count <= n:
-        raise AmfeError(f"--count must lie in [1, {n}] (the records of the label tables), "
-                        f"got {count}")
+    top = MAX_COUNT if solve_rest else n
+    if not isinstance(count, (int, np.integer)) or not 1 <= count <= top:
+        more = "" if solve_rest else "; --solve-rest solves the records beyond them"
+        raise AmfeError(f"--count must lie in [1, {top}] (the records of the label tables"
+                        f"{more}), got {count}")
     return int(count)
 
 
@@ -273,11 +280,16 @@ def table_options(table, opts):
                    solver=a["solver"], bc=a["bc"], ranks_per_bed=1)
 
 
-def table_params(table):
-    """What a rebuilt data set's run parameters add: the tables it came from."""
+def table_params(table, count):
+    """What a rebuilt data set's run parameters add: the tables it came from, and
+    the first record solved rather than rebuilt (when the count passes them)."""
     a = table["attrs"]
-    return {"from_labels": ", ".join(os.path.basename(p) for p in a["paths"]),
-            "label_rule_version": int(a["label_rule_version"])}
+    params = {"from_labels": ", ".join(os.path.basename(p) for p in a["paths"]),
+              "label_rule_version": int(a["label_rule_version"])}
+    n = table["index"].shape[0]
+    if count > n:
+        params["solved_from"] = int(n)
+    return params
 
 
 def rebuild_record(k, table, sc, group, pixelate):

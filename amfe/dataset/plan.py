@@ -33,7 +33,9 @@ class DatasetOptions:
     :func:`check_arguments`): the data-set seed and scale, rank groups, the
     labels' solve (rtol None: the solver's default) and boundary conditions,
     the failure budget, and ``from_labels``: label tables (paths) whose labels
-    the records copy instead of solving (:mod:`amfe.dataset.labels`)."""
+    the records copy instead of solving (:mod:`amfe.dataset.labels`);
+    ``solve_rest``: with tables, records beyond theirs are solved with the
+    tables' method (a labelling run continued from its committed tables)."""
 
     seed: int = 0
     scale: str = "small"
@@ -43,6 +45,7 @@ class DatasetOptions:
     bc: str = "kubc"
     max_failed_share: float = DEFAULT_MAX_FAILED_SHARE
     from_labels: tuple = ()
+    solve_rest: bool = False
 
 
 def _is_int(x):
