@@ -122,3 +122,20 @@ def test_a_run_does_not_shrink_or_change_its_method(runs, tmp_path):
     with pytest.raises(AmfeError, match="other parameters"):
         prepare(run, run_params("tiny", SEED, BIG, 1e-9, "auto"))
     assert tree(parts) == before
+
+
+def test_a_run_from_tables_keeps_its_parts_when_a_shard_joins_its_tables():
+    """Only the count, and for two runs from label tables the tables and where solving
+    starts, may change under a resumed run (a rebuilt record equals the solved one)."""
+    from amfe.dataset.parts import same_but_count
+
+    plain = run_params("small", 3, 100, GAMG_RTOL_AUTO, "auto")
+    tables = {**plain, "from_labels": "a.h5", "label_rule_version": 2, "solved_from": 50}
+    more = {**tables, "count": 200, "from_labels": "a.h5, b.h5", "solved_from": 80}
+    assert same_but_count(plain, {**plain, "count": 200})
+    assert same_but_count(tables, more) and same_but_count(more, tables)
+    assert not same_but_count(plain, tables)                       # not across kinds of run
+    assert not same_but_count(tables, {**more, "seed": 4})
+    assert not same_but_count(tables, {**more, "label_rule_version": 1})
+    assert not same_but_count({**plain, "from_labels": "a.h5"}, {**plain, "rtol": 1e-9,
+                                                                 "from_labels": "a.h5"})
