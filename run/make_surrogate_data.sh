@@ -4,6 +4,8 @@
 # Survives a kill: run the same command again and it resumes where it stopped.
 # Each finished data set's labels are appended to the label tables in labels/ as a new
 # shard (docs/datasets.md, "Label tables"): commit them, they are what survives the machine.
+# On a new machine the committed tables' records are rebuilt, not solved again
+# (`amfe dataset --from-labels ... --solve-rest`), and only the rest is solved.
 #
 #   bash run/make_surrogate_data.sh [DIR] [TRAIN_COUNT]      (default DIR: ../data)
 #
@@ -19,12 +21,28 @@ bash "$root/run/setup.sh" >/dev/null || exit 1
 source "$root/run/env.sh"
 mkdir -p "$dir"
 
+source_of() {  # source_of OUTPUT SEED: sets src, the arguments that say where records come from
+    # The committed tables of the seed, when there are any and the run (if it has begun)
+    # began from them: their records are rebuilt, the rest solved (--solve-rest).
+    local out="$1" seed="$2" began="" f
+    local tables=("$root"/labels/small_seed"${seed}"_labels_*.h5)
+    for f in "$out" "$out.parts/params.json"; do
+        if [ -e "$f" ]; then began="$f"; break; fi
+    done
+    if [ -e "${tables[0]}" ] && { [ -z "$began" ] || grep -aq from_labels "$began"; }; then
+        src=(--from-labels "${tables[@]}" --solve-rest)   # the glob sorts by record range
+    else
+        src=(--seed "$seed" --scale small --solver auto)
+    fi
+}
+
 make() {  # make OUTPUT COUNT SEED
     local out="$1" count="$2" seed="$3" log status
     for attempt in 1 2; do
         log="$(mktemp)"
+        source_of "$out" "$seed"
         mpirun -n "$ranks" "$root/.venv/bin/amfe" dataset -o "$out" --count "$count" \
-            --seed "$seed" --scale small --solver auto 2> >(tee "$log" >&2)
+            "${src[@]}" 2> >(tee "$log" >&2)
         status=$?
         sleep 1    # let tee write the last lines
         if [ $status -eq 0 ]; then rm -f "$log"; return 0; fi
