@@ -21,7 +21,8 @@ from amfe.model.options import (BC_NAMES, SolveOptions, check_choice, check_flag
 def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_options=None,
                a_star_cap=None, material=None, max_it=None, diagnose=False, progress=False,
                vtu_dir=None, solver="auto", accept_unconverged=False, max_memory=None,
-               material_source=None, input_path=None, model="frame", voxel_size=None):
+               material_source=None, input_path=None, model="frame", voxel_size=None,
+               voxel_operator="assembled"):
     """Effective elastic constants of a powder bed, as a :class:`~amfe.io.result.Result`.
 
     Parameters
@@ -88,6 +89,11 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
         reference (docs/model.md, section 10); bc "kubc" or "periodic" only.
     voxel_size : float, optional
         The voxel model's voxel side [m] (default: mean radius / 4).
+    voxel_operator : {"assembled", "matrix-free"}
+        The voxel model's stiffness: an assembled AIJ matrix with GAMG
+        (default), or applied element by element with a two-grid
+        preconditioner, a few kB a node instead of about 16 (docs/model.md,
+        section 10, "Matrix-free operator").
 
     Returns
     -------
@@ -138,10 +144,10 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
         error = exc
 
     # --- voxel model dispatch (issue 35): its own solver, nothing of the frame's path ---
-    if model != "frame" or voxel_size is not None:
+    if model != "frame" or voxel_size is not None or voxel_operator != "assembled":
         return _voxel(bed, options, error, pcomm,
                       dict(bc=bc, model=model, voxel_size=voxel_size, progress=progress,
-                           vtu_dir=vtu_dir, input_path=input_path))
+                           vtu_dir=vtu_dir, input_path=input_path, operator=voxel_operator))
 
     def one(bc, vtu_dir):
         with messages(progress):
@@ -163,7 +169,7 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
 def _voxel(bed, options, error, comm, spec):
     """The voxel model's Result (issue 35; docs/model.md, section 10).
 
-    spec: the face's bc, model, voxel_size, progress, vtu_dir and input_path."""
+    spec: the face's bc, model, voxel_size, progress, vtu_dir, input_path and operator."""
     from amfe.solvers.voxel import homogenize_voxel
     bc, model = spec["bc"], spec["model"]
     if error is None and options.solver not in ("auto", "gamg"):
@@ -171,14 +177,15 @@ def _voxel(bed, options, error, comm, spec):
                         f"{options.solver!r}")
     if model != "voxel":
         raise AmfeError(f"homogenize: model must be 'frame' or 'voxel', got {model!r}"
-                        + ("" if model != "frame" else " (voxel_size needs model='voxel')"))
+                        + ("" if model != "frame" else " (voxel_size and voxel_operator need model='voxel')"))
     if bc not in ("kubc", "periodic"):
         raise AmfeError(f"homogenize: the voxel model solves bc 'kubc' or 'periodic', not {bc!r}")
     if spec["vtu_dir"] is not None:
         raise AmfeError("homogenize: the voxel model writes no ParaView files yet (no --vtu)")
     with messages(spec["progress"]):
         result = homogenize_voxel(bed, options and replace(options, bc=bc), comm,
-                                  voxel_size=spec["voxel_size"], input_error=error)
+                                  voxel_size=spec["voxel_size"], input_error=error,
+                                  operator=spec["operator"])
     describe_input(result.extra, spec["input_path"])
     return result
 

@@ -51,10 +51,12 @@ periodic bed at 3 um voxels, in 8 and 11 iterations against 21 and 26
 #: The conditions the voxel model solves; ``periodic``: it needs the bed's periodic box.
 Condition = namedtuple("Condition", "periodic")
 VOXEL_CONDITIONS = {"kubc": Condition(False), "periodic": Condition(True)}
+#: How the stiffness is applied: an assembled AIJ matrix, or the elements on the fly.
+VOXEL_OPERATORS = ("assembled", "matrix-free")
 
 
 def homogenize_voxel(bed, options=None, comm=None, *, voxel_size=None, input_error=None,
-                     initial="affine"):
+                     initial="affine", operator="assembled"):
     """Effective C of the union of a bed's spheres, meshed by voxels of side ``voxel_size``.
 
     bed: a checked :class:`~amfe.model.bed.Bed` (centres (N, 3) [m], radii (N,)
@@ -67,7 +69,7 @@ def homogenize_voxel(bed, options=None, comm=None, *, voxel_size=None, input_err
     refused before its grid is allocated), material (None: the bed's, else
     steel; E and nu used) and material_source. voxel_size [m] (default mean
     radius / 4). initial: "affine" (the applied field, KUBC) or "zero" (the
-    initial guess). comm, input_error: as :func:`amfe.solvers.driver.homogenize_bed`:
+    initial guess). operator: "assembled" or "matrix-free" (:func:`voxel_stiffness`). comm, input_error: as :func:`amfe.solvers.driver.homogenize_bed`:
     the ranks' inputs are compared first (one collective), so a bad or
     differing input is the same error on every rank, never a hang.
     Returns the :class:`~amfe.io.result.Result` of homogenize_bed's shape
@@ -89,19 +91,22 @@ def homogenize_voxel(bed, options=None, comm=None, *, voxel_size=None, input_err
             raise AmfeError(f"the voxel model solves bc 'kubc' or 'periodic', not {options.bc!r}")
         if initial not in ("affine", "zero"):
             raise AmfeError(f"initial must be 'affine' or 'zero', got {initial!r}")
+        if operator not in VOXEL_OPERATORS:
+            raise AmfeError(f"the voxel operator is one of {', '.join(VOXEL_OPERATORS)}, "
+                            f"not {operator!r}")
     except AmfeError as exc:
         error = error or exc
-    agree_across_ranks(mpi, {"voxel": repr((voxel_size, initial))}, None)
+    agree_across_ranks(mpi, {"voxel": repr((voxel_size, initial, operator))}, None)
     inp = checked_inputs(mpi, bed, options, VOXEL_CONDITIONS, error)
     options = replace(inp.options, material=inp.material)
     t0 = time.perf_counter()
     geo = voxel_solid(bed.centers, bed.radii, voxel_size, inp.box if options.bc == "periodic"
                       else None, size=bed.attrs.get("size"), max_memory=options.max_memory,
-                      ranks=mpi.size)
+                      ranks=mpi.size, even=operator == "matrix-free")
     for line in geo.warnings if mpi.rank == 0 else ():
         LOG.warning(line)
     t_geo = time.perf_counter() - t0
-    C, sol, mesh = voxel_stiffness(geo, options, comm, initial=initial)
+    C, sol, mesh = voxel_stiffness(geo, options, comm, initial=initial, operator=operator)
     return Result.from_dict(_result(bed, geo, (C, sol, mesh), inp.record, mpi.size, t_geo))
 
 
@@ -131,8 +136,7 @@ def _result(bed, geo, solved, record, ranks, t_geo):
         "C": C.tolist(), "S": S.tolist(), "volume": geo.grid.volume,
         "n_particles": n, "n_removed": n - int(len(geo.kept)), "removed": geo.removed,
         "n_bonds": geo.n_bonds, "bc": "periodic" if mesh.periodic else "kubc", "ranks": ranks,
-        "solver": {"method": "gamg", "reason": "voxel model: CG + GAMG, rigid-body near null "
-                   "space", "ksp_type": sol["ksp_type"], "pc_type": sol["pc_type"],
+        "solver": {**_method(sol["operator"]), "ksp_type": sol["ksp_type"], "pc_type": sol["pc_type"],
                    "rtol": sol["rtol"], "residual_limit": RESIDUAL_FACTOR * sol["rtol"],
                    "iterations": sol["iterations"], "residuals": sol["residuals"],
                    "setup_seconds": sol["setup_seconds"], "solve_seconds": sol["solve_seconds"],
@@ -142,20 +146,35 @@ def _result(bed, geo, solved, record, ranks, t_geo):
     return out
 
 
-def voxel_stiffness(geo, options, comm, *, initial="affine"):
+def _method(operator):
+    """The solver record's method and reason for a voxel operator."""
+    if operator == "assembled":
+        return {"method": "gamg", "reason": "voxel model: CG + GAMG, rigid-body near null space",
+                "operator": operator}
+    return {"method": "matrix-free", "operator": operator,
+            "reason": "voxel model: CG on the elements' shell operator, two-grid PCMG "
+                      "(Chebyshev + Jacobi; the grid twice as coarse by GAMG)"}
+
+
+def voxel_stiffness(geo, options, comm, *, initial="affine", operator="assembled"):
     """(C (6, 6) [Pa], solve record, mesh) of a :class:`~amfe.model.voxel.VoxelSolid`.
 
     geo.solid are the voxels meshed (load-carrying already); options: a
     :class:`~amfe.model.options.SolveOptions` (bc "periodic": the grid is a
     period box; material None: steel). initial as :func:`homogenize_voxel`.
+    operator: "assembled" (AIJ + GAMG) or "matrix-free" (a shell of the
+    elements, preconditioned on the grid twice as coarse, :mod:`amfe.solvers.voxelfree`).
     """
+    if operator not in VOXEL_OPERATORS:
+        raise AmfeError(f"the voxel operator is one of {', '.join(VOXEL_OPERATORS)}, "
+                        f"not {operator!r}")
     mpi = comm.tompi4py()
     periodic = options.bc == "periodic"
     options = replace(options, rtol=VOXEL_RTOL if options.rtol is None else options.rtol)
     material = options.material or STEEL
     mesh = build_mesh(geo.solid, periodic=periodic)
     voxels = int(np.prod(geo.grid.n))
-    check_memory(voxel_bytes(voxels, mesh.n_nodes, mpi.size), options.max_memory,
+    check_memory(voxel_bytes(voxels, mesh.n_nodes, mpi.size, operator), options.max_memory,
                  f"a voxel model of {mesh.n_nodes:.3g} nodes ({3 * mesh.n_nodes:.3g} DOFs) on "
                  f"{mpi.size} rank(s)")
     _log(mpi, f"voxels: {geo.grid.n.tolist()} of {geo.grid.h.max():.3g} m, {mesh.n_elements} "
@@ -165,14 +184,19 @@ def voxel_stiffness(geo, options, comm, *, initial="affine"):
     Ke = element_stiffness(h, 1.0, material.nu)
     bounds = row_ranges(mesh.n_nodes, mpi.size)
     r0, r1 = int(bounds[mpi.rank]), int(bounds[mpi.rank + 1])
-    t1 = time.perf_counter()
-    A0 = _assemble(comm, mesh, Ke, r0, r1)
     x_local = mesh.node_ijk(np.arange(r0, r1)) * h          # node coordinates, units h_x
     volume = float(np.prod(geo.grid.n * h))
-    t_asm = time.perf_counter() - t1
+    fixed = np.array([0]) if periodic else mesh.boundary_nodes(geo.grip)
     cases = _periodic(mesh, Ke, h, r0, r1) if periodic else \
-        _kubc(mesh.boundary_nodes(geo.grip), x_local, geo.grid.n * h / 2.0, r0, r1)
-    sol = _solve(A0, cases, x_local, options, initial)
+        _kubc(fixed, x_local, geo.grid.n * h / 2.0, r0, r1)
+    t1 = time.perf_counter()
+    if operator == "assembled":
+        ops = _assembled(_assemble(comm, mesh, Ke, r0, r1), cases, x_local, options)
+    else:
+        ops = _matrix_free(comm, mesh, Ke, h, (r0, r1), fixed, geo.grip, cases, options)
+    t_asm = time.perf_counter() - t1 - ops.setup
+    sol = _solve(ops, cases, x_local, options, initial)
+    sol["operator"] = operator
     W = cases["W0"] - sol["work"] if periodic else sol["work"]
     W, sol["stats"] = dual_corrected(W, [sol["cross"]], -1)
     sol["assembly_seconds"], sol["rtol"] = t_asm, options.rtol
@@ -230,14 +254,15 @@ def _periodic(mesh, Ke, h, r0, r1):
             "forces": forces, "W0": W0, "gross_sq": gross}
 
 
-def _solve(A0, cases, x_local, options, initial):
-    """Solve the six cases on one operator; the work matrix and cross products.
+Operators = namedtuple("Operators", "A0 A ksp setup unused norm_A")
+"""A0: the stiffness; A: with the prescribed DOFs as identity rows and columns; ksp
+(set up) on A; setup [s]; unused: PETSc options never read; norm_A: ||A0||_F or a
+bound of it (the residual floor's scale)."""
 
-    work[i, j]: KUBC g_i . A0 x_j (the prescribed translations' work against the
-    reactions), periodic F_i . x_j; cross[i, j] = x_i . r_j, r_j the true residual
-    on the free DOFs (the prescribed values set exactly first).
-    """
-    mpi = A0.getComm().tompi4py()
+
+def _assembled(A0, cases, x_local, options):
+    """:class:`Operators` of the assembled AIJ matrix A0: CG + GAMG, rigid-body near null
+    space of the node coordinates."""
     r0 = A0.getOwnershipRange()[0]
     dofs = cases["dofs"].astype(PETSc.IntType) + r0
     A = A0.duplicate(copy=True)
@@ -251,10 +276,40 @@ def _solve(A0, cases, x_local, options, initial):
         ksp = make_ksp(A, rtol=options.rtol, max_it=options.max_it)
         ksp.setInitialGuessNonzero(True)
         ksp.setUp()
-    setup = time.perf_counter() - t0
-    _log(mpi, f"GAMG set-up {setup:.2f} s")
+    return Operators(A0, A, ksp, time.perf_counter() - t0, unused,
+                     A0.norm(PETSc.NormType.FROBENIUS))
+
+
+def _matrix_free(comm, mesh, Ke, h, rows, fixed, grip, cases, options):
+    """:class:`Operators` of the element shell (:mod:`amfe.solvers.voxelfree`): CG + the
+    two-grid PCMG; fixed: the prescribed active nodes (global)."""
+    from amfe.solvers.voxelfree import ElementProduct, matrix_free_ksp, shell, two_grid
+    r0, r1 = rows
+    free = ElementProduct(comm, mesh, Ke, r0, r1)
+    A0 = shell(comm, free)
+    A = shell(comm, ElementProduct(comm, mesh, Ke, r0, r1, fixed=cases["dofs"], base=free))
+    t0 = time.perf_counter()
+    Ac, P, _ = two_grid(comm, mesh, Ke, h, r0, r1, fixed, grip)
+    with petsc_options(options.ksp_options) as unused:
+        ksp = matrix_free_ksp(A, Ac, P, options.rtol, options.max_it)
+        ksp.setInitialGuessNonzero(True)
+        ksp.setUp()
+    return Operators(A0, A, ksp, time.perf_counter() - t0, unused, free.frobenius_bound())
+
+
+def _solve(ops, cases, x_local, options, initial):
+    """Solve the six cases on one operator; the work matrix and cross products.
+
+    work[i, j]: KUBC g_i . A0 x_j (the prescribed translations' work against the
+    reactions), periodic F_i . x_j; cross[i, j] = x_i . r_j, r_j the true residual
+    on the free DOFs (the prescribed values set exactly first).
+    """
+    A0, A, ksp, setup, unused = ops.A0, ops.A, ops.ksp, ops.setup, ops.unused
+    mpi = A0.getComm().tompi4py()
+    dofs = cases["dofs"].astype(PETSc.IntType) + A.getOwnershipRange()[0]
+    _log(mpi, f"preconditioner set-up {setup:.2f} s")
+    norm_A = ops.norm_A
     xs, rs, loads, iterations, residuals, warnings = [], [], [], [], [], []
-    norm_A = A0.norm(PETSc.NormType.FROBENIUS)
     t1 = time.perf_counter()
     for k in range(6):
         g, x, b = A.createVecRight(), A.createVecRight(), A.createVecRight()

@@ -53,6 +53,10 @@ def register(sub):
                         "of the same spheres by voxel finite elements (--bc kubc or periodic)")
     p.add_argument("--voxel-size", type=float, default=None, metavar="H",
                    help="voxel side in m for --model voxel (default: mean radius / 4)")
+    p.add_argument("--voxel-operator", choices=["assembled", "matrix-free"], default=None,
+                   help="--model voxel's stiffness: assembled (AIJ + GAMG, default) or "
+                        "matrix-free (elements on the fly, two-grid preconditioner: a few kB "
+                        "a node instead of about 16)")
     p.set_defaults(func=run)
 
 
@@ -94,6 +98,8 @@ def run(args):
     comm = MPI.COMM_WORLD
 
     def check_arguments():  # everything that can be refused, before reading or solving
+        if args.voxel_operator and args.model != "voxel":
+            raise AmfeError("--voxel-operator is an option of --model voxel")
         if args.rtol is not None:
             check_rtol(args.rtol, "--rtol")
         if args.output is not None:   # -o '' is an error, not "no output"
@@ -107,8 +113,9 @@ def run(args):
     options = dict(accept_unconverged=args.accept_unconverged, max_memory=max_memory,
                    material=given_material(args) or None, material_source="command line",
                    solver=args.solver)
-    if args.model != "frame" or args.voxel_size is not None:   # voxel model (issue 35)
-        options.update(model=args.model, voxel_size=args.voxel_size)
+    if args.model != "frame" or args.voxel_size is not None or args.voxel_operator:
+        options.update(model=args.model, voxel_size=args.voxel_size,   # voxel model (issue 35)
+                       voxel_operator=args.voxel_operator or "assembled")
     if args.bc == "all":
         if "model" in options:
             raise AmfeError("--bc all is not available with --model voxel; give --bc kubc or "

@@ -44,12 +44,13 @@ class Grid:
         return float(np.prod(self.n * self.h))
 
 
-def grid_over(lo, hi, voxel_size):
+def grid_over(lo, hi, voxel_size, even=False):
     """The grid that fills the box [lo, hi] with voxels no larger than voxel_size [m].
 
     n_k = ceil(L_k / voxel_size) voxels per axis (at least 1), sides h_k =
     L_k / n_k: the box is covered exactly (KUBC's faces are its faces) and the
-    voxels are bricks within a factor (n_k + 1) / n_k of cubes.
+    voxels are bricks within a factor (n_k + 1) / n_k of cubes. ``even``: round
+    each n_k up to an even count (a periodic grid the matrix-free operator coarsens).
     """
     from amfe.model.material import real_number
     lo, hi = np.asarray(lo, float), np.asarray(hi, float)
@@ -60,6 +61,8 @@ def grid_over(lo, hi, voxel_size):
     if not np.all(size > 0):
         raise AmfeError(f"the voxel model needs a box of positive size, got {size.tolist()} m")
     n = np.maximum(1, np.ceil(size / voxel_size * (1.0 - 1e-12))).astype(np.int64)
+    if even:
+        n += n % 2
     return Grid(lo=lo, n=n, h=size / n)
 
 
@@ -202,9 +205,16 @@ nodes; on two ranks, twice the largest process's peak: 15.1-16.2 kB per node at
 0.35-0.59 M nodes, docs/model.md section 10, "Memory and the largest beds")."""
 
 
-def voxel_bytes(voxels, nodes, ranks=1):
+FREE_NODE_BYTES = 4_000
+"""The same for the matrix-free operator (:mod:`amfe.solvers.voxelfree`): the elements'
+gather matrix, the coarse grid's assembled matrix and GAMG (an eighth of the nodes), the
+vectors (provisional: docs/model.md section 10, "Matrix-free operator")."""
+
+
+def voxel_bytes(voxels, nodes, ranks=1, operator="assembled"):
     """Estimated peak bytes over ``ranks`` of a voxel model: grids replicated, the rest shared."""
-    return GRID_BYTES * voxels * ranks + NODE_BYTES * nodes
+    per_node = NODE_BYTES if operator == "assembled" else FREE_NODE_BYTES
+    return GRID_BYTES * voxels * ranks + per_node * nodes
 
 
 @dataclass
@@ -263,7 +273,7 @@ def kubc_box(centers, radii, size=None, kept=None):
 
 
 def voxel_solid(centers, radii, voxel_size=None, period=None, size=None, max_memory=None,
-                ranks=1):
+                ranks=1, even=False):
     """The :class:`VoxelSolid` of a bed: centers (N, 3) [m], radii (N,) [m] (a Bed's, checked).
 
     The particles kept are the frame's under the same condition (docs/model.md,
@@ -274,7 +284,8 @@ def voxel_solid(centers, radii, voxel_size=None, period=None, size=None, max_mem
     spheres are clipped to it), or the period box [0, L). ``voxel_size`` [m]
     defaults to the mean radius / :data:`DEFAULT_VOXELS_PER_RADIUS`.
     ``max_memory`` [bytes] (default: half the machine's): a grid whose estimate
-    (:func:`voxel_bytes`) exceeds it is refused before it is allocated.
+    (:func:`voxel_bytes`) exceeds it is refused before it is allocated. ``even``: a
+    period box gets even voxel counts (:func:`grid_over`).
     """
     from amfe.model.memory import check_memory
     from amfe.model.bonds import contact_geometry, find_pairs
@@ -304,7 +315,7 @@ def voxel_solid(centers, radii, voxel_size=None, period=None, size=None, max_mem
     kept = np.flatnonzero(keep)
     note = None
     if period is not None:
-        grid = grid_over(np.zeros(3), L, voxel_size)
+        grid = grid_over(np.zeros(3), L, voxel_size, even=even)
     else:
         lo, hi, note = kubc_box(centers, radii, size, kept)
         grid = grid_over(lo, hi, voxel_size)

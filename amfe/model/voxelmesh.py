@@ -32,6 +32,9 @@ which leave the cache, measured on 45 000 nodes)."""
 class VoxelMesh:
     """Active nodes of a solid (nz, ny, nx) on a grid of counts n (3,).
 
+    ``solid`` is bool on a voxel grid; a coarse grid's is the float solid share
+    of each coarse voxel (its stiffness factor, :mod:`amfe.model.voxelmg`).
+
     m (3,): grid nodes per axis (n + 1, or n when periodic); node_id
     (prod m,) int64: active number of each grid node, -1 if inactive;
     grid_index (n_nodes,) int64: the grid node of each active node;
@@ -51,7 +54,7 @@ class VoxelMesh:
 
     @property
     def n_elements(self):
-        return int(self.solid.sum())
+        return int(np.count_nonzero(self.solid))
 
     def node_ijk(self, ids):
         """(k, 3) int grid indices (ix, iy, iz) of active nodes ``ids``."""
@@ -106,8 +109,9 @@ def offset_blocks(Ke):
 
 
 def _elements_around(mesh, ijk):
-    """(k, 8) bool: element p - c is solid, for nodes at grid indices ijk (k, 3)."""
-    out = np.zeros((len(ijk), 8), bool)
+    """(k, 8): element p - c is solid (bool), or its weight (a float ``solid``: a coarse
+    grid's solid shares, :mod:`amfe.model.voxelmg`), for nodes at grid indices ijk (k, 3)."""
+    out = np.zeros((len(ijk), 8), np.asarray(mesh.solid).dtype)
     for c in range(8):
         e = ijk - VERTICES[c]
         if mesh.periodic:
@@ -133,7 +137,7 @@ def block_rows(mesh, Ke, r0, r1):
         ids = np.arange(s, min(r1, s + CHUNK_NODES))
         ijk = mesh.node_ijk(ids)
         around = _elements_around(mesh, ijk)
-        present = (around.astype(np.int64) @ holds.astype(np.int64)) > 0     # (k, 27)
+        present = ((around != 0).astype(np.int64) @ holds.astype(np.int64)) > 0   # (k, 27)
         vals = (around.astype(float) @ W).reshape(-1, 27, 3, 3)
         nb = ijk[:, None, :] + OFFSETS[None, :, :]
         if mesh.periodic:

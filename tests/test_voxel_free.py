@@ -1,0 +1,134 @@
+"""The voxel model's matrix-free operator (docs/model.md, section 10, "Matrix-free operator").
+
+The shell's product must be the assembled matrix's on every rank split, its
+diagonal the matrix's diagonal, the coarse grid and interpolation must keep
+what a two-grid method needs, and the constants must equal the assembled
+path's on 1 and 2 ranks, KUBC and periodic.
+"""
+import json
+
+import numpy as np
+import pytest
+
+from amfe.errors import AmfeError
+from amfe.model.hex8 import element_stiffness
+from amfe.model.voxel import grid_over
+from amfe.model.voxelmesh import build_mesh
+from amfe.model.voxelmg import coarse_grip, coarse_mesh, element_nodes, prolongation
+
+from helpers import run_cli
+from test_voxel import direct_assembly
+
+KE = element_stiffness(np.array([1.0, 0.9, 1.2]), 1.0, 0.3)
+
+
+def random_solid(shape=(5, 6, 4), seed=5, share=0.6):
+    return np.random.default_rng(seed).uniform(size=shape) < share
+
+
+@pytest.mark.parametrize("periodic", [False, True])
+def test_element_lists_of_node_ranges_partition_the_solid_elements(periodic):
+    mesh = build_mesh(random_solid((4, 6, 6)), periodic)
+    cuts = [0, 7, mesh.n_nodes // 2, mesh.n_nodes]
+    parts = [element_nodes(mesh, a, b) for a, b in zip(cuts[:-1], cuts[1:])]
+    assert sum(len(p) for p in parts) == mesh.n_elements
+    assert np.array_equal(np.concatenate(parts), element_nodes(mesh))
+    for p, a, b in zip(parts, cuts[:-1], cuts[1:]):
+        assert np.all((p[:, 0] >= a) & (p[:, 0] < b))          # vertex 0 owned
+
+
+@pytest.mark.parametrize("periodic", [False, True])
+@pytest.mark.parametrize("fixed", [False, True])
+def test_the_shell_product_and_diagonal_are_the_assembled_matrix(periodic, fixed):
+    from amfe.solvers.petsc import init_petsc
+    from amfe.solvers.voxelfree import ElementProduct, shell
+    PETSc = init_petsc()
+    solid = random_solid((4, 6, 6))
+    K, mesh = direct_assembly(solid, KE, periodic)
+    K = K.toarray()
+    dofs = np.array([0, 1, 2, 7, 30, 31, 3 * mesh.n_nodes - 1]) if fixed else None
+    A = shell(PETSc.COMM_SELF, ElementProduct(PETSc.COMM_SELF, mesh, KE, 0, mesh.n_nodes,
+                                              fixed=dofs))
+    if fixed:
+        keep = np.ones(len(K), bool)
+        keep[dofs] = False
+        K = K * np.outer(keep, keep)
+        K[dofs, dofs] = 1.0
+    u = np.random.default_rng(1).normal(size=len(K))
+    x, y, d = A.createVecRight(), A.createVecLeft(), A.createVecLeft()
+    x.setArray(u)
+    A.mult(x, y)
+    A.getDiagonal(d)
+    assert np.abs(y.getArray() - K @ u).max() <= 1e-13 * np.abs(K).max() * np.abs(u).max()
+    assert np.abs(d.getArray() - np.diag(K)).max() <= 1e-14 * np.abs(K).max()
+    assert np.array_equal(x.getArray(), u)                    # the input is left alone
+
+
+def test_the_coarse_grid_keeps_the_solid_and_the_grip():
+    solid = random_solid((5, 7, 6))
+    fine = build_mesh(solid)
+    coarse = coarse_mesh(fine)
+    assert np.array_equal(coarse.n, [3, 4, 3])                # odd counts round up
+    assert 8 * coarse.solid.sum() == pytest.approx(solid.sum(), abs=1e-12)
+    assert coarse.n_elements == np.count_nonzero(coarse.solid)
+    grip = np.zeros(tuple(fine.m[::-1]), bool)
+    grip[0], grip[:, :, 6] = True, True                       # the z = 0 face, the x = 6 face
+    cg = coarse_grip(grip, coarse)
+    assert cg.shape == tuple(coarse.m[::-1])
+    for k, j, i in np.ndindex(cg.shape):   # the fine grip at the even nodes, void past the box
+        inside = 2 * k < grip.shape[0] and 2 * j < grip.shape[1] and 2 * i < grip.shape[2]
+        assert cg[k, j, i] == (inside and grip[2 * k, 2 * j, 2 * i])
+    assert cg[0, :4, :].all() and cg[:3, :4, 3].all()
+    with pytest.raises(AmfeError, match="even counts"):
+        coarse_mesh(build_mesh(random_solid((4, 6, 5)), periodic=True))
+    assert np.array_equal(grid_over(np.zeros(3), [5.0, 6.0, 7.0], 1.0, even=True).n, [6, 6, 8])
+
+
+@pytest.mark.parametrize("periodic", [False, True])
+def test_interpolation_keeps_translations_and_linear_fields_inside(periodic):
+    solid = random_solid((6, 6, 8), share=0.8) if not periodic else random_solid((6, 6, 8))
+    fine = build_mesh(solid, periodic)
+    coarse = coarse_mesh(fine)
+    P = prolongation(fine, coarse)
+    assert P.shape == (fine.n_nodes, coarse.n_nodes)
+    assert np.allclose(P.sum(axis=1), 1.0, rtol=0, atol=1e-14) and P.min() >= 0
+    if periodic:
+        return
+    # a linear field on the coarse nodes is reproduced where all 8 coarse neighbours are active
+    xc = coarse.node_ijk(np.arange(coarse.n_nodes)) * 2.0
+    xf = fine.node_ijk(np.arange(fine.n_nodes)).astype(float)
+    a = np.array([0.3, -1.1, 0.7])
+    whole = np.asarray((P > 0).sum(axis=1)).ravel() == 2 ** (fine.node_ijk(
+        np.arange(fine.n_nodes)) % 2).sum(axis=1)
+    assert whole.sum() > fine.n_nodes // 2
+    assert np.abs((P @ (xc @ a) - xf @ a)[whole]).max() < 1e-12
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("ranks", [1, 2])
+def test_matrix_free_constants_equal_the_assembled_ones(tmp_path, ranks):
+    """KUBC on a scanned window and the periodic condition on a periodic bed, at rtol 1e-10:
+    the two operators' C agree to 1e-8 on 1 and 2 ranks."""
+    beds = {"kubc": ["--size", "0.08", "0.08", "0.05", "--seed", "1", "--track-width", "0.03",
+                     "--hatch-spacing", "0.035"],
+            "periodic": ["--periodic", "--size", "0.06", "0.06", "0.05", "--seed", "2"]}
+    for bc, args in beds.items():
+        bed = tmp_path / f"{bc}.h5"
+        assert run_cli(["pack", *args, "-o", str(bed)]).returncode == 0
+        C = {}
+        for op in ("assembled", "matrix-free"):
+            out = tmp_path / f"{bc}_{op}_{ranks}.json"
+            proc = run_cli(["homogenize", str(bed), "--model", "voxel", "--bc", bc,
+                            "--voxel-operator", op, "--rtol", "1e-10", "-o", str(out),
+                            "--quiet"], ranks=ranks)
+            assert proc.returncode == 0, proc.stderr
+            res = json.loads(out.read_text())
+            C[op] = np.array(res["C"])
+            assert res["solver"]["operator"] == op
+            assert max(res["solver"]["iterations"]) < 60
+        assert np.abs(C["assembled"] - C["matrix-free"]).max() <= 1e-8 * np.abs(C["assembled"]).max()
+
+
+def test_the_operator_option_needs_the_voxel_model(tmp_path):
+    proc = run_cli(["homogenize", "nothing.h5", "--voxel-operator", "matrix-free"])
+    assert proc.returncode == 2 and "--model voxel" in proc.stderr
