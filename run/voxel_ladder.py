@@ -10,7 +10,7 @@ constant is extrapolated by :func:`amfe.model.extrapolate.extrapolate`
 bed and condition and stores the ratio frame / extrapolated continuum.
 
     .venv/bin/python run/voxel_ladder.py BED.h5 --bc periodic --levels 4 6 8 \
-        --ranks 2 --frame -o ladder.json [--centres-box]
+        --ranks 2 --frame -o ladder.json [--centres-box] [--voxel-operator matrix-free]
 """
 import argparse
 import json
@@ -95,6 +95,7 @@ def main():
     ap.add_argument("--frame", action="store_true", help="also run the frame")
     ap.add_argument("--label", default=None)
     ap.add_argument("--max-memory", default=None)
+    ap.add_argument("--voxel-operator", default="assembled", choices=["assembled", "matrix-free"])
     ap.add_argument("--centres-box", action="store_true",
                     help="KUBC on the box of the centres (written as the bed's size)")
     ap.add_argument("-o", "--output", required=True)
@@ -107,12 +108,14 @@ def main():
     record = {"bed": args.bed, "label": args.label or os.path.basename(args.bed), "bc": args.bc,
               "mean_radius": R, "ranks": args.ranks,
               "kubc_box": "centres" if args.centres_box else "bed", "machine": platform.node(),
+              "voxel_operator": args.voxel_operator,
               "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "levels": []}
     extra_mem = ["--max-memory", args.max_memory] if args.max_memory else []
     for level in args.levels:
         H = R / level
         res, s, rss = run_one(args.bed, args.bc, args.ranks,
-                              ["--model", "voxel", "--voxel-size", repr(H)] + extra_mem)
+                              ["--model", "voxel", "--voxel-size", repr(H),
+                               "--voxel-operator", args.voxel_operator] + extra_mem)
         record["levels"].append(level_record(level, H, res, s, rss))
         p = res["properties"]
         print(f"R/{level:g}: {res['model']['dofs']} DOFs, Ex {p['Ex'] / 1e9:.2f} Ey "

@@ -205,10 +205,11 @@ nodes; on two ranks, twice the largest process's peak: 15.1-16.2 kB per node at
 0.35-0.59 M nodes, docs/model.md section 10, "Memory and the largest beds")."""
 
 
-FREE_NODE_BYTES = 4_000
+FREE_NODE_BYTES = 5_000
 """The same for the matrix-free operator (:mod:`amfe.solvers.voxelfree`): the elements'
-gather matrix, the coarse grid's assembled matrix and GAMG (an eighth of the nodes), the
-vectors (provisional: docs/model.md section 10, "Matrix-free operator")."""
+node lists, the coarse grid's assembled matrix and GAMG (an eighth of the nodes), the
+vectors (twice the largest process's peak on 2 ranks: 4.4 kB per node at 1.37 M nodes,
+4.7 kB at 0.59 M; docs/model.md section 10, "Matrix-free operator")."""
 
 
 def voxel_bytes(voxels, nodes, ranks=1, operator="assembled"):
