@@ -186,14 +186,13 @@ def voxel_stiffness(geo, options, comm, *, initial="affine", operator="assembled
     r0, r1 = int(bounds[mpi.rank]), int(bounds[mpi.rank + 1])
     x_local = mesh.node_ijk(np.arange(r0, r1)) * h          # node coordinates, units h_x
     volume = float(np.prod(geo.grid.n * h))
-    fixed = np.array([0]) if periodic else mesh.boundary_nodes(geo.grip)
     cases = _periodic(mesh, Ke, h, r0, r1) if periodic else \
-        _kubc(fixed, x_local, geo.grid.n * h / 2.0, r0, r1)
+        _kubc(mesh.boundary_nodes(geo.grip), x_local, geo.grid.n * h / 2.0, r0, r1)
     t1 = time.perf_counter()
     if operator == "assembled":
         ops = _assembled(_assemble(comm, mesh, Ke, r0, r1), cases, x_local, options)
     else:
-        ops = _matrix_free(comm, mesh, Ke, h, (r0, r1), fixed, geo.grip, cases, options)
+        ops = _matrix_free(comm, mesh, Ke, h, (r0, r1), geo.grip, cases, options)
     t_asm = time.perf_counter() - t1 - ops.setup
     sol = _solve(ops, cases, x_local, options, initial)
     sol["operator"] = operator
@@ -280,11 +279,12 @@ def _assembled(A0, cases, x_local, options):
                      A0.norm(PETSc.NormType.FROBENIUS))
 
 
-def _matrix_free(comm, mesh, Ke, h, rows, fixed, grip, cases, options):
+def _matrix_free(comm, mesh, Ke, h, rows, grip, cases, options):
     """:class:`Operators` of the element shell (:mod:`amfe.solvers.voxelfree`): CG + the
-    two-grid PCMG; fixed: the prescribed active nodes (global)."""
+    two-grid PCMG; grip: KUBC's gripped grid nodes (None: the box's faces)."""
     from amfe.solvers.voxelfree import ElementProduct, matrix_free_ksp, shell, two_grid
     r0, r1 = rows
+    fixed = np.array([0]) if mesh.periodic else mesh.boundary_nodes(grip)
     free = ElementProduct(comm, mesh, Ke, r0, r1)
     A0 = shell(comm, free)
     A = shell(comm, ElementProduct(comm, mesh, Ke, r0, r1, fixed=cases["dofs"], base=free))
