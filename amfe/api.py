@@ -177,7 +177,8 @@ def _voxel(bed, options, error, comm, spec):
                         f"{options.solver!r}")
     if model != "voxel":
         raise AmfeError(f"homogenize: model must be 'frame' or 'voxel', got {model!r}"
-                        + ("" if model != "frame" else " (voxel_size and voxel_operator need model='voxel')"))
+                        + ("" if model != "frame" else
+                           " (voxel_size and voxel_operator need model='voxel')"))
     if bc not in ("kubc", "periodic"):
         raise AmfeError(f"homogenize: the voxel model solves bc 'kubc' or 'periodic', not {bc!r}")
     if spec["vtu_dir"] is not None:

@@ -55,6 +55,13 @@ VOXEL_CONDITIONS = {"kubc": Condition(False), "periodic": Condition(True)}
 VOXEL_OPERATORS = ("assembled", "matrix-free")
 
 
+def check_operator(operator):
+    """AmfeError unless ``operator`` is one of :data:`VOXEL_OPERATORS`."""
+    if operator not in VOXEL_OPERATORS:
+        raise AmfeError(f"the voxel operator is one of {', '.join(VOXEL_OPERATORS)}, "
+                        f"not {operator!r}")
+
+
 def homogenize_voxel(bed, options=None, comm=None, *, voxel_size=None, input_error=None,
                      initial="affine", operator="assembled"):
     """Effective C of the union of a bed's spheres, meshed by voxels of side ``voxel_size``.
@@ -69,7 +76,8 @@ def homogenize_voxel(bed, options=None, comm=None, *, voxel_size=None, input_err
     refused before its grid is allocated), material (None: the bed's, else
     steel; E and nu used) and material_source. voxel_size [m] (default mean
     radius / 4). initial: "affine" (the applied field, KUBC) or "zero" (the
-    initial guess). operator: "assembled" or "matrix-free" (:func:`voxel_stiffness`). comm, input_error: as :func:`amfe.solvers.driver.homogenize_bed`:
+    initial guess). operator: "assembled" or "matrix-free" (:func:`voxel_stiffness`).
+    comm, input_error: as :func:`amfe.solvers.driver.homogenize_bed`:
     the ranks' inputs are compared first (one collective), so a bad or
     differing input is the same error on every rank, never a hang.
     Returns the :class:`~amfe.io.result.Result` of homogenize_bed's shape
@@ -91,9 +99,7 @@ def homogenize_voxel(bed, options=None, comm=None, *, voxel_size=None, input_err
             raise AmfeError(f"the voxel model solves bc 'kubc' or 'periodic', not {options.bc!r}")
         if initial not in ("affine", "zero"):
             raise AmfeError(f"initial must be 'affine' or 'zero', got {initial!r}")
-        if operator not in VOXEL_OPERATORS:
-            raise AmfeError(f"the voxel operator is one of {', '.join(VOXEL_OPERATORS)}, "
-                            f"not {operator!r}")
+        check_operator(operator)
     except AmfeError as exc:
         error = error or exc
     agree_across_ranks(mpi, {"voxel": repr((voxel_size, initial, operator))}, None)
@@ -136,7 +142,8 @@ def _result(bed, geo, solved, record, ranks, t_geo):
         "C": C.tolist(), "S": S.tolist(), "volume": geo.grid.volume,
         "n_particles": n, "n_removed": n - int(len(geo.kept)), "removed": geo.removed,
         "n_bonds": geo.n_bonds, "bc": "periodic" if mesh.periodic else "kubc", "ranks": ranks,
-        "solver": {**_method(sol["operator"]), "ksp_type": sol["ksp_type"], "pc_type": sol["pc_type"],
+        "solver": {**_method(sol["operator"]), "ksp_type": sol["ksp_type"],
+                   "pc_type": sol["pc_type"],
                    "rtol": sol["rtol"], "residual_limit": RESIDUAL_FACTOR * sol["rtol"],
                    "iterations": sol["iterations"], "residuals": sol["residuals"],
                    "setup_seconds": sol["setup_seconds"], "solve_seconds": sol["solve_seconds"],
@@ -165,9 +172,7 @@ def voxel_stiffness(geo, options, comm, *, initial="affine", operator="assembled
     operator: "assembled" (AIJ + GAMG) or "matrix-free" (a shell of the
     elements, preconditioned on the grid twice as coarse, :mod:`amfe.solvers.voxelfree`).
     """
-    if operator not in VOXEL_OPERATORS:
-        raise AmfeError(f"the voxel operator is one of {', '.join(VOXEL_OPERATORS)}, "
-                        f"not {operator!r}")
+    check_operator(operator)
     mpi = comm.tompi4py()
     periodic = options.bc == "periodic"
     options = replace(options, rtol=VOXEL_RTOL if options.rtol is None else options.rtol)
@@ -287,7 +292,7 @@ def _matrix_free(comm, mesh, Ke, h, rows, grip, cases, options):
     fixed = np.array([0]) if mesh.periodic else mesh.boundary_nodes(grip)
     free = ElementProduct(comm, mesh, Ke, r0, r1)
     A0 = shell(comm, free)
-    A = shell(comm, ElementProduct(comm, mesh, Ke, r0, r1, fixed=cases["dofs"], base=free))
+    A = shell(comm, free.with_fixed(cases["dofs"]))
     t0 = time.perf_counter()
     Ac, P, _ = two_grid(comm, mesh, Ke, h, r0, r1, fixed, grip)
     with petsc_options(options.ksp_options) as unused:

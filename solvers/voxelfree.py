@@ -2,10 +2,11 @@
 
 docs/model.md, section 10 ("Matrix-free operator"). The fine stiffness is a
 PETSc shell matrix: each rank holds its elements' node lists
-(:func:`amfe.model.voxelmg.element_nodes`: the elements whose lowest corner
-it owns) as a 0/1 gather matrix G, and K u = G^T (Ke applied to each row
-block of G u) after the ghost values arrive by a PETSc scatter; the
-contributions to other ranks' nodes go back by the reverse scatter (ADD).
+(:func:`amfe.model.voxelmg.element_lists`: the elements whose lowest corner
+it owns), and K u gathers each element's 24 displacements, multiplies them
+by Ke and sums the results back by node (in chunks), after the ghost values
+arrive by a PETSc scatter; the contributions to other ranks' nodes go back
+by the reverse scatter (ADD).
 Prescribed DOFs act as in the assembled path's zeroRowsColumns: their
 columns are zeroed before the product and their rows return the input.
 
@@ -15,34 +16,29 @@ of :func:`amfe.model.voxelmg.coarse_mesh`, assembled and solved by one GAMG
 cycle with the rigid-body near null space. Options: the usual prefixes
 (``-mg_levels_ksp_max_it``, ``-mg_coarse_pc_type``, ...) on top of these.
 """
+import copy
+
 import numpy as np
 import scipy.sparse as sp
 
-from amfe.model.voxelmg import coarse_grip, coarse_mesh, element_nodes, element_weights, \
-    prolongation
+from amfe.model.voxelmg import coarse_grip, coarse_mesh, element_lists, prolongation
 from amfe.solvers.partition import row_ranges
 from amfe.solvers.petsclib import PETSc
 
 
 class ElementProduct:
     """Context of a PETSc shell matrix: K (or K with prescribed DOFs as identity rows and
-    columns) of the mesh's elements [units of Ke]; ``fixed``: local prescribed DOFs;
-    ``base``: another product of the same elements whose lists and scatter it shares."""
+    columns) of the mesh's elements [units of Ke]; ``fixed``: local prescribed DOFs
+    (:meth:`with_fixed` makes the constrained one from the free one)."""
 
     CHUNK = 1 << 16
     """Elements per pass of the product (about 25 MB of temporaries)."""
 
-    def __init__(self, comm, mesh, Ke, r0, r1, fixed=None, base=None):
+    def __init__(self, comm, mesh, Ke, r0, r1, fixed=None):
         self.Ke, self.comm, self.r0 = Ke, comm, r0
         self.fixed = np.zeros(0, np.int64) if fixed is None else np.asarray(fixed, np.int64)
         self.n_local = 3 * (r1 - r0)
-        if base is not None:
-            for name in ("conn", "weights", "uniform", "ghost", "ghost_out", "scatter", "work",
-                         "diag_ghost", "n_elements", "n_ghost"):
-                setattr(self, name, getattr(base, name))
-            return
-        conn = element_nodes(mesh, r0, r1)
-        self.weights = element_weights(mesh, r0, r1)
+        conn, self.weights = element_lists(mesh, r0, r1)
         self.uniform = bool(np.all(self.weights == 1.0))
         needed = np.unique(conn)
         # ghost numbering: sorted node numbers, so a chunk of elements (sorted by vertex 0)
@@ -58,6 +54,13 @@ class ElementProduct:
         self.scatter = PETSc.Scatter().create(template, iset, self.ghost, None)
         self.diag_ghost = self._accumulate(lambda ids: np.broadcast_to(
             np.diag(Ke).reshape(8, 3), (len(ids), 8, 3)))
+
+    def with_fixed(self, fixed):
+        """The same product with the local DOFs ``fixed`` as identity rows and columns; it
+        shares the element lists, scatter and vectors (the shells are applied in turn)."""
+        other = copy.copy(self)
+        other.fixed = np.asarray(fixed, np.int64)
+        return other
 
     def _accumulate(self, element_values):
         """(3 n_ghost,) the sum over elements of element_values(ids) (k, 8, 3) at their nodes."""

@@ -19,41 +19,30 @@ from amfe.model.hex8 import VERTICES
 from amfe.model.voxelmesh import VoxelMesh, build_mesh
 
 
-def element_nodes(mesh, r0=0, r1=None):
-    """(n_e, 8) int64 active node numbers of the solid elements whose vertex 0 (lowest
-    corner) is one of the active nodes [r0, r1), vertex a at offset VERTICES[a].
+def element_lists(mesh, r0=0, r1=None):
+    """The solid elements whose vertex 0 (lowest corner) is one of the active nodes
+    [r0, r1): (nodes (n_e, 8) int64 active node numbers, vertex a at offset VERTICES[a];
+    weights (n_e,) their stiffness factors: 1 on a voxel grid, the solid share on a
+    coarse one).
 
     Elements come in the grid's order (x fastest), which is the order of their
     vertex 0, so the elements of consecutive node ranges partition them all.
     """
     r1 = mesh.n_nodes if r1 is None else r1
-    ez, ey, ex = np.nonzero(np.asarray(mesh.solid) != 0)
-    e = np.stack([ex, ey, ez], axis=1).astype(np.int64)
+    solid = np.asarray(mesh.solid)
+    ez, ey, ex = np.nonzero(solid != 0)
     mx, my = int(mesh.m[0]), int(mesh.m[1])
-    first = mesh.node_id[e[:, 0] + mx * (e[:, 1] + my * e[:, 2])]
-    lo, hi = np.searchsorted(first, [r0, r1])
-    e = e[lo:hi]
-    out = np.empty((len(e), 8), np.int64)
+    lo, hi = np.searchsorted(mesh.node_id[ex + mx * (ey + my * ez)], [r0, r1])
+    e = np.stack([ex[lo:hi], ey[lo:hi], ez[lo:hi]], axis=1).astype(np.int64)
+    nodes = np.empty((len(e), 8), np.int64)
     for a, c in enumerate(VERTICES):
         v = e + c
         if mesh.periodic:
             v = np.mod(v, mesh.n)
-        out[:, a] = mesh.node_id[v[:, 0] + mx * (v[:, 1] + my * v[:, 2])]
-    if np.any(out < 0):
+        nodes[:, a] = mesh.node_id[v[:, 0] + mx * (v[:, 1] + my * v[:, 2])]
+    if np.any(nodes < 0):
         raise AmfeError("a solid element has an inactive vertex: the mesh is inconsistent")
-    return out
-
-
-def element_weights(mesh, r0=0, r1=None):
-    """(n_e,) the stiffness factor of each element of :func:`element_nodes` (1 on a solid
-    fine grid; the solid share on a coarse one)."""
-    r1 = mesh.n_nodes if r1 is None else r1
-    solid = np.asarray(mesh.solid)
-    ez, ey, ex = np.nonzero(solid != 0)
-    mx, my = int(mesh.m[0]), int(mesh.m[1])
-    first = mesh.node_id[ex + mx * (ey + my * ez)]
-    lo, hi = np.searchsorted(first, [r0, r1])
-    return solid[ez[lo:hi], ey[lo:hi], ex[lo:hi]].astype(float)
+    return nodes, solid[ez[lo:hi], ey[lo:hi], ex[lo:hi]].astype(float)
 
 
 def coarse_mesh(mesh):
@@ -97,10 +86,9 @@ def prolongation(fine, coarse, r0=0, r1=None):
     r1 = fine.n_nodes if r1 is None else r1
     ijk = fine.node_ijk(np.arange(r0, r1))
     k = len(ijk)
+    lo, odd = ijk // 2, ijk % 2
     rows, cols, vals = [], [], []
     for corner in VERTICES:
-        lo = ijk // 2
-        odd = ijk % 2
         c = lo + corner * odd                          # the upper neighbour only when odd
         w = np.prod(np.where(odd == 1, 0.5, 1.0 - corner), axis=1)   # even: corner 0 only
         if coarse.periodic:
