@@ -16,7 +16,7 @@ from amfe.model.voxel import grid_over
 from amfe.model.voxelmesh import build_mesh
 from amfe.model.voxelmg import coarse_grip, coarse_mesh, element_lists, prolongation
 
-from helpers import run_cli
+from helpers import run_cli, run_mpi_script
 from test_voxel import direct_assembly
 
 KE = element_stiffness(np.array([1.0, 0.9, 1.2]), 1.0, 0.3)
@@ -133,3 +133,55 @@ def test_matrix_free_constants_equal_the_assembled_ones(tmp_path, ranks):
 def test_the_operator_option_needs_the_voxel_model(tmp_path):
     proc = run_cli(["homogenize", "nothing.h5", "--voxel-operator", "matrix-free"])
     assert proc.returncode == 2 and "--model voxel" in proc.stderr
+
+
+ODD_GRIP = """
+import json, sys
+import numpy as np
+from amfe.model.material import Material
+from amfe.model.options import SolveOptions
+from amfe.model.voxel import VoxelSolid, grid_over
+from amfe.solvers.petsclib import PETSc
+from amfe.solvers.voxel import voxel_stiffness
+solid = np.ones((7, 6, 9), bool)                  # (nz, ny, nx): two blocks, x < 4 and x > 4
+solid[:, :, 4] = {joined}
+grip = np.zeros((8, 7, 10), bool)
+grip[:, :, 0] = True                              # the left block: its whole x = 0 face
+grip[1::2, 1::2, 9] = True                        # the right block: odd nodes of x = 9 only
+geo = VoxelSolid(grid=grid_over(np.zeros(3), np.array([9.0, 6, 7]) * 1e-6, 1e-6), solid=solid,
+                 kept=np.arange(1), n_bonds=0, n_bonds_input=0, neck_share=1.0,
+                 solid_fraction=float(solid.mean()), pieces_removed=0, voxels_removed=0,
+                 warnings=[], grip=grip)
+opts = SolveOptions(bc="kubc", material=Material(E=1e9, nu=0.3), rtol=1e-10)
+out = {{}}
+for op in ("assembled", "matrix-free"):
+    C, sol, _ = voxel_stiffness(geo, opts, PETSc.COMM_WORLD, operator=op)
+    out[op] = {{"C": C.tolist(), "iterations": sol["iterations"]}}
+if PETSc.COMM_WORLD.getRank() == 0:
+    print(json.dumps(out))
+"""
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("ranks", [1, 2])
+@pytest.mark.parametrize("joined", [False, True])
+def test_a_piece_gripped_only_at_odd_nodes_has_no_coarse_grip_and_still_converges(
+        tmp_path, ranks, joined):
+    """The coarse grid grips the fine grip's even nodes (coarse_grip). Here the right block
+    (alone, or joined to the left one through a slab) is held only at odd nodes of an odd
+    face, so its coarse image floats: the coarse operator is singular there. CG must still
+    reach the assembled C (the coarse correction only preconditions)."""
+    from amfe.model.voxelmesh import build_mesh
+    grip = np.zeros((8, 7, 10), bool)
+    grip[1::2, 1::2, 9] = True
+    assert not coarse_grip(grip, coarse_mesh(build_mesh(np.ones((7, 6, 9), bool)))).any()
+    script = tmp_path / "odd_grip.py"
+    script.write_text(ODD_GRIP.format(joined=joined))
+    proc = run_mpi_script(script, ranks=ranks)
+    assert proc.returncode == 0, proc.stderr
+    got = json.loads(proc.stdout.strip().splitlines()[-1])
+    A, F = (np.array(got[op]["C"]) for op in ("assembled", "matrix-free"))
+    assert np.abs(A - F).max() <= 1e-8 * np.abs(A).max()
+    assert max(got["matrix-free"]["iterations"]) < 60
+    if joined:                                    # held at both ends: a stiff solid in x
+        assert A[0, 0] > 0.1 * 1e9
