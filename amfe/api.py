@@ -42,7 +42,9 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
         GAMG's relative residual tolerance. Default: 1e-5 for KUBC on a bed
         whose hull vertices are all prescribed (the reaction stress is then
         corrected to second order in the solver's error, docs/model.md
-        section 5); otherwise 1e-8 with ``solver="gamg"``, 1e-7 for the beds
+        section 5) or whose free hull vertices carry at most 1e-3 of the
+        strain (docs/model.md section 5, "Free hull vertices that weigh
+        little"); otherwise 1e-8 with ``solver="gamg"``, 1e-7 for the beds
         ``"auto"`` gives to GAMG.
     comm : mpi4py or PETSc communicator, optional
         The ranks that share the solve (default: all of them).

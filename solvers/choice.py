@@ -14,7 +14,8 @@ The contract is the label's accuracy, not the method: every constant within
   ``--solver gamg`` at the 1e-8 default. Where the condition's average is
   second order in the solver's error (:mod:`amfe.solvers.correction`: KUBC on
   a bed whose hull vertices are all prescribed, SUBC, periodic) both run at
-  rtol 1e-5 instead, about 1e-7 from the reference.
+  rtol 1e-5 instead, about 1e-7 from the reference, and so does a KUBC bed whose free
+  hull vertices carry little of the strain (:attr:`Problem.loosened`).
 
 :func:`choose_solver` decides per bed from the predicted fill of a
 factorisation (:func:`solve_features`, a few milliseconds), never from the
@@ -28,7 +29,7 @@ from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 from amfe.errors import AmfeError
 from amfe.model.memory import direct_bytes
-from amfe.solvers.correction import CORRECTED_RTOL
+from amfe.solvers.correction import CORRECTED_RTOL, FREE_SHARE_MAX
 from amfe.solvers.ksp import DEFAULT_RTOL
 from amfe.solvers.petsclib import PETSc
 
@@ -91,10 +92,20 @@ class Problem:
     """What the operator is, for :func:`choose_solver`: singular (the constrained
     operator keeps rigid modes, the mixed conditions, which a factorisation cannot
     take); corrected (the condition's reaction stress takes the second-order
-    correction, :mod:`amfe.solvers.correction`)."""
+    correction, :mod:`amfe.solvers.correction`); free_share: on a first-order KUBC
+    bed, the free hull vertices' share of the strain integral
+    (:func:`~amfe.solvers.correction.free_strain_share`), else None."""
 
     singular: bool = False
     corrected: bool = False
+    free_share: float = None
+
+    @property
+    def loosened(self):
+        """A first-order bed whose free hull vertices weigh so little that rtol 1e-5 keeps the
+        contract (:data:`~amfe.solvers.correction.FREE_SHARE_MAX`, with smoothed aggregation)."""
+        return (not self.corrected and self.free_share is not None
+                and self.free_share <= FREE_SHARE_MAX)
 
 
 def choose_solver(features, nranks, requested="auto", rtol=None, package="cholmod",
@@ -107,20 +118,32 @@ def choose_solver(features, nranks, requested="auto", rtol=None, package="cholmo
     method's default; GAMG only); package: the factorisation package, None
     when PETSc has none; user_options: the PETSc options the user set (one of
     :data:`USER_METHOD_OPTIONS` among them makes auto keep the iterative path
-    those options configure); problem: a :class:`Problem` (singular, corrected);
+    those options configure); problem: a :class:`Problem` (singular, corrected, free_share);
     check_memory(estimate [bytes], what): raises AmfeError when an estimate
     is over the memory limit (:func:`amfe.model.memory.direct_bytes` of the
     factorisation): auto then takes GAMG, ``cholesky`` is refused. A corrected
     problem's default rtol :data:`~amfe.solvers.correction.CORRECTED_RTOL` serves
-    ``gamg`` and ``auto`` alike. The returned rtol is None for Cholesky.
+    ``gamg`` and ``auto`` alike, and so does a :attr:`Problem.loosened` one's (the
+    caller then smooths the aggregation). The returned rtol is None for Cholesky.
     """
     if requested not in METHODS:
         raise AmfeError(f"unknown solver {requested!r}; choose one of {', '.join(METHODS)}")
+    singular = problem.singular
+    loose = ""
+    if rtol is None and problem.loosened:
+        loose = (f"; rtol {CORRECTED_RTOL:g}: the free hull vertices carry {problem.free_share:.1e}"
+                 f" of the strain (<= {FREE_SHARE_MAX:g})")
+    if rtol is None and (problem.corrected or problem.loosened):
+        rtol = CORRECTED_RTOL
+    method, reason, rtol, options = _choose(features, nranks, requested, rtol, package,
+                                            user_options, singular, check_memory)
+    return method, reason + (loose if method == "gamg" else ""), rtol, options
+
+
+def _choose(features, nranks, requested, rtol, package, user_options, singular, check_memory):
+    """:func:`choose_solver` once the rtol is settled."""
     direct = {"ksp_type": "preonly", "pc_type": "cholesky",
               "pc_factor_mat_solver_type": package, "amfe_operator_type": "aij"}
-    singular = problem.singular
-    if rtol is None and problem.corrected:
-        rtol = CORRECTED_RTOL
     if requested == "gamg":
         return "gamg", "asked for (--solver gamg)", DEFAULT_RTOL if rtol is None else rtol, {}
     if requested == "cholesky":

@@ -39,6 +39,17 @@ the wall of rtol 1e-7 with the per-bed smoothed aggregation; docs/benchmarks.md,
 second order"), so such beds keep the first-order default rtol."""
 
 
+FREE_SHARE_MAX = 1e-3
+"""A first-order KUBC bed (free hull vertices) whose free vertices carry at most this share of
+the strain integral (:func:`free_strain_share`) solves at :data:`CORRECTED_RTOL` with smoothed
+aggregation, like a second-order one. Measured (docs/benchmarks.md, "Free hull vertices: rtol by
+their share"): at rtol 1e-5 with smoothed aggregation the constants' error was at most 6.8e-4
+times the share (the 57 `small` beds with free hull vertices among seed 2's records 0-299, and
+paper beds 107, 301, 304), so at most 6.8e-7 here, 15x inside the label contract; unsmoothed
+aggregation reached 1.1e-2 times it, hence smoothing. Beds beyond the paper's size (200 k
+particles) are not measured: the ratio was largest on the largest bed."""
+
+
 def takes_correction(group):
     """Whether a :class:`~amfe.model.loadcase.Group`'s cross products D are computed: six
     cases (one operator) and no free rigid modes. Its condition's average decides the rest."""
@@ -74,6 +85,30 @@ def free_hull_vertices(frame, groups, hull=None):
     held = np.logical_and.reduce([g.fixed[:, :3].all(axis=1) for g in groups])
     v = (hull or hull_of(frame.centers)).vertices
     return v[~held[v]]
+
+
+def free_strain_share(frame, groups, hull=None):
+    """:func:`strain_share` of the free hull vertices (:func:`free_hull_vertices`) of a frame,
+    or None where those are None."""
+    hull = hull or hull_of(frame.centers)
+    free = free_hull_vertices(frame, groups, hull)
+    return None if free is None else strain_share(hull, frame.centers, free)
+
+
+def strain_share(hull, centers, free):
+    """The share, in [0, 1], of the hull vertices ``free`` (indices into centers (n, 3)) in
+    the Bagi strain integral.
+
+    The strain is H = sum_v u_v W_v (:func:`strain_weights`), and with u_v = eps (x_v - x_c)
+    the sum gives eps exactly (sum_v (x_v - x_c) W_v = I). Errors e_v at the free vertices
+    move it by sum_free e_v W_v; with |e_v| at most a fraction eta of |eps| |x_v - x_c|, that
+    is at most eta |eps| times sum_free |x_v - x_c| |W_v|, which this share is of the same sum
+    over every vertex (x_c: the centres' mean).
+    """
+    vertices, w = strain_weights(hull)
+    arm = np.linalg.norm(centers[vertices] - centers.mean(axis=0), axis=1)
+    size = arm * np.linalg.norm(w, axis=1)
+    return float(size[np.isin(vertices, free)].sum() / size.sum())
 
 
 def strain_weights(hull):

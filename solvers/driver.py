@@ -24,8 +24,9 @@ from amfe.io.fields import frame_fields
 from amfe.io.result_meta import homogenize_header
 from amfe.io.result import Result
 from amfe.solvers.adjoint import attach_strain_adjoint
-from amfe.solvers.correction import (STRAIN_ADJOINT_DEFAULT, moment_corrections, never,
-                                     relative_size, second_order_kubc, second_order_loads)
+from amfe.solvers.correction import (STRAIN_ADJOINT_DEFAULT, free_strain_share,
+                                     moment_corrections, never, relative_size, second_order_kubc,
+                                     second_order_loads)
 from amfe.solvers.mgchoice import CHOSEN_OPTIONS, choose_multigrid, multigrid_features
 from amfe.solvers.choice import (USER_METHOD_OPTIONS, Problem, choose_solver, cholesky_package,
                                  solve_features)
@@ -154,14 +155,15 @@ def homogenize_bed(bed, options=None, comm=None, *, input_error=None):
     if (correction_wanted(options.ksp_options) and not corrected and condition.second_order
             is second_order_kubc and strain_adjoint_wanted(options.ksp_options)):
         adjoint = corrected = attach_strain_adjoint(frame, groups, mpi)  # free hull vertices
+    problem = Problem(singular=any(g.null_modes is not None for g in groups), corrected=corrected,
+                      free_share=_free_share(frame, groups, condition, corrected, options, mpi))
     log(f"frame: {frame.n_particles} load-carrying particles ({frame.n_removed} removed), "
         f"{len(frame.bonds)} bonds in {t_frame:.2f} s; {options.bc}, {mpi.size} rank(s)")
     method, reason, rtol, chosen = choose_solver(
         lambda: solve_features(frame), mpi.size, options.solver, options.rtol,
         cholesky_package(),
         given_options(USER_METHOD_OPTIONS, options.ksp_options),
-        Problem(singular=any(g.null_modes is not None for g in groups), corrected=corrected),
-        check_memory=inp.check_memory)
+        problem, check_memory=inp.check_memory)
     log(f"solver: {method} ({reason})")
     multigrid = None
     if method == "gamg":  # aggregation per bed (:mod:`amfe.solvers.mgchoice`)
@@ -169,7 +171,8 @@ def homogenize_bed(bed, options=None, comm=None, *, input_error=None):
             # the adjoints' beds stay smoothed: unsmoothed aggregation at rtol 1e-5 left paper 301
             # 2.1e-5 from the reference (docs/benchmarks.md, "The strain to second order")
             multigrid_features(frame), mpi.size, corrected and not adjoint,
-            given_options(CHOSEN_OPTIONS, options.ksp_options))
+            given_options(CHOSEN_OPTIONS, options.ksp_options),
+            loosened=problem.loosened and options.rtol is None)
         chosen, multigrid = {**chosen, **mg_options}, {"options": mg_options, "reason": mg_reason}
         log(f"multigrid: {mg_reason}")
     sol = solve_load_cases(frame, comm, groups, rtol=DEFAULT_RTOL if rtol is None else rtol,
@@ -214,6 +217,17 @@ def petsc_comm(comm):
     except TypeError:
         raise AmfeError(f"comm must be an mpi4py or PETSc communicator, got "
                         f"{type(comm).__name__} {comm!r}") from None
+
+
+def _free_share(frame, groups, condition, corrected, options, mpi):
+    """The free hull vertices' share of KUBC's strain on a first-order bed (rank 0's, on every
+    rank), or None: another condition, a second-order bed, or the user's own aggregation
+    (the share's rtol rule was measured with smoothed aggregation)."""
+    if (corrected or condition.second_order is not second_order_kubc
+            or not correction_wanted(options.ksp_options)
+            or given_options(("pc_gamg_agg_nsmooths",), options.ksp_options)):
+        return None
+    return mpi.bcast(free_strain_share(frame, groups) if mpi.rank == 0 else None)
 
 
 def correction_wanted(ksp_options):
