@@ -172,7 +172,7 @@ def homogenize_bed(bed, options=None, comm=None, *, input_error=None):
             # 2.1e-5 from the reference (docs/benchmarks.md, "The strain to second order")
             multigrid_features(frame), mpi.size, corrected and not adjoint,
             given_options(CHOSEN_OPTIONS, options.ksp_options),
-            loosened=problem.loosened and options.rtol is None)
+            loosened=problem.loosened)
         chosen, multigrid = {**chosen, **mg_options}, {"options": mg_options, "reason": mg_reason}
         log(f"multigrid: {mg_reason}")
     sol = solve_load_cases(frame, comm, groups, rtol=DEFAULT_RTOL if rtol is None else rtol,
@@ -221,10 +221,10 @@ def petsc_comm(comm):
 
 def _free_share(frame, groups, condition, corrected, options, mpi):
     """The free hull vertices' share of KUBC's strain on a first-order bed (rank 0's, on every
-    rank), or None: another condition, a second-order bed, or the user's own aggregation
-    (the share's rtol rule was measured with smoothed aggregation)."""
+    rank), or None: another condition, a second-order bed, the user's own rtol, or the user's
+    own aggregation (the share's rtol rule was measured with smoothed aggregation)."""
     if (corrected or condition.second_order is not second_order_kubc
-            or not correction_wanted(options.ksp_options)
+            or options.rtol is not None or not correction_wanted(options.ksp_options)
             or given_options(("pc_gamg_agg_nsmooths",), options.ksp_options)):
         return None
     return mpi.bcast(free_strain_share(frame, groups) if mpi.rank == 0 else None)

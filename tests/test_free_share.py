@@ -19,7 +19,7 @@ from amfe.solvers.correction import (CORRECTED_RTOL, FREE_SHARE_MAX, free_strain
 from amfe.solvers.ksp import DEFAULT_RTOL
 from amfe.solvers.mgchoice import LOW_SHARE_MIN, choose_multigrid
 from helpers import homogenize_arrays
-from test_correction import box_bed, error
+from test_correction import box_bed, error, round_bed
 
 DENSE = {"n_particles": 9000, "n_bonds": 40000, "fill_ratio": 1e3}
 
@@ -97,6 +97,8 @@ def test_whole_beds_have_no_share_and_cut_beds_one():
     bed = box_bed()
     frame = build_frame(bed.centers, bed.radii)
     assert free_strain_share(frame, kubc_groups(frame)) == 0.0
+    cut = build_frame(*round_bed())
+    assert 0.0 < free_strain_share(cut, kubc_groups(cut)) < 1.0
 
 
 @pytest.fixture(scope="module")
@@ -120,3 +122,5 @@ def test_a_light_free_vertex_solves_at_1e5_within_the_contract(light_bed):
     own = homogenize_arrays(x, r, solver="gamg", size=size,
                             ksp_options={"pc_gamg_agg_nsmooths": "0"})
     assert own["solver"]["rtol"] == DEFAULT_RTOL
+    # and so does the user's own rtol
+    assert homogenize_arrays(x, r, solver="gamg", size=size, rtol=1e-6)["solver"]["rtol"] == 1e-6
