@@ -84,6 +84,16 @@ def test_a_second_spring_model_is_one_table_entry(monkeypatch):
         k, spring_constants(np.array([1e-6, 4e-6]), np.array([5e-6, 6e-6]), Material())))
 
 
+def test_an_unknown_spring_model_is_named():
+    from amfe.errors import AmfeError
+    with pytest.raises(AmfeError, match="unknown spring model 'continuum'; choose one of paper"):
+        spring_constants(np.array([1e-6]), np.array([5e-6]), Material(), "continuum")
+    with pytest.raises(AmfeError, match="unknown spring model"):
+        _compiled_sums(np.zeros((2, 3)) + [[0, 0, 0], [1e-5, 0, 0]], np.full(2, 6e-6),
+                       Material(), (np.zeros(3), np.full(3, 1e-4), np.full(3, 1e-4),
+                                    np.ones(3, np.int64)), springs=["paper"])
+
+
 _TOY = """
 from amfe.model.material import Material
 def coefficients(material):

@@ -20,6 +20,7 @@ from functools import lru_cache
 import numpy as np
 from scipy.optimize import brentq
 
+from amfe.errors import AmfeError
 from amfe.model.material import Material
 
 
@@ -73,8 +74,12 @@ SPRING_MODELS = {"paper": SpringModel("paper", paper_coefficients, paper_springs
 
 
 def spring_model(name="paper") -> SpringModel:
-    """The :class:`SpringModel` called ``name``."""
-    return SPRING_MODELS[name]
+    """The :class:`SpringModel` called ``name``; AmfeError for an unknown name."""
+    try:
+        return SPRING_MODELS[name]
+    except (KeyError, TypeError):
+        raise AmfeError(f"unknown spring model {name!r}; choose one of "
+                        f"{', '.join(SPRING_MODELS)}") from None
 
 
 def normal_denominator(a_star, nu, psi):
@@ -106,13 +111,13 @@ def critical_a_star(nu, psi):
                         xtol=1e-15, rtol=1e-15))
 
 
-def spring_constants(a, R, material: Material, model: str = "paper"):
+def spring_constants(a, R, material: Material, springs: str = "paper"):
     """k_n, k_t, kappa_n, kappa_t (each (M,)) for contact radii a and effective radii R.
 
-    ``model`` names an entry of :data:`SPRING_MODELS`. Assumes 0 < a* = a/R <
+    ``springs`` names an entry of :data:`SPRING_MODELS`. Assumes 0 < a* = a/R <
     critical_a_star; :func:`amfe.model.bonds.bond_springs` checks that before calling.
     """
-    chosen = spring_model(model)
+    chosen = spring_model(springs)
     a = np.asarray(a, dtype=float)
     R = np.asarray(R, dtype=float)
     return chosen.springs(a, R, chosen.coefficients(material))
