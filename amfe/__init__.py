@@ -47,6 +47,7 @@ _FACE = {
     "read_bed": "amfe.io.bedfile", "write_bed": "amfe.io.bedfile",
     "homogenize": "amfe.api", "Result": "amfe.io.result", "Fields": "amfe.io.result",
     "read_result": "amfe.io.readback", "ResultSet": "amfe.io.readback",
+    "sweep": "amfe.study", "SweepTable": "amfe.study.table",
     "homogenize_bed": "amfe.solvers.driver", "SolveOptions": "amfe.model.options",
     "Surrogate": "amfe.training.predict",
     "AmfeError": "amfe.errors",

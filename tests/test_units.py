@@ -1,4 +1,4 @@
-"""Lengths with units on the command line (amfe.cli.units): values, refusals, and pack's use."""
+"""Lengths with units on the command line (amfe.io.units): values, refusals, and pack's use."""
 import argparse
 
 import numpy as np
@@ -6,7 +6,7 @@ import pytest
 
 from cli_fixtures import run_main
 
-from amfe.cli.units import length, parse_length
+from amfe.io.units import length, parse_length
 from amfe.io.bedfile import read_bed
 
 

@@ -10,7 +10,7 @@ import os
 import sys
 
 from amfe.cli.options import add_solver_args
-from amfe.cli.units import length
+from amfe.io.units import length
 from amfe.errors import AmfeError
 
 PROPERTY_UNITS = [("Ex", "GPa"), ("Ey", "GPa"), ("Ez", "GPa"), ("nu_yz", ""), ("nu_xz", ""),

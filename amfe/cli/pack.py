@@ -10,7 +10,7 @@ from decimal import Decimal
 import numpy as np
 
 from amfe.cli.homogenize import add_material_args, add_memory_arg, given_material
-from amfe.cli.units import length
+from amfe.io.units import length
 from amfe.errors import AmfeError
 from amfe.io.bedfile import write_bed
 from amfe.io.paths import check_output
@@ -70,7 +70,7 @@ BED_ARGS = (
                                             "are shrunk (default: 0.98; must be below the "
                                             "critical 0.9934)")),
 )
-#: The length options and their unit when bare (a value may carry its own: amfe.cli.units).
+#: The length options and their unit when bare (a value may carry its own: amfe.io.units).
 LENGTH_UNITS = {"--mean-radius": length("um"), "--layer-thickness": length("mm"),
                 "--track-width": length("mm"), "--hatch-spacing": length("mm"),
                 "--skip-length": length("mm"), "--offset": length("mm")}
