@@ -11,6 +11,7 @@ import numpy as np
 
 from amfe.cli.homogenize import add_material_args, add_memory_arg, given_material
 from amfe.io.units import length
+from amfe.dataset.density import PRECISION, solid_fraction
 from amfe.errors import AmfeError
 from amfe.io.bedfile import write_bed
 from amfe.io.paths import check_output
@@ -212,7 +213,6 @@ def report(bed, output, title, material=None):
         else find_bonds(bed.centers, bed.radii)
     write_bed(output, bed)
     a_star_max = bed.attrs["a_star_max"]
-    box = float(np.prod(bed.attrs["size"]))
     print(title)
     if periodic:
         print(f"  periodic box      {' x '.join(f'{v * 1e3:.6g}' for v in bed.attrs['periodic'])} "
@@ -221,8 +221,10 @@ def report(bed, output, title, material=None):
     print(f"  particles         {bed.n} (of {bed.attrs['n_lattice']} lattice sites)")
     print(f"  bonds             {len(bonds)}")
     print(f"  mean radius       {bed.radii.mean() * 1e6:.4f} um")
-    print(f"  packing fraction  {bed.sphere_volume() / box:.4f} "
-          "(sphere volumes / box volume; overlaps counted twice)")
+    fraction, error = solid_fraction(bed.centers, bed.radii, np.zeros(3),
+                                     np.asarray(bed.attrs["size"], dtype=float))
+    print(f"  solid fraction    {fraction:.4f} (the union of the spheres over the box; "
+          f"+- {PRECISION:g}; relative density)")
     if len(bonds):
         s = bonds.a_star
         print(f"  a* min/mean/max   {s.min():.4f} / {s.mean():.4f} / {s.max():.4f} "
