@@ -93,3 +93,9 @@ def test_a_bed_prints_what_it_is_not_its_arrays():
     assert "[" not in text and len(text) < 200
     loose = repr(amfe.Bed(bed.centers, bed.radii))
     assert "spheres' bounding box" in loose
+
+
+def test_a_surrogate_prints_what_it_reads_and_where_it_holds():
+    text = repr(amfe.Surrogate.load())
+    assert text.startswith("Surrogate(multiscale_small.pt: ")
+    assert "0.6 x 0.6 x 0.3 mm" in text and "90 % intervals at 0.6x0.6 mm" in text

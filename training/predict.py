@@ -111,6 +111,20 @@ class Surrogate:
     def n_members(self):
         return len(self.nets)
 
+    def __repr__(self) -> str:
+        """One line: the file, the networks, what they read, the size and material trained on,
+        and the sizes with calibrated intervals."""
+        px, m = self.ckpt.get("pixelation") or {}, self.ckpt.get("material") or {}
+        size = " x ".join(f"{1e3 * v:g}" for v in px.get("bed_size", ())) or "?"
+        conformal = self.ckpt.get("conformal") or {}
+        sizes = ", ".join(conformal.get("sizes", {})) or "none"
+        coverage = (f"{100 * conformal['coverage']:g} % intervals at {sizes} mm"
+                    if conformal else "no calibrated intervals")
+        return (f"Surrogate({os.path.basename(self.path)}: {self.n_members} x "
+                f"{self.ckpt.get('arch')} reading {', '.join(self.inputs)}; trained on "
+                f"{size} mm beds, E {m.get('E', float('nan')) / 1e9:g} GPa, nu "
+                f"{m.get('nu')}, psi {m.get('psi')}; {coverage})")
+
     def member_outputs(self, images, batch_size=None):
         """Raw predictions of every member, float64 array (members, n, 6)."""
         x = image_batch(images, self.ckpt, self.path)
