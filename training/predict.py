@@ -28,14 +28,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from amfe.vocab import LABEL_NAMES
 from amfe.errors import AmfeError
-
-from amfe.training.checkpoint import build_members, check_image_shape, load_checkpoint
+from amfe.training.checkpoint import build_members, check_image_shape, describe, load_checkpoint
 from amfe.training.device import device_of
 from amfe.training.data import (DEFAULT_INPUTS, Normalizer, check_inputs, flip_images,
                                  image_batch, transpose_labels)
 from amfe.training.stiffness_predict import is_stiffness, member_constants, summarize
+from amfe.vocab import LABEL_NAMES
 
 DEFAULT_MODEL_NAME = "multiscale_small.pt"
 TRAIN_HINT = ("train it with the commands of docs/model_card.md (`amfe train` per member, "
@@ -112,18 +111,7 @@ class Surrogate:
         return len(self.nets)
 
     def __repr__(self) -> str:
-        """One line: the file, the networks, what they read, the size and material trained on,
-        and the sizes with calibrated intervals."""
-        px, m = self.ckpt.get("pixelation") or {}, self.ckpt.get("material") or {}
-        size = " x ".join(f"{1e3 * v:g}" for v in px.get("bed_size", ())) or "?"
-        conformal = self.ckpt.get("conformal") or {}
-        sizes = ", ".join(conformal.get("sizes", {})) or "none"
-        coverage = (f"{100 * conformal['coverage']:g} % intervals at {sizes} mm"
-                    if conformal else "no calibrated intervals")
-        return (f"Surrogate({os.path.basename(self.path)}: {self.n_members} x "
-                f"{self.ckpt.get('arch')} reading {', '.join(self.inputs)}; trained on "
-                f"{size} mm beds, E {m.get('E', float('nan')) / 1e9:g} GPa, nu "
-                f"{m.get('nu')}, psi {m.get('psi')}; {coverage})")
+        return describe(self.ckpt, self.path, self.n_members, self.inputs)
 
     def member_outputs(self, images, batch_size=None):
         """Raw predictions of every member, float64 array (members, n, 6)."""
