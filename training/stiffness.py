@@ -137,7 +137,7 @@ def predict_stiffness(net, images, extra=None, tta="none", scale=1.0):
     """
     from amfe.training.data import flip_images
     from amfe.training.device import device_of
-    from amfe.training.predict import symmetries, tta_mode
+    from amfe.training.ensemble import symmetries, tta_mode
     net.eval()
     syms = symmetries(tta_mode(tta), images.shape[-1] == images.shape[-2])
     dev = device_of(net)
