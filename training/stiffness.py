@@ -21,7 +21,7 @@ on C as a tensor, C' = M C M^T with M (6, 6) orthogonal (:func:`voigt_map`):
 - the x <-> y swap (the image's transpose) permutes xx <-> yy and yz <-> xz.
 
 The six-constant models keep their own path (a mirror leaves the six
-constants unchanged, amfe.training.predict.predict_raw); these maps are
+constants unchanged, amfe.training.ensemble.predict_raw); these maps are
 for models that predict C.
 """
 import numpy as np

@@ -13,7 +13,7 @@ members whose 21 outputs are the Cholesky factor of C in the unit
   (:func:`nine_constants`, the formulas of
   amfe.model.averages.compliance_and_constants, batched);
 - the spread and flag are those of the members' own six constants
-  (amfe.training.predict.summarize_members), as for a six-constant ensemble.
+  (amfe.training.ensemble.summarize_members), as for a six-constant ensemble.
 
 :func:`summarize` is what ``Surrogate.predict`` calls: a six-constant
 checkpoint goes through exactly the path it always took.

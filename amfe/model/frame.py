@@ -17,7 +17,7 @@ import numpy as np
 from amfe.model.bonds import Bonds, bond_springs, contact_geometry, find_pairs
 from amfe.errors import AmfeError
 from amfe.model.material import STEEL, Material
-from amfe.model.carrying import bed_box, component_labels, removed_report
+from amfe.model.carrying import bed_box, component_labels, periodic_carrying, removed_report
 from amfe.model.conditions import get_condition
 from amfe.model.torus import check_box, find_periodic_pairs, wrap
 
@@ -151,7 +151,10 @@ def build_frame(centers, radii, material: Material = STEEL, a_star_cap=None, non
                         "(bonded means |x_j - x_i| < R_i + R_j)")
     contact_geometry(x, r, i, j, None if box is None else shift * L)  # errors anywhere in the bed
     labels = component_labels(n_input, i, j)
-    ids = get_condition(bc).carrying(x, r, i, j, shift, L, labels)
+    carrying = get_condition(bc).carrying
+    if box is not None and not get_condition(bc).periodic:
+        carrying = periodic_carrying   # a torus: what winds round it carries load
+    ids = carrying(x, r, i, j, shift, L, labels)
     keep = np.isin(labels, ids)
     kept = np.flatnonzero(keep)
     if kept.size < 4:
