@@ -14,7 +14,8 @@ from amfe.io.mpi import on_root, same_on_every_rank
 from amfe.io.result import Result  # noqa: F401 - the type homogenize returns
 from amfe.io.result_meta import describe_input
 from amfe.io.vtu import write_fields_vtu
-from amfe.model.options import (BC_NAMES, SolveOptions, check_choice, check_flag,
+from amfe.model.conditions import CONDITIONS, condition_names
+from amfe.model.options import (SolveOptions, check_choice, check_flag,
                                 check_petsc_options)
 
 
@@ -122,7 +123,7 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
                             f"{type(value).__name__} {value!r}")
     if material_source is not None and not isinstance(material_source, str):
         raise AmfeError(f"homogenize: material_source must be a str, got {material_source!r}")
-    check_choice("bc", bc, BC_NAMES + ("all",))
+    check_choice("bc", bc, condition_names() + ("all",))
     pcomm = petsc_comm(comm)
     mpi = pcomm.tompi4py()
     # Collective, before the first collective that depends on them: a path on one rank and
@@ -164,7 +165,8 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
         return result
     if bc != "all":
         return one(bc, vtu_dir)
-    names = ["kubc", "subc"] + (["periodic"] if error is None and "periodic" in bed.attrs else [])
+    periodic_bed = error is None and "periodic" in bed.attrs
+    names = [n for n, c in CONDITIONS.items() if c.in_all and (periodic_bed or not c.periodic)]
     return {name: one(name, vtu_dir and os.path.join(vtu_dir, name)) for name in names}
 
 

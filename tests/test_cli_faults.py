@@ -50,7 +50,7 @@ def test_nan_weights_are_flagged_never_in_distribution(model, tmp_path):
     assert "not finite" in line and "--fallback" in line
     assert not out.exists()
     # the ensemble summary itself flags it, whatever the threshold
-    from amfe.training.predict import summarize_members
+    from amfe.training.ensemble import summarize_members
     members = np.ones((2, 3, 6))
     members[1, 1, 4] = np.nan
     res = summarize_members(members, threshold=None)

@@ -124,7 +124,8 @@ def test_members_mean_stiffness(models):
 
 def test_six_constant_path_is_unchanged(models):
     """A six-constant model: the members' TTA-averaged decoded outputs, no stiffness keys."""
-    from amfe.training.predict import Surrogate, predict_raw
+    from amfe.training.ensemble import predict_raw
+    from amfe.training.predict import Surrogate
     sur = Surrogate.load(models[0])
     x = images_of(models[2])
     res = sur.predict(x)

@@ -16,7 +16,8 @@ from amfe.training.checkpoint import load_checkpoint, save_checkpoint
 from amfe.training.data import (BedDataset, Normalizer, augment_batch, dataset_hash, dataset_info,
                            read_rows, split_indices, transpose_labels)
 from amfe.training.nets import build_net, count_parameters
-from amfe.training.predict import Surrogate, summarize_members
+from amfe.training.ensemble import summarize_members
+from amfe.training.predict import Surrogate
 from amfe.training.train import Report, TrainConfig, train_member, train_model
 
 torch.set_num_threads(1)

@@ -9,7 +9,7 @@ import torch
 from amfe.training.checkpoint import load_checkpoint, save_checkpoint
 from amfe.training.data import Normalizer, flip_images, transpose_labels
 from amfe.training.nets import build_net
-from amfe.training.predict import predict_raw, symmetries
+from amfe.training.ensemble import predict_raw, symmetries
 from amfe.training.train import TrainConfig, train_model
 from helpers import ROOT
 from test_training import write_synthetic

@@ -21,7 +21,7 @@ on C as a tensor, C' = M C M^T with M (6, 6) orthogonal (:func:`voigt_map`):
 - the x <-> y swap (the image's transpose) permutes xx <-> yy and yz <-> xz.
 
 The six-constant models keep their own path (a mirror leaves the six
-constants unchanged, amfe.training.predict.predict_raw); these maps are
+constants unchanged, amfe.training.ensemble.predict_raw); these maps are
 for models that predict C.
 """
 import numpy as np
@@ -137,7 +137,7 @@ def predict_stiffness(net, images, extra=None, tta="none", scale=1.0):
     """
     from amfe.training.data import flip_images
     from amfe.training.device import device_of
-    from amfe.training.predict import symmetries, tta_mode
+    from amfe.training.ensemble import symmetries, tta_mode
     net.eval()
     syms = symmetries(tta_mode(tta), images.shape[-1] == images.shape[-2])
     dev = device_of(net)

@@ -13,7 +13,7 @@ members whose 21 outputs are the Cholesky factor of C in the unit
   (:func:`nine_constants`, the formulas of
   amfe.model.averages.compliance_and_constants, batched);
 - the spread and flag are those of the members' own six constants
-  (amfe.training.predict.summarize_members), as for a six-constant ensemble.
+  (amfe.training.ensemble.summarize_members), as for a six-constant ensemble.
 
 :func:`summarize` is what ``Surrogate.predict`` calls: a six-constant
 checkpoint goes through exactly the path it always took.
@@ -47,7 +47,7 @@ def member_stiffness(sur, x, batch_size=None):
     x: the validated image tensor (n, channels, H, W) float32.
     """
     from amfe.training.device import device_of
-    from amfe.training.predict import CPU_PASS_IMAGES, GPU_PASS_IMAGES, symmetries
+    from amfe.training.ensemble import CPU_PASS_IMAGES, GPU_PASS_IMAGES, symmetries
     from amfe.training.stiffness import predict_stiffness
     n_syms = len(symmetries(sur.tta, x.shape[-1] == x.shape[-2]))
     scale = float(sur.ckpt["stiffness_scale"])
@@ -70,7 +70,7 @@ def summarize(sur, images, batch_size=None):
     stiffness head also stiffness (n, 6, 6) [Pa], constants9 (n, 9) (NINE order) and spread9
     (n, 9), the members' relative spread of the nine."""
     from amfe.training.data import image_batch
-    from amfe.training.predict import relative_spread, summarize_members
+    from amfe.training.ensemble import relative_spread, summarize_members
     if not is_stiffness(sur.ckpt):
         return summarize_members(sur.member_outputs(images, batch_size), sur.spread_scale,
                                  sur.threshold)

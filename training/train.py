@@ -33,7 +33,8 @@ from amfe.training.data import (DEFAULT_INPUTS, BedDataset, Normalizer, augment_
                    dataset_hash, dataset_info, read_rows, split_indices)
 from amfe.training.metrics import metrics_line, property_metrics, validation_metrics
 from amfe.training.nets import build_net, count_parameters, resolved_args
-from amfe.training.predict import calibrate_fill, predict_raw, tta_mode
+from amfe.training.ensemble import predict_raw, summarize_members, tta_mode
+from amfe.training.predict import calibrate_fill
 
 MEMORY_LIMIT = 1 << 30   # train from memory when the selected images take less (bytes)
 
@@ -347,7 +348,6 @@ def calibrate_spread(members, percentile=95.0):
     scale: the median relative spread per property; threshold: the
     ``percentile`` of the score max_p(spread_p / scale_p) over the beds.
     """
-    from amfe.training.predict import summarize_members
     rel = summarize_members(members)["spread"]
     scale = np.median(rel, axis=0)
     scale = np.where(scale > 0, scale, 1.0)

@@ -24,6 +24,7 @@ import sys
 from amfe.cli.interrupt import launcher_rank
 from amfe.cli.options import add_solver_args
 from amfe.errors import AmfeError
+from amfe.model.conditions import condition_names
 from amfe.model.scales import SCALES
 
 
@@ -47,7 +48,7 @@ def register(sub):
     p.add_argument("--max-failed-share", type=float, default=None, metavar="F",
                    help="exit with an error (status 2, the file is still written) when more than "
                         "this share of the records failed (default 0.05)")
-    p.add_argument("--bc", choices=["kubc", "subc", "mixed"], default="kubc",
+    p.add_argument("--bc", choices=condition_names(datasets=True), default="kubc",
                    help="boundary conditions of the labels (default kubc; see amfe homogenize "
                         "--bc; data-set beds are not periodic)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")

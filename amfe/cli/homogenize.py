@@ -12,6 +12,7 @@ import sys
 from amfe.cli.options import add_solver_args
 from amfe.io.units import length
 from amfe.errors import AmfeError
+from amfe.model.conditions import CONDITIONS
 
 PROPERTY_UNITS = [("Ex", "GPa"), ("Ey", "GPa"), ("Ez", "GPa"), ("nu_yz", ""), ("nu_xz", ""),
                   ("nu_xy", ""), ("G_yz", "GPa"), ("G_xz", "GPa"), ("G_xy", "GPa")]
@@ -30,13 +31,11 @@ def register(sub):
     p.add_argument("--cap-a-star", type=float, default=None, metavar="A",
                    help="evaluate bonds with a* > A at a* = A (A below the critical a*) "
                         "instead of refusing them; the JSON reports n_capped")
-    p.add_argument("--bc", choices=["kubc", "mixed", "subc", "periodic", "all"], default="kubc",
-                   help="kubc: six unit macro-strains on the boundary, one operator (default); "
-                        "mixed: the paper's figure-2 experiments, prescribed displacements on "
-                        "one pair of faces, traction-free elsewhere, six operators; subc: six "
-                        "unit macro-stresses as loads on the boundary layer; periodic: a "
-                        "periodic bed (amfe pack --periodic) on its torus; all: kubc and subc "
-                        "(and periodic on a periodic bed) side by side with their gap")
+    p.add_argument("--bc", choices=[*CONDITIONS, "all"], default="kubc",
+                   help="; ".join(f"{n}: {c.help}" for n, c in CONDITIONS.items())
+                   + "; all: " + " and ".join(n for n, c in CONDITIONS.items()
+                                               if c.in_all and not c.periodic)
+                   + " (and the periodic ones on a periodic bed) side by side with their gap")
     p.add_argument("--diagnose", action="store_true",
                    help="report per load case the iterations, true residual, eigenvalue "
                         "estimates of the preconditioned operator and GAMG complexities "

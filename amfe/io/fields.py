@@ -22,6 +22,7 @@ import numpy as np
 from amfe.model.averages import unit_strains
 from amfe.model.element import bond_end_loads
 from amfe.model.periodic import bond_jumps
+from amfe.model.conditions import get_condition
 from amfe.model.subc import unit_stresses
 from amfe.vocab import CASE_NAMES
 
@@ -143,7 +144,7 @@ def frame_fields(frame, u, groups, bc="kubc", centers=None, radii=None, strains=
     def stack(key, scale):
         return np.array([d[key] * scale for d in loads])
 
-    subc = bc == "subc"
+    subc = get_condition(bc).loads == "stress"   # the cases apply macro-stresses
     return Fields(
         particle_id=ids,
         centers=(frame.centers[order] * L + frame.origin if centers is None

@@ -213,6 +213,36 @@ def removed_report(x, r, labels, kept_ids, n_input):
             "largest": listed}
 
 
+# The carrying rules of the boundary-condition table (amfe.model.conditions), one signature:
+# (x (n,3), r (n,), bonds i, j (M,), shift (M,3) or None, box (3,) or None, labels (n,)) ->
+# the sorted ids of the load-carrying components.
+
+def kubc_carrying(x, r, i, j, shift, box, labels):
+    """KUBC: the components its prescribed boundary translations hold."""
+    return kubc_held(x, r, labels)
+
+
+def mixed_carrying(x, r, i, j, shift, box, labels):
+    """Mixed conditions: KUBC's rule, and one held piece at most (the paper's grips hold one
+    frame; each piece would keep its own free rigid motions)."""
+    ids = kubc_held(x, r, labels)
+    if ids.size > 1:
+        raise AmfeError(f"mixed conditions: the bed has {ids.size} separate load-carrying pieces; "
+                        "the grips of the paper's experiments hold one frame (each piece would "
+                        "keep its own free rigid motions): use --bc kubc")
+    return ids
+
+
+def subc_carrying(x, r, i, j, shift, box, labels):
+    """SUBC: the components that reach all six faces."""
+    return subc_spanning(x, r, labels)
+
+
+def periodic_carrying(x, r, i, j, shift, box, labels):
+    """Periodic: the components that wind round the torus."""
+    return periodic_winding(x.shape[0], i, j, shift, labels)
+
+
 #: Share of the particles above which removing them is a warning.
 WARN_SHARE = 0.01
 

@@ -17,8 +17,8 @@ import numpy as np
 from amfe.model.bonds import Bonds, bond_springs, contact_geometry, find_pairs
 from amfe.errors import AmfeError
 from amfe.model.material import STEEL, Material
-from amfe.model.carrying import (bed_box, component_labels, kubc_held, periodic_winding,
-                                 removed_report, subc_spanning)
+from amfe.model.carrying import bed_box, component_labels, periodic_carrying, removed_report
+from amfe.model.conditions import get_condition
 from amfe.model.torus import check_box, find_periodic_pairs, wrap
 
 
@@ -127,8 +127,8 @@ def build_frame(centers, radii, material: Material = STEEL, a_star_cap=None, non
     periodic with these periods (docs/model.md, section 9): bonds by minimum
     image, the components that wind round the torus, which together must wrap
     round it in x, y and z (else no macro-stress along some axis: an error).
-    bc: "kubc", "mixed" or "subc" picks the finite rule of
-    :mod:`amfe.model.carrying` (mixed: one held piece at most). size (3,) [m]:
+    bc: a condition of :mod:`amfe.model.conditions`, whose carrying rule picks the
+    load-carrying components (:mod:`amfe.model.carrying`; mixed: one held piece at most). size (3,) [m]:
     the bed's recorded box (attrs ``size``); V is its volume, else that of the
     load-carrying spheres' bounding box (a periodic bed: the periods).
     """
@@ -151,7 +151,10 @@ def build_frame(centers, radii, material: Material = STEEL, a_star_cap=None, non
                         "(bonded means |x_j - x_i| < R_i + R_j)")
     contact_geometry(x, r, i, j, None if box is None else shift * L)  # errors anywhere in the bed
     labels = component_labels(n_input, i, j)
-    ids = _carrying(x, r, i, j, shift, L, labels, bc)
+    carrying = get_condition(bc).carrying
+    if box is not None and not get_condition(bc).periodic:
+        carrying = periodic_carrying   # a torus: what winds round it carries load
+    ids = carrying(x, r, i, j, shift, L, labels)
     keep = np.isin(labels, ids)
     kept = np.flatnonzero(keep)
     if kept.size < 4:
@@ -215,17 +218,3 @@ def frame_origin(centers):
     near = np.where(lo > 0, lo, np.where(hi < 0, -hi, 0.0))   # the smallest |c| per axis
     far = (near > 0) & (near >= FAR * (hi - lo))
     return np.where(far, lo + (hi - lo) / 2, 0.0)
-
-
-def _carrying(x, r, i, j, shift, box, labels, bc):
-    """Sorted ids of the components that carry load under ``bc`` (docs/model.md, section 5)."""
-    if box is not None:
-        return periodic_winding(x.shape[0], i, j, shift, labels)
-    if bc == "subc":
-        return subc_spanning(x, r, labels)
-    ids = kubc_held(x, r, labels)
-    if bc == "mixed" and ids.size > 1:
-        raise AmfeError(f"mixed conditions: the bed has {ids.size} separate load-carrying pieces; "
-                        "the grips of the paper's experiments hold one frame (each piece would "
-                        "keep its own free rigid motions): use --bc kubc")
-    return ids
