@@ -21,12 +21,12 @@ import sys
 import numpy as np
 
 from amfe.model.extrapolate import extrapolate
+from run.common import ROOT
 
 KEYS = ["Ex", "Ey", "Ez", "G_yz", "G_xz", "G_xy", "E_mean"]
 """E_mean: the mean of Ex, Ey, Ez, extrapolated as one constant (it averages the grid's
 alignment noise of the three axes)."""
-STORE = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "docs",
-                     "voxel_model_error.json")
+STORE = os.path.join(ROOT, "docs", "voxel_model_error.json")
 HEADLINE_BED, HEADLINE_KEY = "periodic48", "E_mean"
 """The line's bed: a periodic one, where no boundary choice enters (under KUBC on the bed's
 box the continuum's limit H -> 0 loses its grip on faces no sphere reaches; section 10)."""
