@@ -87,7 +87,7 @@ def test_wide_intervals_flag_the_bed():
 
 
 def test_calibrate_script_stores_the_sizes_calibration(tmp_path):
-    """run/calibrate_intervals.py on a held-out tiny data set: the checkpoint's quantiles are
+    """run/train/calibrate_intervals.py on a held-out tiny data set: the checkpoint's quantiles are
     calibrate()'s on the model's own predictions, and predict then gives intervals."""
     import importlib.util
     import os
@@ -100,11 +100,7 @@ def test_calibrate_script_stores_the_sizes_calibration(tmp_path):
 
     model, bed = tiny_model(str(tmp_path))
     held = tiny_dataset(str(tmp_path / "held.h5"), n=30, failed=())
-    spec = importlib.util.spec_from_file_location(
-        "calibrate_intervals", os.path.join(os.path.dirname(__file__), "..", "run",
-                                            "calibrate_intervals.py"))
-    script = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(script)
+    from run.train import calibrate_intervals as script
     assert script.main([str(model), str(held), "-o", str(model)]) == 2   # never in place
     out = tmp_path / "cal.pt"
     assert script.main([str(model), str(held), "-o", str(out), "--coverage", "0.8"]) == 0
@@ -140,11 +136,7 @@ def test_two_data_sets_of_one_size_calibrate_together(tmp_path):
                         failed=(), seed=1)
     b = write_synthetic(str(tmp_path / "b.h5"), n=15, shape=(1, 5, 5), attrs=TINY_ATTRS,
                         failed=(), seed=2)
-    spec = importlib.util.spec_from_file_location(
-        "calibrate_intervals", os.path.join(os.path.dirname(__file__), "..", "run",
-                                            "calibrate_intervals.py"))
-    script = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(script)
+    from run.train import calibrate_intervals as script
     out = tmp_path / "cal.pt"
     assert script.main([str(model), str(a), str(b), "-o", str(out)]) == 0
     have = load_checkpoint(out)["conformal"]["sizes"]["0.15x0.15"]

@@ -1,4 +1,4 @@
-"""Section 3 of the report (run/report_rve.py): the analysis of its rows, on synthetic rows
+"""Section 3 of the report (run/report/rve.py): the analysis of its rows, on synthetic rows
 whose limits, offsets and orderings are known."""
 import os
 import sys
@@ -7,8 +7,7 @@ import pytest
 
 from helpers import ROOT
 
-sys.path.insert(0, os.path.join(ROOT, "run"))
-import report_rve as R  # noqa: E402
+from run.report import rve as R
 
 
 def curve(c_inf, a, side):
@@ -136,7 +135,7 @@ def test_convergence_of_periodic_beds():
 def test_section_markdown_and_plot(tmp_path):
     """The writer's tables carry the rows' numbers; one PNG; JSON-ready analysis."""
     import json
-    from report_rve_write import section_rve
+    from run.report.rve_write import section_rve
     c = {"kubc": 2.14e11, "subc": 2.0e11, "periodic": 2.0e11}
     rows = rows_from(lambda kind, bc, b, s: curve(c[bc], 1e9 * (bc == "kubc"), b),
                      seeds=(0, 1), kinds=("full", "scan"))

@@ -14,8 +14,7 @@ from amfe.training.train import TrainConfig, train_model
 from helpers import ROOT
 from test_training import write_synthetic
 
-sys.path.insert(0, os.path.join(ROOT, "run"))
-import merge_members  # noqa: E402  (run/merge_members.py)
+from run.train import merge_members
 
 torch.set_num_threads(1)
 SHAPE = (6, 20, 20)

@@ -2,7 +2,7 @@
 
 The helpers make a figure read at a glance: plain percentages on a log axis
 (``20 %``, not ``2 x 10^1``), whole-number epoch ticks, and rtol labels that
-do not sit on top of one another. run/report_write.py uses them too.
+do not sit on top of one another. run/report/write.py uses them too.
 """
 import math
 import os

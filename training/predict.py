@@ -37,7 +37,7 @@ from amfe.vocab import LABEL_NAMES
 
 DEFAULT_MODEL_NAME = "multiscale_small.pt"
 TRAIN_HINT = ("train it with the commands of docs/model_card.md (`amfe train` per member, "
-              "then `run/merge_members.py`) or pass --model MODEL.pt from `amfe train`")
+              "then `run/train/merge_members.py`) or pass --model MODEL.pt from `amfe train`")
 
 
 def default_model_path():

@@ -24,7 +24,7 @@ Mirror / x <-> y augmentation moves C as a tensor (:func:`augment_tensor`,
 the batched form of amfe.training.stiffness.augment_stiffness). The
 checkpoint is an ordinary amfe surrogate checkpoint (arch ``multiscale``
 with ``outputs`` 21) plus ``head`` "stiffness", ``outputs`` "cholesky21"
-and ``stiffness_scale`` [Pa], so ``amfe predict`` and run/merge_members.py
+and ``stiffness_scale`` [Pa], so ``amfe predict`` and run/train/merge_members.py
 take it as they take a six-constant model (amfe.training.stiffness_predict).
 """
 import math

@@ -26,7 +26,7 @@ Binary, uncompressed (:data:`COMPRESSION`): meshio's zlib compresses every
 array of a file at one level, and on the paper's bed (295 583 particles,
 1.7 M bonds) it took 5 to 6 times as long as storing (3.6 times amfe 0.2's
 writer, whose budget is 1.5) for files 21 % smaller; the float64 fields hardly
-compress (run/bench_vtu.py, docs/benchmarks.md).
+compress (run/bench/vtu.py, docs/benchmarks.md).
 
 Atomicity: everything is checked before a file is touched. An old
 ``cases.pvd`` is removed first, each case is written atomically

@@ -58,7 +58,7 @@ Scales:
   bed: 257 000 particles, 1.4 million bonds, 65-75 s on one core): for clusters.
 - ``small``: 0.6 mm x 0.6 mm x 0.3 mm (the same three layers, a fifth of the side of
   the paper's base), images 3 x 20 x 20 with its cells. Chosen by measurement
-  on the 2-core development machine (``run/bench_dataset.py``, 40 beds, the
+  on the 2-core development machine (``run/bench/dataset.py``, 40 beds, the
   machine shared with other jobs): beds of 3 800-10 700 particles (mean
   7 100, 35 000 bonds), 0.02 s generation + 0.06 s image + 1.4 s
   homogenization per bed on one core; 2 400 beds/hour on 1 rank, 3 900 on
