@@ -63,7 +63,7 @@ def fill_statistic(images):
 
 
 def calibrate_fill(images, lo=0.5, hi=99.5):
-    """The accepted range of :func:`fill_statistic`: its lo-th and hi-th percentiles over ``images``."""
+    """The accepted range of :func:`fill_statistic`: its lo-th and hi-th percentiles, ``images``."""
     f = fill_statistic(images)
     return {"lo": float(np.percentile(f, lo)), "hi": float(np.percentile(f, hi)),
             "percentiles": [float(lo), float(hi)],

@@ -68,9 +68,11 @@ class ScanPath:
         if not self.track_width > 0:
             raise AmfeError(f"scan path: track width must be positive, got {self.track_width} m")
         if not self.hatch_spacing > 0:
-            raise AmfeError(f"scan path: hatch spacing must be positive, got {self.hatch_spacing} m")
+            raise AmfeError("scan path: hatch spacing must be positive, got "
+                            f"{self.hatch_spacing} m")
         if not 0.0 <= self.skip_fraction < 1.0:
-            raise AmfeError(f"scan path: skip fraction must lie in [0, 1), got {self.skip_fraction}")
+            raise AmfeError("scan path: skip fraction must lie in [0, 1), got "
+                            f"{self.skip_fraction}")
         if not self.skip_length > 0:
             raise AmfeError(f"scan path: skip length must be positive, got {self.skip_length} m")
 
