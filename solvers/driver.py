@@ -13,6 +13,7 @@ from collections import namedtuple
 
 import numpy as np
 
+from amfe.model.bed import Bed
 from amfe.model.carrying import frame_warnings
 from amfe.model.frame import build_frame
 from amfe.model.options import SolveOptions
@@ -86,7 +87,8 @@ BOUNDARY_CONDITIONS = {"kubc": Condition(kubc_groups, bagi_average, False, secon
                                              second_order_loads)}
 
 
-def homogenize_bed(bed, options=None, comm=None, *, input_error=None):
+def homogenize_bed(bed: Bed, options: SolveOptions | None = None, comm: object = None, *,
+                   input_error: AmfeError | None = None) -> Result:
     """Effective elastic constants of a bed of bonded spheres, as a :class:`Result`.
 
     bed: a checked :class:`~amfe.model.bed.Bed` (centres (N, 3) [m], radii (N,)
