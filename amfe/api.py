@@ -11,19 +11,26 @@ from dataclasses import replace
 from amfe.errors import AmfeError
 from amfe.io.console import messages
 from amfe.io.mpi import on_root, same_on_every_rank
-from amfe.io.result import Result  # noqa: F401 - the type homogenize returns
+from amfe.io.result import Result
 from amfe.io.result_meta import describe_input
 from amfe.io.vtu import write_fields_vtu
+from amfe.model.bed import Bed
 from amfe.model.conditions import CONDITIONS, condition_names
+from amfe.model.material import Material, resolve_material
 from amfe.model.options import (SolveOptions, check_choice, check_flag,
                                 check_petsc_options)
 
 
-def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_options=None,
-               a_star_cap=None, material=None, max_it=None, diagnose=False, progress=False,
-               vtu_dir=None, solver="auto", accept_unconverged=False, max_memory=None,
-               material_source=None, input_path=None, model="frame", voxel_size=None,
-               voxel_operator="assembled"):
+def homogenize(bed: Bed | str | os.PathLike | tuple, *, bc: str = "kubc",
+               rtol: float | None = None, comm: object = None, fields: bool = False,
+               petsc_options: dict | None = None, a_star_cap: float | None = None,
+               material: Material | dict | None = None, max_it: int | None = None,
+               diagnose: bool = False, progress: bool = False,
+               vtu_dir: str | os.PathLike | None = None, solver: str = "auto",
+               accept_unconverged: bool = False, max_memory: float | str | None = None,
+               material_source: str | None = None, input_path: str | os.PathLike | None = None,
+               model: str = "frame", voxel_size: float | None = None,
+               voxel_operator: str = "assembled") -> Result | dict[str, Result]:
     """Effective elastic constants of a powder bed, as a :class:`~amfe.io.result.Result`.
 
     Parameters
@@ -197,9 +204,6 @@ def _voxel(bed, options, error, comm, spec):
 
 def _inputs(bed, material, given_source):
     """(Bed, Material, its source) of the arguments: the bed checked, the material resolved."""
-    from amfe.model.bed import Bed
-    from amfe.model.material import Material, resolve_material
-
     if isinstance(bed, (tuple, list)) and len(bed) == 2:
         bed = Bed(*bed)
     elif not isinstance(bed, Bed):

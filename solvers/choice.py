@@ -167,7 +167,8 @@ def _choose(features, nranks, requested, rtol, package, user_options, singular, 
     if singular:
         return "gamg", "auto: the operator has free rigid modes (singular)", auto_rtol, {}
     if nranks > 1:
-        return "gamg", f"auto: the matrix spans {nranks} ranks (Cholesky is one-rank)", auto_rtol, {}
+        return ("gamg", f"auto: the matrix spans {nranks} ranks (Cholesky is one-rank)",
+                auto_rtol, {})
     if package is None:
         return "gamg", "auto: this PETSc has no Cholesky package", auto_rtol, {}
     f = features() if callable(features) else features

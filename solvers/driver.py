@@ -14,6 +14,7 @@ from collections import namedtuple
 
 import numpy as np
 
+from amfe.model.bed import Bed
 from amfe.model.carrying import frame_warnings
 from amfe.model.conditions import CONDITIONS, get_condition, solver_part
 from amfe.model.frame import build_frame
@@ -73,7 +74,8 @@ def bagi_average(frame, groups, u, moments, diagnose=False, cross=None, strain_c
                             "C_asymmetry": float(c_asym), **stats}
 
 
-def homogenize_bed(bed, options=None, comm=None, *, input_error=None):
+def homogenize_bed(bed: Bed, options: SolveOptions | None = None, comm: object = None, *,
+                   input_error: AmfeError | None = None) -> Result:
     """Effective elastic constants of a bed of bonded spheres, as a :class:`Result`.
 
     bed: a checked :class:`~amfe.model.bed.Bed` (centres (N, 3) [m], radii (N,)

@@ -124,7 +124,8 @@ def checked_inputs(mpi, bed, options, bcs, input_error=None):
     if isinstance(options, SolveOptions):
         given = dict(sorted(vars(options).items()), material=repr(options.material),
                      ksp_options=sorted(options.ksp_options.items()), box=digest(box))
-    hosts = agree_across_ranks(mpi, {**_arrays(bed), "material": repr(material), "options": repr(given),
+    hosts = agree_across_ranks(mpi, {**_arrays(bed), "material": repr(material),
+                                     "options": repr(given),
                                      "petsc": repr(sorted(PETSc.Options().getAll().items()))},
                                error)
     default = sum(default_limit(memory) for memory in dict(hosts).values())

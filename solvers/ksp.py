@@ -136,7 +136,8 @@ def check_solution(ksp, label, residual, pc_residual, accept=False):
     """
     reason = ksp.getConvergedReason()
     rtol, atol, dtol, max_it = ksp.getTolerances()
-    its, how = ksp.getIterationNumber(), f"{ksp.getType().upper()} solve with {ksp.getPC().getType()}"
+    its = ksp.getIterationNumber()
+    how = f"{ksp.getType().upper()} solve with {ksp.getPC().getType()}"
     if reason == PETSc.KSP.ConvergedReason.DIVERGED_INDEFINITE_PC or not math.isfinite(residual):
         check_converged(ksp, label)
         raise AmfeError(f"{label}: the {how} gave a non-finite solution (true residual "

@@ -141,7 +141,8 @@ class ConstrainedOperator:
         self.A, self.A_op = A, A_op
         t_assembly = time.perf_counter() - t0
         with petsc_options(ksp_options) as unused:
-            for name in AMFE_OPTIONS:  # read above, in another setting of the options: mark them used
+            # read above, in another setting of the options: mark them used
+            for name in AMFE_OPTIONS:
                 PETSc.Options().getString(name, "")
             ksp = make_ksp(A_op, A, rtol=rtol, max_it=max_it)
             if diagnose:
@@ -311,8 +312,8 @@ class ConstrainedOperator:
     def _residual_in_ksp_norm(self, b, x=None):
         """(true relative residual in the norm the KSP tests, that norm's name, rounding floor).
 
-        self._r holds r = b - A x (x: the KSP's solution unless given). Preconditioned (and none: preonly):
-        ||B r|| / ||B b||; natural: sqrt(r.Br / b.Bb); unpreconditioned:
+        self._r holds r = b - A x (x: the KSP's solution unless given). Preconditioned (and
+        none: preonly): ||B r|| / ||B b||; natural: sqrt(r.Br / b.Bb); unpreconditioned:
         ||r|| / ||b||. The floor is the normwise backward-error bound
         eps ||A||_F ||x|| / ||b||: no solve in double precision can promise
         a smaller relative residual.

@@ -90,7 +90,7 @@ def test_subc_galerkin_algorithm_is_chosen_per_rank_count_and_changes_nothing():
     (parallel), unless the user names one; PETSc's default gives the same C."""
     from amfe.solvers.blocksolve import with_block_defaults
     from amfe.solvers.petsc import init_petsc
-    PETSc = init_petsc()
+    init_petsc()
     assert with_block_defaults({}, True, 1) == {"matptap_via": "rap"}
     assert with_block_defaults({}, True, 3) == {"matptap_via": "nonscalable"}
     assert with_block_defaults({"matptap_via": "scalable"}, True, 2) == {
@@ -214,8 +214,9 @@ def test_cli_bc_all_prints_both_side_by_side_with_the_gap(bed_file, tmp_path):
     assert "need NOT bracket the periodic value" in flat and "(holds)" in flat
     d = json.loads(out.read_text())
     # with V the bed's box this 90-particle bed reads below E = 210 GPa: no note
-    assert ("not a unit error" in flat) == any(d["conditions"][c]["properties"][k] > 210e9
-                                               for c in ("kubc", "subc") for k in ("Ex", "Ey", "Ez"))
+    assert ("not a unit error" in flat) == any(
+        d["conditions"][c]["properties"][k] > 210e9
+        for c in ("kubc", "subc") for k in ("Ex", "Ey", "Ez"))
     assert d["bc"] == "all" and set(d["conditions"]) == {"kubc", "subc"}
     assert d["conditions"]["subc"]["bc"] == "subc" and d["energy_gap"] > 0
     Ck, Cs = (np.array(d["conditions"][c]["C"]) for c in ("kubc", "subc"))

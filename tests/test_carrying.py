@@ -304,7 +304,8 @@ def test_energy_ordering_holds_where_kubc_keeps_a_piece_subc_does_not():
     e C_subc e <= e C_kubc e still (KUBC's extra piece only adds energy)."""
     x = block(6)
     idx = np.rint(x / S).astype(int)
-    pit = (idx[:, 0] >= 1) & (idx[:, 0] <= 4) & (idx[:, 1] >= 1) & (idx[:, 1] <= 4) & (idx[:, 2] <= 1)
+    pit = ((idx[:, 0] >= 1) & (idx[:, 0] <= 4) & (idx[:, 1] >= 1) & (idx[:, 1] <= 4)
+           & (idx[:, 2] <= 1))
     tri = np.array([[2, 2.1, 0], [3, 2.1, 0], [2.5, 2.966, 0]]) * S     # sides S, as the lattice
     x, r = bed(x[~pit], tri)
     kubc = homogenize_arrays(x, r, rtol=1e-12)

@@ -1,4 +1,4 @@
-"""Split conformal intervals: the nominal coverage on synthetic data, none at an uncalibrated size."""
+"""Split conformal intervals: nominal coverage on synthetic data, none at an uncalibrated size."""
 import math
 
 import numpy as np

@@ -284,7 +284,8 @@ def test_merge_checks_before_it_destroys(tmp_path, monkeypatch, reference):
     recs = _parts_of(reference[0], out)
     parts = parts_dir(out)
     for k, rec in recs.items():
-        write_part(parts, rec, params if k != 7 else run_params("tiny", 9, N, GAMG_RTOL_AUTO, "auto"))
+        write_part(parts, rec,
+                   params if k != 7 else run_params("tiny", 9, N, GAMG_RTOL_AUTO, "auto"))
     # one part of another seed: refused and kept aside, no file under the final name
     with pytest.raises(AmfeError, match="record file .*rec_00000007.npz was refused"):
         merge_parts(out, parts, params)
@@ -354,7 +355,8 @@ def test_stale_temp_file_of_a_killed_writer_is_cleaned(tmp_path, capsys):
     assert fresh_legacy.exists() and other_host.exists() and live.exists() and other_target.exists()
     assert f"removed the stale temporary file {killed} (its writer, pid " in err
     assert "has ended" in err
-    assert re.search(re.escape(f"{stale_legacy} (unchanged for ") + r"12\d s, writer unknown\)", err)
+    assert re.search(re.escape(f"{stale_legacy} (unchanged for ")
+                     + r"12\d s, writer unknown\)", err)
     assert err.count("removed the stale temporary file") == 2
 
 

@@ -64,9 +64,11 @@ MUTATIONS = ["none", "subset", "value", "radius", "radius_huge", "shape_centers"
 PREDICT_MUTATIONS = ["value_huge", "scale_1e-300", "scale_1e300", "material_text",
                      "material_partial"]
 
-# Cases the solve side of issue 18 fixed, drawn by default (AMFE_FUZZ_ALL=0 leaves them out): coordinates at 1e-300 / 1e300 and material attributes of the wrong type
+# Cases the solve side of issue 18 fixed, drawn by default (AMFE_FUZZ_ALL=0 leaves them out):
+# coordinates at 1e-300 / 1e300 and material attributes of the wrong type
 # or incomplete (items 3, 12) in homogenize (predict handles them: drawn for it); a bed
-# declaring 2e9 particles (11: refused from the dataset shapes before reading); absurd pack sizes and radii, seeds >= 2^64 (10, 11); homogenize -o
+# declaring 2e9 particles (11: refused from the dataset shapes before reading); absurd pack sizes
+# and radii, seeds >= 2^64 (10, 11); homogenize -o
 # checked before the solve (6, 7). Pack's: PACK_PENDING.
 PENDING = {
     "homogenize_bed": PREDICT_MUTATIONS,
@@ -419,7 +421,8 @@ def test_fuzz_option_conflicts(tiny, data):
         return
     opts = init_petsc().Options()
     before = set(opts.getAll())
-    argv = [*(["--rtol", str(rtol)] if rtol else []), *(["-ksp_rtol", ksp_rtol] if ksp_rtol else [])]
+    argv = [*(["--rtol", str(rtol)] if rtol else []),
+            *(["-ksp_rtol", ksp_rtol] if ksp_rtol else [])]
 
     def ok(out, output):
         s = _strict_json(open(output).read())["solver"]

@@ -106,7 +106,8 @@ def test_the_checker_sees_an_upward_import(tmp_path):
     path.write_text("def f():\n    from amfe.solvers.driver import homogenize_bed\n")
     found = [name for _, name in imports_of(path, "amfe.model.bonds")]
     assert "amfe.solvers.driver" in found
-    assert LAYERS.index(layer_of("amfe.solvers.driver")) > LAYERS.index(layer_of("amfe.model.bonds"))
+    assert (LAYERS.index(layer_of("amfe.solvers.driver"))
+            > LAYERS.index(layer_of("amfe.model.bonds")))
 
 
 def test_no_file_over_400_lines():

@@ -12,7 +12,8 @@ from run.report import rve as R
 
 def curve(c_inf, a, side):
     """Constants c_inf + a / side for every constant (c_inf, a: numbers or {constant: number})."""
-    get = (lambda v, k: v[k] if isinstance(v, dict) else v)
+    def get(v, k):
+        return v[k] if isinstance(v, dict) else v
     return {k: get(c_inf, k) + get(a, k) / side for k in R.CONSTANTS}
 
 
@@ -48,7 +49,8 @@ def test_plan_seeds_and_budget():
 
 
 def test_table_means_spread_and_snap():
-    law = (lambda kind, bc, b, s: curve(1.0 + 0.02 * s, 0.0, b))   # seeds 0, 1: 1.00 and 1.02
+    def law(kind, bc, b, s):   # seeds 0, 1: 1.00 and 1.02
+        return curve(1.0 + 0.02 * s, 0.0, b)
     t = entries(rows_from(law, sides=(0.6,), seeds=(0, 1)))[0]
     assert t["seeds"] == 2 and t["mean"]["subc"]["Ex"] == pytest.approx(1.01)
     assert t["spread"]["kubc"] == pytest.approx(0.01 / 1.01)     # population std / mean

@@ -26,7 +26,8 @@ def test_the_rule_picks_each_method_where_it_should():
     assert choose_solver(huge, 1)[0] == "gamg"
     assert choose_solver(SPARSE, 1, package=None)[0] == "gamg"         # no factorisation package
     assert choose_solver(SPARSE, 1, user_options=["pc_type"])[0] == "gamg"  # the user's choice
-    assert choose_solver(SPARSE, 1, problem=Problem(singular=True))[0] == "gamg"        # free rigid modes
+    # free rigid modes
+    assert choose_solver(SPARSE, 1, problem=Problem(singular=True))[0] == "gamg"
     assert choose_solver(SPARSE, 1, rtol=1e-9)[0] == "cholesky"
     assert choose_solver(DENSE, 1, rtol=1e-9)[2] == 1e-9
     # a second-order answer (KUBC on a box) takes the corrected default, auto and gamg alike

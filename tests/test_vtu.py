@@ -191,7 +191,7 @@ def test_vtk_reads_exactly_what_meshio_reads(tmp_path):
 
 
 def documented_arrays():
-    """{array: unit} from the tables (| array | unit | meaning |) of docs/viewing.md's "The files"."""
+    """{array: unit} from the tables (| array | unit | meaning |) in docs/viewing.md's files."""
     text = (Path(__file__).resolve().parents[1] / "docs" / "viewing.md").read_text()
     section = text.split("## The files", 1)[1].split("\n## ", 1)[0]
     out = {}

@@ -67,7 +67,7 @@ def cropped_box(size, cell):
 
 
 def image_any_size(bed, size, cell, layer_thickness, spacing):
-    """(image (layers, H, W) float32, cropped size (x, y, z) [m]) of ``bed`` by the whole-cell rule."""
+    """(image (layers, H, W) float32, cropped size (x, y, z) [m]) of ``bed``, by whole cells."""
     import numpy as np
 
     from amfe.dataset.images import pixelate

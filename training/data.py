@@ -83,7 +83,8 @@ def _open(path):
     for name in ("images", "labels", "status"):
         if name not in f:
             f.close()
-            raise AmfeError(f"{path} is not an amfe data set: no /{name} (see amfe.dataset.datafile)")
+            raise AmfeError(f"{path} is not an amfe data set: no /{name} "
+                            "(see amfe.dataset.datafile)")
     if f["images"].ndim != 4 or f["labels"].shape[1:] != (6,):
         shape_i, shape_l = f["images"].shape, f["labels"].shape
         f.close()
@@ -157,7 +158,7 @@ def read_rows(path, rows=None, inputs=DEFAULT_INPUTS):
 
 
 def dataset_hash(path, rows=None, inputs=DEFAULT_INPUTS):
-    """sha256 (hex) of the input images (float32) and labels (float64) of ``rows`` (default: all ok)."""
+    """sha256 (hex) of the input images (float32) and labels (float64) of ``rows`` (default ok)."""
     images, labels = read_rows(path, rows, inputs)
     h = hashlib.sha256()
     h.update(np.ascontiguousarray(images, np.float32).tobytes())

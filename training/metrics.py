@@ -11,7 +11,7 @@ def relative_errors(pred, true):
 
 
 def property_metrics(pred, true):
-    """{property: {mre, median_re, p95_re, max_re, r2, n}} over the beds (relative errors as fractions).
+    """{property: {mre, median_re, p95_re, max_re, r2, n}} over the beds (relative errors, not %).
 
     mre: mean of |pred - true| / |true|; R^2 = 1 - sum (pred - true)^2 /
     sum (true - mean(true))^2.
@@ -23,7 +23,8 @@ def property_metrics(pred, true):
         ss_res = float(np.sum((pred[:, j] - true[:, j]) ** 2))
         ss_tot = float(np.sum((true[:, j] - true[:, j].mean()) ** 2))
         out[name] = {"mre": float(rel[:, j].mean()), "median_re": float(np.median(rel[:, j])),
-                     "p95_re": float(np.percentile(rel[:, j], 95)), "max_re": float(rel[:, j].max()),
+                     "p95_re": float(np.percentile(rel[:, j], 95)),
+                     "max_re": float(rel[:, j].max()),
                      "r2": 1.0 - ss_res / ss_tot if ss_tot > 0 else float("nan"),
                      "n": int(true.shape[0])}
     return out

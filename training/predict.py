@@ -61,7 +61,7 @@ def fill_statistic(images):
 
 
 def calibrate_fill(images, lo=0.5, hi=99.5):
-    """The accepted range of :func:`fill_statistic`: its lo-th and hi-th percentiles over ``images``."""
+    """The accepted range of :func:`fill_statistic`: its lo-th and hi-th percentiles, ``images``."""
     f = fill_statistic(images)
     return {"lo": float(np.percentile(f, lo)), "hi": float(np.percentile(f, hi)),
             "percentiles": [float(lo), float(hi)],
@@ -73,7 +73,7 @@ def calibrate_fill(images, lo=0.5, hi=99.5):
 class Surrogate:
     """The networks, normalisation and flag threshold of one checkpoint."""
 
-    def __init__(self, ckpt, path="model"):
+    def __init__(self, ckpt: dict, path: str = "model") -> None:
         self.ckpt = ckpt
         self.path = os.fspath(path)
         self.nets = build_members(ckpt, self.path)
@@ -98,7 +98,7 @@ class Surrogate:
                        "trained on label rule 1, converted to rule 2 (moduli x V_hull / V_box)")
 
     @classmethod
-    def load(cls, path=None):
+    def load(cls, path: str | os.PathLike | None = None) -> "Surrogate":
         if path is None:
             path = default_model_path()
             if not path.is_file():
@@ -106,13 +106,13 @@ class Surrogate:
         return cls(load_checkpoint(path), path)
 
     @property
-    def n_members(self):
+    def n_members(self) -> int:
         return len(self.nets)
 
     def __repr__(self) -> str:
         return describe(self.ckpt, self.path, self.n_members, self.inputs)
 
-    def member_outputs(self, images, batch_size=None):
+    def member_outputs(self, images: np.ndarray, batch_size: int | None = None) -> np.ndarray:
         """Raw predictions of every member, float64 array (members, n, 6)."""
         x = image_batch(images, self.ckpt, self.path)
         if is_stiffness(self.ckpt):   # the six constants of each member's C
@@ -122,7 +122,8 @@ class Surrogate:
             out[k] = predict_raw(net, x, self.norm, self.tta, batch_size).numpy()
         return out
 
-    def predict(self, images, batch_size=None):
+    def predict(self, images: "np.ndarray | str | os.PathLike | object | list",
+                batch_size: int | None = None) -> dict:
         """Predict the six constants of beds or of their images.
 
         ``images``: a :class:`~amfe.model.bed.Bed`, a bed file's path, a list of
@@ -151,7 +152,7 @@ class Surrogate:
         res["flagged"] = res["flagged"] | res["fill_out"]
         return res
 
-    def inputs_of(self, bed):
+    def inputs_of(self, bed: object) -> tuple:
         """The network input of ``bed``, imaged as the training data was.
 
         Returns (inputs (channels, H, W) float32: the image kinds of
@@ -168,7 +169,7 @@ class Surrogate:
             times["bonds"] = time.perf_counter() - t1
         return np.concatenate([parts[k] for k in self.inputs], axis=0), image, times
 
-    def predict_beds(self, beds):
+    def predict_beds(self, beds: list) -> list:
         """:meth:`predict_bed` of several beds with their images in one batch.
 
         Returns a list of (result dict with rows of length 1, image, seconds) per
@@ -189,7 +190,7 @@ class Surrogate:
         return [({key: v[k:k + 1] for key, v in res.items()}, image, {**times, "predict": share})
                 for k, (_, image, times) in enumerate(made)]
 
-    def predict_bed(self, bed):
+    def predict_bed(self, bed: object) -> tuple:
         """Image ``bed`` as the training data was and predict (label rule 2: the moduli
         of a rule-1 checkpoint are converted with the bed's own volumes).
 

@@ -128,7 +128,8 @@ def constants_from_stiffness(C):
 
 
 def predict_stiffness(net, images, extra=None, tta="none", scale=1.0):
-    """C (n, 6, 6) float64 [Pa] of a stiffness network, averaged over the TTA symmetries as a tensor.
+    """C (n, 6, 6) float64 [Pa] of a stiffness network, averaged over the TTA symmetries as a
+    tensor.
 
     ``net(images)`` (or ``net(images, extra)``, ``extra`` (n, ...) per image) returns raw
     (n, 21) outputs; the symmetric images go through the network as one batch on its

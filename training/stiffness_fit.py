@@ -32,7 +32,7 @@ def read_stiffness(path, rows):
 
 
 def stiffness_loss(raw, C_norm):
-    """Mean squared difference of the 21 independent entries of predicted and given C (normalised)."""
+    """Mean squared difference of the 21 independent entries of predicted and given C (normed)."""
     diff = stiffness_from_raw(raw) - C_norm
     return (diff[:, _UPPER[0], _UPPER[1]] ** 2).mean()
 

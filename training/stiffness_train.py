@@ -76,7 +76,7 @@ class StiffnessConfig:
 
 
 def raw_of_stiffness(C_norm):
-    """The 21 raw outputs (n, 21) float64 whose stiffness_from_raw is C_norm (n, 6, 6), normalised."""
+    """The 21 raw outputs (n, 21) float64 whose stiffness_from_raw is C_norm (n, 6, 6), normed."""
     C = torch.as_tensor(np.asarray(C_norm), dtype=torch.float64)
     L = torch.linalg.cholesky(C - EIG_FLOOR * torch.eye(6, dtype=C.dtype))
     d = torch.diagonal(L, dim1=-2, dim2=-1).clamp_min(1e-9)

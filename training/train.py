@@ -260,7 +260,8 @@ def train_model(data_path, cfg, progress=True, log=print):
         norm = Normalizer.fit(train_labels, log=log_flags)
     log(f"{data_path}: {info['n_rows']} records, {ok.size} ok; train {len(train_rows)}, "
         f"validation {len(val_rows)} (split seed {cfg.split_seed}); inputs "
-        f"{','.join(cfg.inputs)} {'x'.join(map(str, image_shape))}; {cfg.arch}, {cfg.members} member(s), "
+        f"{','.join(cfg.inputs)} {'x'.join(map(str, image_shape))}; {cfg.arch}, "
+        f"{cfg.members} member(s), "
         f"{cfg.epochs} epochs, batch {cfg.batch_size}, lr {cfg.lr:g} ({cfg.schedule}), "
         f"augment {cfg.augment}, tta {cfg.tta}, log moduli {cfg.log_moduli}"
         + (f", log {','.join(cfg.log_poisson)}" if cfg.log_poisson else "")

@@ -37,7 +37,8 @@ def register(sub):
                "images 3x20x20), paper (3 x 3 x 0.3 mm, images 3x100x100); tiny is for tests.")
     p.add_argument("-o", "--output", metavar="DATA.h5", help="data-set file to make (HDF5)")
     p.add_argument("--count", type=int, metavar="M",
-                   help="number of records; a larger M grows an unfinished run, keeping its records")
+                   help="number of records; a larger M grows an unfinished run, keeping its "
+                        "records")
     p.add_argument("--seed", type=int, default=0, metavar="S",
                    help="data-set seed, integer, 0 <= S < 2**64 (default 0)")
     p.add_argument("--scale", default="small", choices=list(SCALES),

@@ -24,7 +24,8 @@ def register(sub):
                        epilog="Any -option (single dash) goes to PETSc, e.g. -ksp_monitor, "
                               "-log_view, -pc_type hypre.")
     p.add_argument("bed", help="bed HDF5 file (/particles/centers, /particles/radii)")
-    p.add_argument("-o", "--output", help="write the result as JSON here (- : to stdout, the table to stderr)")
+    p.add_argument("-o", "--output",
+                   help="write the result as JSON here (- : to stdout, the table to stderr)")
     p.add_argument("--vtu", metavar="DIR", help="write the ParaView files here: case_<name>.vtu "
                    "per load case, cases.json and cases.pvd (view them: amfe view DIR)")
     add_solver_args(p)
@@ -153,7 +154,8 @@ def summary(result, bed_path, output=None, vtu=None):
              f"not load-carrying), {result['n_bonds']} bonds, V = {result['volume']:.4g} m^3, "
              f"{result['ranks']} rank(s)",
              f"solver: {s['ksp_type']}+{s['pc_type']} rtol {s['rtol']:g}, iterations "
-             f"{s['iterations']}, set-up {s['setup_seconds']:.3g} s, solves {s['solve_seconds']:.3g} s",
+             f"{s['iterations']}, set-up {s['setup_seconds']:.3g} s, "
+             f"solves {s['solve_seconds']:.3g} s",
              f"boundary conditions: {result['bc']}; "
              + ", ".join(f"{k.replace('_', ' ')} {v:.1e}" for k, v in s.items()
                          if "asymmetry" in k or k.startswith("love_weber"))]
@@ -181,7 +183,8 @@ def summary(result, bed_path, output=None, vtu=None):
     if output:
         lines.append(f"wrote {output}")
     if vtu:
-        lines.append(f"wrote {os.path.join(vtu, 'cases.pvd')} (6 load cases, per unit macro-strain)")
+        lines.append(f"wrote {os.path.join(vtu, 'cases.pvd')} "
+                     "(6 load cases, per unit macro-strain)")
     return "\n".join(lines)
 
 

@@ -13,7 +13,6 @@ from amfe.cli.homogenize import add_material_args, add_memory_arg, given_materia
 from amfe.io.units import length
 from amfe.dataset.density import PRECISION, solid_fraction
 from amfe.errors import AmfeError
-from amfe.io.bedfile import write_bed
 from amfe.io.paths import check_output
 from amfe.model.bed import check_seed, generate_bed
 from amfe.model.bonds import find_bonds
@@ -161,7 +160,8 @@ def run(args):
         return run_scale(args, max_memory)
     size = tuple(_value(args, "size"))
     if not all(math.isfinite(s) and s > 0 for s in size):
-        raise AmfeError(f"--size must be three positive lengths in mm, got {' '.join(map(str, size))}")
+        raise AmfeError("--size must be three positive lengths in mm, got "
+                        f"{' '.join(map(str, size))}")
     lo, hi = _value(args, "enlargement")
     if lo > hi:
         raise AmfeError(f"--enlargement LO HI needs LO <= HI, got {lo} {hi}")
@@ -211,6 +211,8 @@ def report(bed, output, title, material=None):
     periodic = "periodic" in bed.attrs
     bonds = find_periodic_bonds(bed.centers, bed.radii, bed.attrs["periodic"])[0] if periodic \
         else find_bonds(bed.centers, bed.radii)
+    from amfe.io.bedfile import write_bed   # h5py: only when a bed is written
+
     write_bed(output, bed)
     a_star_max = bed.attrs["a_star_max"]
     print(title)
@@ -231,7 +233,8 @@ def report(bed, output, title, material=None):
               f"(max allowed {a_star_max:g})")
     else:
         print("  a* min/mean/max   - (no bonds)")
-    print(f"  shrunk particles  {bed.attrs['n_shrunk']} (radii reduced so that a* <= {a_star_max:g})")
+    print(f"  shrunk particles  {bed.attrs['n_shrunk']} "
+          f"(radii reduced so that a* <= {a_star_max:g})")
     m = material or {"E": STEEL.E, "nu": STEEL.nu, "psi": STEEL.psi, "source": SOURCE_DEFAULT}
     print(f"  material          E {m['E'] / 1e9:g} GPa, nu {m['nu']:g}, psi {m['psi']:g} "
           f"({m['source']})")

@@ -360,8 +360,8 @@ def summary(out, output=None):
     else:
         lines.append("source: surrogate")
     t = out["timings"]
-    parts = [f"{k.replace('_', ' ')} {t[k]:.3g} s" for k in ("load_model", "read_bed", "pixelate",
-                                                              "bonds", "predict", "solve") if k in t]
+    stages = ("load_model", "read_bed", "pixelate", "bonds", "predict", "solve")
+    parts = [f"{k.replace('_', ' ')} {t[k]:.3g} s" for k in stages if k in t]
     lines.append(f"time {out['seconds']:.3g} s: " + ", ".join(parts))
     if "start_up" in t:
         imaging = t.get("pixelate", 0.0) + t.get("bonds", 0.0)

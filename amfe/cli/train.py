@@ -41,8 +41,10 @@ def register(sub):
     p.add_argument("--arch", choices=list(ARCH_NAMES), default=d.arch,
                    help="network (default custom: the paper's Custom Net)")
     p.add_argument("--epochs", type=positive_int, default=d.epochs, help=f"default {d.epochs}")
-    p.add_argument("--batch-size", type=positive_int, default=d.batch_size, help=f"default {d.batch_size}")
-    p.add_argument("--lr", type=positive_float, default=d.lr, help=f"Adam learning rate (default {d.lr:g})")
+    p.add_argument("--batch-size", type=positive_int, default=d.batch_size,
+                   help=f"default {d.batch_size}")
+    p.add_argument("--lr", type=positive_float, default=d.lr,
+                   help=f"Adam learning rate (default {d.lr:g})")
     p.add_argument("--schedule", choices=SCHEDULES, default=d.schedule,
                    help="learning rate: constant (the paper's) or cosine decay to 0")
     p.add_argument("--loss", choices=LOSSES + ("constants",), default=d.loss,
@@ -56,7 +58,8 @@ def register(sub):
     p.add_argument("--nu-weight", type=positive_float, default=1.0,
                    help="--head stiffness --loss constants: weight of the Poisson ratios' "
                         "relative errors against the moduli's (default 1)")
-    p.add_argument("--weight-decay", type=nonnegative_float, default=d.weight_decay, help="Adam weight decay")
+    p.add_argument("--weight-decay", type=nonnegative_float, default=d.weight_decay,
+                   help="Adam weight decay")
     p.add_argument("--seed", type=nonnegative_int, default=d.seed,
                    help="seed of the first member (member k: seed + k; default 0)")
     p.add_argument("--members", type=positive_int, default=d.members,

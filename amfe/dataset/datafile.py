@@ -1,4 +1,4 @@
-"""Data-set files (docs/model.md, section 6): one record per bed, written kill-safe, merged, checked.
+"""Data-set files (docs/model.md, section 6): a record per bed, written kill-safe, merged, checked.
 
 While ``amfe dataset -o DATA.h5`` runs, every finished record (or failure) is
 its own small file ``DATA.h5.parts/rec_KKKKKKKK.npz``, written under a
@@ -27,7 +27,8 @@ DATA.h5 layout, one row per record, rows sorted by record index 0..M-1:
     n_particles (M,) int64    particles of the generated bed (-1 if none)
     n_removed   (M,) int64    of them not load-carrying (-1 if not solved)
     n_bonds     (M,) int64    bonds of the load-carrying frame (-1 if not solved)
-    volume      (M,) float64  homogenization volume [m^3]: format 2 the bed's box, format 1 the hull of the kept centres
+    volume      (M,) float64  homogenization volume [m^3]: format 2 the bed's box, format 1
+                              the hull of the kept centres
     seconds     (M, 3) float64  generate, image, homogenize wall times [s]
     solver      (M,) str      JSON of homogenize_bed's solver record ("" if not solved)
     params/NAME (M,) float64  the bed's generation parameters (amfe.model.scales.PARAM_NAMES)
@@ -153,7 +154,7 @@ def _layout_attrs(sc):
 # ---------------------------------------------------------------- merge
 
 def merge_parts(output, parts, params, first=None):
-    """Merge the records 0..count-1 of ``parts`` into the HDF5 file ``output``; returns (data, attrs).
+    """Merge the records 0..count-1 of ``parts`` into the HDF5 file ``output``: (data, attrs).
 
     ``first``: merge only records 0..first-1, into a data set of ``first``
     records, and keep the parts (a prefix of a running data set: what
@@ -325,7 +326,8 @@ def _record_problems(data, attrs):
                         f"{_list_items(np.ravel(index[bad]), 8)}")
     bad = np.flatnonzero(ok & np.isfinite(lab).all(1) & np.any(lab[:, :3] <= 0, axis=1))
     if bad.size:
-        problems.append(f"ok records with non-positive moduli: {_list_items(np.ravel(index[bad]), 8)}")
+        problems.append("ok records with non-positive moduli: "
+                        f"{_list_items(np.ravel(index[bad]), 8)}")
     reasons = data["reason"]
     bad = np.flatnonzero((status == STATUS_FAILED) & (np.char.str_len(reasons.astype(str)) == 0))
     if bad.size:

@@ -176,7 +176,7 @@ class _Job:
 
 def _locked_run(MPI, job):
     """run_dataset with the lock held: plan, work, merge; the summary dict on every rank."""
-    world, output, params, sc = job.world, job.output, job.params, job.sc
+    world, output, params = job.world, job.output, job.params
     max_failed_share = job.opts.max_failed_share
 
     def plan_it():

@@ -94,11 +94,11 @@ class Fields:
     shift: np.ndarray = None
 
     @property
-    def n_particles(self):
+    def n_particles(self) -> int:
         return int(self.particle_id.size)
 
     @property
-    def n_bonds(self):
+    def n_bonds(self) -> int:
         return int(self.bonds.shape[0])
 
 

@@ -16,10 +16,10 @@ import numpy as np
 from amfe.version import __version__
 from amfe.model.bonds import bonded_among, contact_geometry, find_bonds, validate_particles
 from amfe.errors import AmfeError
-from amfe.model.material import STEEL, material_from_attrs
+from amfe.model.material import STEEL, Material, material_from_attrs
 from amfe.model.memory import check_memory, generation_bytes, lattice_counts
 from amfe.model.bedparams import SEED_LIMIT, BedParams, check_seed  # noqa: F401 - re-exported
-from amfe.model.scanpath import scanned_mask
+from amfe.model.scanpath import ScanPath, scanned_mask
 from amfe.model.torus import find_periodic_bonds, periodic_hcp_lattice, snap_box, wrap
 
 SQRT3 = math.sqrt(3.0)
@@ -66,19 +66,19 @@ class Bed:
         return (f"Bed({n} particles, mean radius {1e6 * float(self.radii.mean()):.4g} um, box "
                 f"{' x '.join(f'{1e3 * v:.4g}' for v in box)} mm ({source}), {material})")
 
-    def __len__(self):
+    def __len__(self) -> int:
         return self.radii.size
 
     @property
-    def n(self):
+    def n(self) -> int:
         """Number of particles."""
         return self.radii.size
 
-    def sphere_volume(self):
+    def sphere_volume(self) -> float:
         """Sum of the sphere volumes [m^3]; overlaps are counted twice."""
         return float(np.sum(4.0 / 3.0 * np.pi * self.radii**3))
 
-    def material(self, default=STEEL):
+    def material(self, default: Material = STEEL) -> Material:
         """The particle :class:`Material` recorded in attrs (material_E, ...), else ``default``.
 
         E, nu and psi must be all present or all absent (AmfeError naming the
@@ -200,10 +200,13 @@ def limit_a_star(centers, radii, a_star_max, max_passes=50, box=None):
                     f"{bonds.a_star[bad].max():.6f}); lower the enlargement or the jitter")
 
 
-def generate_bed(size=(250e-6, 250e-6, 100e-6), *, mean_radius=12.5e-6,
-                 enlargement=(1.05, 1.14), jitter=0.025, layer_thickness=100e-6,
-                 scan=None, seed=0, a_star_max=0.98, material=STEEL, periodic=False,
-                 offset=None, max_memory=None, skip_seed=None):
+def generate_bed(size: tuple[float, float, float] = (250e-6, 250e-6, 100e-6), *,
+                 mean_radius: float = 12.5e-6, enlargement: tuple[float, float] = (1.05, 1.14),
+                 jitter: float = 0.025, layer_thickness: float = 100e-6,
+                 scan: ScanPath | None = None, seed: int = 0, a_star_max: float = 0.98,
+                 material: Material = STEEL, periodic: bool = False,
+                 offset: tuple[float, float, float] | None = None,
+                 max_memory: float | str | None = None, skip_seed: int | None = None) -> Bed:
     """A powder bed on a jittered, enlarged HCP lattice, cut by a scan path.
 
     size: (Lx, Ly, Lz) of the box [m] (default: the paper's figure-2 bed,

@@ -73,7 +73,8 @@ def validate_particles(centers, radii):
         raise AmfeError("the bed has no particles")
     bad = np.flatnonzero(~np.isfinite(centers).all(axis=1))
     if bad.size:
-        raise AmfeError(f"{bad.size} particles have non-finite centres: particles {_list_items(bad)}")
+        raise AmfeError(f"{bad.size} particles have non-finite centres: particles "
+                        f"{_list_items(bad)}")
     bad = np.flatnonzero(~(np.isfinite(radii) & (radii > 0)))
     if bad.size:
         raise AmfeError(f"{bad.size} particles have non-finite or non-positive radii: "
@@ -250,7 +251,7 @@ the bending springs (~a*^4) to zero and leaves a singular frame."""
 
 
 def check_a_star_cap(a_star_cap, material):
-    """``a_star_cap`` as a float in [A_STAR_CAP_MIN, critical a* - A_STAR_MARGIN), else AmfeError."""
+    """``a_star_cap`` as a float in [A_STAR_CAP_MIN, critical a* - A_STAR_MARGIN), else an error."""
     crit = critical_a_star(material.nu, material.psi)
     limit = crit - A_STAR_MARGIN
     try:
@@ -294,7 +295,8 @@ def bond_springs(bonds: Bonds, material: Material, a_star_cap=None, labels=None)
                 + _list_items(f"({name(bonds.i[k])}, {name(bonds.j[k])}, {a_star[k]:.6f})"
                               for k in worst)
                 + ". Reduce the particle overlaps, or cap a* explicitly "
-                "(--cap-a-star A with A < the critical value; the count of capped bonds is reported)."
+                "(--cap-a-star A with A < the critical value; the count of capped bonds is "
+                "reported)."
             )
         capped = np.zeros(a_star.shape, bool)
         s = a_star

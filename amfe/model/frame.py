@@ -119,9 +119,9 @@ def build_frame(centers, radii, material: Material = STEEL, a_star_cap=None, non
     """The load-carrying, non-dimensionalised frame of a bed under condition ``bc``.
 
     centers (N,3) [m], radii (N,) [m]: a :class:`~amfe.model.bed.Bed`'s arrays, checked
-    when it was made. Raises AmfeError for degenerate contacts, a bed without bonds, a load-carrying part too small to
-    span a volume, or (unless ``a_star_cap`` is given) bonds at or past the
-    critical a* (see :func:`amfe.model.bonds.bond_springs`).
+    when it was made. Raises AmfeError for degenerate contacts, a bed without bonds, a
+    load-carrying part too small to span a volume, or (unless ``a_star_cap`` is given)
+    bonds at or past the critical a* (see :func:`amfe.model.bonds.bond_springs`).
     ``nondimensional=False`` keeps SI units (length_scale = force_scale = 1):
     only for showing what the scaling buys. ``box`` (3,) [m]: the bed is
     periodic with these periods (docs/model.md, section 9): bonds by minimum

@@ -56,7 +56,7 @@ class Material:
         if not (self.density > 0 and math.isfinite(self.density)):
             raise AmfeError(f"the density must be positive and finite, got {self.density}")
 
-    def asdict(self):
+    def asdict(self) -> dict:
         return asdict(self)
 
 

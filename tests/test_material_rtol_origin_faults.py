@@ -1,4 +1,4 @@
-"""Issue 31, round two of the faults (this half): misspelt material attributes, an rtol given
+"""Issue 31 faults of the inputs and of training: misspelt material attributes, an rtol given
 twice, `amfe train` on bad data or diverging, a translated bed, Result.to_json on a bad path
 and Surrogate.predict on a list of beds. Each test runs the issue's input and asserts the fix."""
 import os

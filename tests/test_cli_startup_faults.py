@@ -1,5 +1,5 @@
-"""Round two of the faults (issue 31), through the command line: PETSc options that gave
-tracebacks or banners, a one-level GAMG hierarchy, argparse under mpirun, damaged bed files."""
+"""Command-line faults (issue 31): PETSc options that gave tracebacks or banners, a one-level
+GAMG hierarchy, argparse under mpirun, damaged bed files."""
 import json
 
 import h5py
