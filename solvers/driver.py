@@ -37,7 +37,8 @@ from amfe.solvers.loadcases import solve_load_cases
 from amfe.model.mixed import mixed_groups
 from amfe.model.periodic import periodic_average, periodic_groups
 from amfe.model.subc import subc_average, subc_groups
-from amfe.solvers.petsc import init_petsc, unused_options_warning
+from amfe.solvers.options import call_options
+from amfe.solvers.petsc import unused_options_warning
 from amfe.solvers.petsclib import PETSc
 
 
@@ -134,8 +135,13 @@ def homogenize_bed(bed, options=None, comm=None, *, input_error=None):
     """
     if options is None and input_error is None:
         options = SolveOptions()
-    # per-call PETSc options go into the database (PETSc itself was initialised on import)
-    init_petsc(options.petsc_args if isinstance(options, SolveOptions) else None)
+    # this call's PETSc options, in the database for this call alone (amfe.solvers.options)
+    with call_options(options.petsc_args if isinstance(options, SolveOptions) else ()) as scope:
+        return _homogenize(bed, options, comm, input_error, scope)
+
+
+def _homogenize(bed, options, comm, input_error, scope):
+    """:func:`homogenize_bed` inside its :func:`~amfe.solvers.options.call_options`."""
     comm = petsc_comm(comm)
     mpi = comm.tompi4py()
     inp = checked_inputs(mpi, bed, options, BOUNDARY_CONDITIONS, input_error)
@@ -190,9 +196,11 @@ def homogenize_bed(bed, options=None, comm=None, *, input_error=None):
     # of the per-solve options, only the caller's count (not those the solver choice adds)
     mine = {k.lstrip("-") for k in options.ksp_options}
     unused = unused_options_warning(mpi.rank,
-                                    [n for n in sol.unused_options if n.lstrip("-") in mine])
+                                    [n for n in sol.unused_options if n.lstrip("-") in mine],
+                                    names=scope.unused())
+    ignored = scope.ignored_warning(mpi.rank)
     solved = Solved(frame, groups, sol, t_frame, mpi.size, inp.record,
-                    warnings + ([unused] if unused else []), bed)
+                    warnings + [w for w in (unused, ignored) if w], bed)
     d = on_root(mpi, _average, solved, options)
     d["solver"].update(method=method, reason=reason, requested=options.solver)
     if multigrid is not None:

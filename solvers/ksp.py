@@ -5,6 +5,7 @@ from dataclasses import dataclass
 import math
 
 from amfe.errors import AmfeError
+from amfe.model.tolerance import LOOSEST_RTOL
 from amfe.solvers.petsc import unused_options
 from amfe.solvers.petsclib import PETSc
 
@@ -141,6 +142,15 @@ def check_solution(ksp, label, residual, pc_residual, accept=False):
         check_converged(ksp, label)
         raise AmfeError(f"{label}: the {how} gave a non-finite solution (true residual "
                         f"{residual}) after {its} iterations; check the bed and the options")
+    if reason > 0 and its == 0 and residual > RESIDUAL_FACTOR * LOOSEST_RTOL:
+        floor = pc_residual()[2]
+        if residual > RESIDUAL_FACTOR * max(LOOSEST_RTOL, floor):
+            raise AmfeError(
+                f"{label}: the {how} stopped after 0 iterations ({reason_name(reason)} at rtol "
+                f"{rtol:g}, atol {atol:g}) with the initial guess's true relative residual at "
+                f"{residual:.2e}: nothing was solved, and the constants would be those of the "
+                f"guess. The tolerance is too loose: give rtol {LOOSEST_RTOL:g} or less "
+                f"(the loosest amfe homogenize accepts, docs/model.md section 5)")
     if reason <= 0:
         message = converged_message(ksp, label) + f"; true relative residual {residual:.2e}"
     elif residual <= RESIDUAL_FACTOR * rtol:
