@@ -29,7 +29,7 @@ from amfe.solvers.correction import (STRAIN_ADJOINT_DEFAULT, free_strain_share,
                                      second_order_loads)
 from amfe.solvers.mgchoice import CHOSEN_OPTIONS, choose_multigrid, multigrid_features
 from amfe.solvers.choice import (USER_METHOD_OPTIONS, Problem, choose_solver, cholesky_package,
-                                 solve_features)
+                                 shown_method, solve_features)
 from amfe.solvers.inputs import checked_inputs, given_options
 from amfe.solvers.ksp import DEFAULT_RTOL, RESIDUAL_FACTOR
 from amfe.model.kubc import kubc_groups
@@ -170,7 +170,7 @@ def _homogenize(bed, options, comm, input_error, scope):
         cholesky_package(),
         given_options(USER_METHOD_OPTIONS, options.ksp_options),
         problem, check_memory=inp.check_memory)
-    log(f"solver: {method} ({reason})")
+    log(f"solver: {shown_method(method, options.ksp_options)} ({reason})")
     multigrid = None
     if method == "gamg":  # aggregation per bed (:mod:`amfe.solvers.mgchoice`)
         mg_options, mg_reason = choose_multigrid(

@@ -6,6 +6,7 @@ import math
 
 from amfe.errors import AmfeError
 from amfe.model.tolerance import LOOSEST_RTOL
+from amfe.solvers.options import refuse_crashing
 from amfe.solvers.petsc import unused_options
 from amfe.solvers.petsclib import PETSc
 
@@ -92,6 +93,7 @@ def petsc_options(options=None):
     """
     db = PETSc.Options()
     options = {k.lstrip("-"): ("" if v is None else str(v)) for k, v in (options or {}).items()}
+    refuse_crashing(options)   # before PETSc sees them (issue 45)
     saved = {k: db.getString(k) if db.hasName(k) else None for k in options}
     for k, v in options.items():
         db.setValue(k, v)

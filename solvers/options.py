@@ -24,24 +24,17 @@ to ask under the prefix; taking the database back to a known state per call
 gives the same isolation in one place. Not thread-safe, like PETSc's database.
 """
 import logging
+import re
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 
-from amfe.solvers.petsc import (READ_AT_FINALIZE, command_line_pairs, init_petsc, option_pairs,
-                                option_used)
+from amfe.errors import AmfeError
+from amfe.solvers.petsc import (READ_AT_FINALIZE, command_line_pairs, init_petsc,
+                                is_object_option, option_pairs, option_used)
 
 LOG = logging.getLogger("amfe.solvers")
 
-#: Option names (without the dash) that set up PETSc objects or amfe's solves: one call's.
-OBJECT_PREFIXES = ("ksp_", "pc_", "mg_", "mat", "vec_", "sub_", "redundant_", "fieldsplit_",
-                   "amfe_", "snes_", "ts_", "tao_", "dm_", "is_", "sf_", "gamg_", "esteig_")
 _ignored_warned = set()
-
-
-def is_object_option(name):
-    """True for an option of a solver object (``ksp_rtol``, ``-pc_type``), False for a
-    process-wide one (``log_view``, ``info``, ``malloc_debug``, ``help``)."""
-    return name.lstrip("-").startswith(OBJECT_PREFIXES)
 
 
 @dataclass
@@ -75,6 +68,53 @@ class CallScope:
         return line
 
 
+#: A multigrid level smoother's KSP type (any prefix, any level, up or down).
+LEVEL_KSP_TYPE = re.compile(r"(^|_)mg_levels(_\d+)?(_up|_down)?_ksp_type$")
+#: GAMG's graph types that build from the matrix alone ("geo" needs the nodes' coordinates
+#: of a 2-D scalar problem, PCSetCoordinates, which amfe does not give: PETSc error 77).
+GAMG_TYPES = ("agg", "classical")
+
+
+def refuse_crashing(options):
+    """AmfeError for an option PETSc 3.18 cannot run with amfe's solvers, as a class.
+
+    options: {name: value} (a dash allowed). A level smoother of PCMG/GAMG starts its
+    up-sweep from the coarse correction, a nonzero initial guess, and a KSP of type
+    preonly refuses one (KSPSolve_PREONLY, error 83), after which PETSc 3.18 crashes
+    with SEGV in its clean-up: so every ``*mg_levels[_N][_up|_down]_ksp_type preonly``.
+    And a ``pc_gamg_type`` other than :data:`GAMG_TYPES`; and ``-ksp_norm_type none`` on a
+    Krylov KSP (no convergence test: it ran to max_it, 43 s, before the contract refused it).
+    """
+    for name, value in options.items():
+        name, value = name.lstrip("-"), str("" if value is None else value).strip().lower()
+        if LEVEL_KSP_TYPE.search(name) and value == "preonly":
+            raise AmfeError(
+                f"-{name} preonly is not supported: a multigrid level smoother starts from "
+                "the coarse correction (a nonzero initial guess), which a preonly KSP refuses, "
+                "and PETSc 3.18 then crashes; use richardson (one sweep of the level's "
+                "preconditioner) or the default chebyshev")
+        if name == "ksp_norm_type" and value == "none" and _ksp_type(options) != "preonly":
+            raise AmfeError(
+                "-ksp_norm_type none: a Krylov solve without a residual norm cannot test "
+                "convergence and would run to its iteration limit before amfe's check refuses "
+                "it; leave the norm to PETSc (the default), or use -ksp_type preonly with a "
+                "direct -pc_type")
+        if name.endswith("pc_gamg_type") and value not in GAMG_TYPES:
+            raise AmfeError(
+                f"-{name} {value}: amfe's GAMG takes {' or '.join(GAMG_TYPES)} (geo needs the "
+                "nodes' coordinates of a 2-D scalar problem, which a frame or voxel model "
+                "does not give)")
+
+
+def _ksp_type(options):
+    """The outer KSP's type: in ``options``, else in the database, else cg."""
+    for name, value in options.items():
+        if name.lstrip("-") == "ksp_type":
+            return str(value).strip().lower()
+    db = init_petsc().Options()
+    return db.getString("ksp_type").lower() if db.hasName("ksp_type") else "cg"
+
+
 @contextmanager
 def call_options(args=()):
     """Set one call's PETSc options for the ``with`` block; yields a :class:`CallScope`.
@@ -98,6 +138,7 @@ def call_options(args=()):
                 db.delValue(name)   # a fresh entry: PETSc's "used" flag starts at no
             if name in given or name not in before or before[name] != value:
                 db.setValue(name, value)
+        refuse_crashing(own)
         yield scope
     finally:
         changed = [n for n, v in own.items() if n in given or n not in before or before[n] != v]

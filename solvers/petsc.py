@@ -56,6 +56,30 @@ def command_line_pairs():
     return list(_command_line)
 
 
+#: Option names (without the dash) that set up PETSc objects or amfe's solves: one call's.
+OBJECT_PREFIXES = ("ksp_", "pc_", "mg_", "mat", "vec_", "sub_", "redundant_", "fieldsplit_",
+                   "amfe_", "snes_", "ts_", "tao_", "dm_", "is_", "sf_", "gamg_", "esteig_")
+
+
+def is_object_option(name):
+    """True for an option of a solver object (``ksp_rtol``, ``-pc_type``), False for a
+    process-wide one (``log_view``, ``info``, ``malloc_debug``, ``help``)."""
+    return name.lstrip("-").startswith(OBJECT_PREFIXES)
+
+
+def forget_command_line():
+    """The end of a command (amfe.cli): its solver options out of the database and the record
+    (a later call in this process, a test's, is not that command's); process-wide ones such as
+    -log_view stay for PetscFinalize."""
+    if "petsc4py.PETSc" in sys.modules:
+        from petsc4py import PETSc
+        opts = PETSc.Options()
+        for name, _ in _command_line:
+            if is_object_option(name) and opts.hasName(name):
+                opts.delValue(name)
+    _command_line[:] = []
+
+
 # Options amfe refuses before PETSc starts, with why.
 REFUSED_OPTIONS = {
     "fp_trap": "it makes every floating-point exception fatal, and amfe's numpy code relies on "
