@@ -13,6 +13,8 @@ The face (imported lazily: ``import amfe`` pulls in neither PETSc nor torch):
 - :class:`Bed`, :func:`generate_bed`, :class:`ScanPath`, :class:`Material`,
   ``STEEL``: beds and how they are made (:mod:`amfe.model`).
 - :func:`read_bed`, :func:`write_bed`: bed files (:mod:`amfe.io`).
+- :func:`read_result`: a result JSON read back (a :class:`Result`, a
+  :class:`ResultSet` of ``--bc all``, or ``predict``'s predictions).
 - :func:`homogenize` -> :class:`Result` (with :class:`Fields`): the PETSc
   solve of the six load cases and the Bagi averages; :func:`homogenize_bed`
   is the function under it (:mod:`amfe.solvers`). Changed in 0.3.0:
@@ -44,6 +46,8 @@ _FACE = {
     "STEEL": "amfe.model.material",
     "read_bed": "amfe.io.bedfile", "write_bed": "amfe.io.bedfile",
     "homogenize": "amfe.api", "Result": "amfe.io.result", "Fields": "amfe.io.result",
+    "read_result": "amfe.io.readback", "ResultSet": "amfe.io.readback",
+    "sweep": "amfe.study", "SweepTable": "amfe.study.table",
     "homogenize_bed": "amfe.solvers.driver", "SolveOptions": "amfe.model.options",
     "Surrogate": "amfe.training.predict",
     "AmfeError": "amfe.errors",

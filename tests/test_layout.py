@@ -35,7 +35,7 @@ def layer_of(module):
     parts = module.split(".")
     if parts[0] != "amfe":
         return None
-    if len(parts) == 1 or parts[1] in ("api", "cli", "__main__"):
+    if len(parts) == 1 or parts[1] in ("api", "cli", "__main__", "study"):
         return "face"
     if parts[1] in ("errors", "vocab", "version", "signals"):
         return "core"

@@ -16,7 +16,8 @@ ROOT = Path(__file__).resolve().parents[1]
 MAX_PARAMETERS = 8
 MAX_BODY_LINES = 80
 MAX_LONG_BODIES = 3
-USER_FACING = {("amfe/api.py", "homogenize"), ("amfe/model/bed.py", "generate_bed")}
+USER_FACING = {("amfe/api.py", "homogenize"), ("amfe/model/bed.py", "generate_bed"),
+               ("amfe/study/__init__.py", "sweep")}
 
 
 def functions():

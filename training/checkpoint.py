@@ -176,3 +176,18 @@ def check_image_shape(ckpt, shape, what="the image", path="the model", bed=False
             fix += f", or a bed of the model's scale (`amfe pack --scale {scale}`)"
         raise AmfeError(f"{what} has shape {'x'.join(map(str, got))} but {path} was trained on "
                         f"images of shape {'x'.join(map(str, want))} (scale {scale}); {fix}")
+
+
+def describe(ckpt, path, n_members, inputs) -> str:
+    """A surrogate in one line: the file, the networks, what they read, the size and
+    material trained on, and the sizes with calibrated intervals."""
+    px, m = ckpt.get("pixelation") or {}, ckpt.get("material") or {}
+    size = " x ".join(f"{1e3 * v:g}" for v in px.get("bed_size", ())) or "?"
+    conformal = ckpt.get("conformal") or {}
+    sizes = ", ".join(conformal.get("sizes", {})) or "none"
+    coverage = (f"{100 * conformal['coverage']:g} % intervals at {sizes} mm" if conformal
+                else "no calibrated intervals")
+    return (f"Surrogate({os.path.basename(os.fspath(path))}: {n_members} x {ckpt.get('arch')} "
+            f"reading {', '.join(inputs)}; trained on {size} mm beds, E "
+            f"{m.get('E', float('nan')) / 1e9:g} GPa, nu {m.get('nu')}, psi {m.get('psi')}; "
+            f"{coverage})")

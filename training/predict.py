@@ -28,14 +28,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from amfe.vocab import LABEL_NAMES
 from amfe.errors import AmfeError
-
-from amfe.training.checkpoint import build_members, check_image_shape, load_checkpoint
+from amfe.training.checkpoint import build_members, check_image_shape, describe, load_checkpoint
 from amfe.training.device import device_of
 from amfe.training.data import (DEFAULT_INPUTS, Normalizer, check_inputs, flip_images,
                                  image_batch, transpose_labels)
 from amfe.training.stiffness_predict import is_stiffness, member_constants, summarize
+from amfe.vocab import LABEL_NAMES
 
 DEFAULT_MODEL_NAME = "multiscale_small.pt"
 TRAIN_HINT = ("train it with the commands of docs/model_card.md (`amfe train` per member, "
@@ -110,6 +109,9 @@ class Surrogate:
     @property
     def n_members(self):
         return len(self.nets)
+
+    def __repr__(self) -> str:
+        return describe(self.ckpt, self.path, self.n_members, self.inputs)
 
     def member_outputs(self, images, batch_size=None):
         """Raw predictions of every member, float64 array (members, n, 6)."""

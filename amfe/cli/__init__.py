@@ -35,9 +35,9 @@ from amfe.errors import AmfeError
 from amfe.io.console import print_warnings
 from amfe.version import __version__
 
-COMMANDS = ["pack", "homogenize", "dataset", "train", "predict", "view"]
+COMMANDS = ["pack", "homogenize", "dataset", "train", "predict", "view", "sweep"]
 # Commands that hand single-dash options to PETSc (predict: with --check or --fallback).
-PETSC_COMMANDS = ("homogenize", "dataset", "predict")
+PETSC_COMMANDS = ("homogenize", "dataset", "predict", "sweep")
 DISK_FULL = (errno.ENOSPC, errno.EDQUOT)
 
 

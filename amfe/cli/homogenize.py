@@ -10,6 +10,7 @@ import os
 import sys
 
 from amfe.cli.options import add_solver_args
+from amfe.io.units import length
 from amfe.errors import AmfeError
 
 PROPERTY_UNITS = [("Ex", "GPa"), ("Ey", "GPa"), ("Ez", "GPa"), ("nu_yz", ""), ("nu_xz", ""),
@@ -51,8 +52,9 @@ def register(sub):
     p.add_argument("--model", choices=["frame", "voxel"], default="frame",
                    help="frame: the paper's bonded space frame (default); voxel: the continuum "
                         "of the same spheres by voxel finite elements (--bc kubc or periodic)")
-    p.add_argument("--voxel-size", type=float, default=None, metavar="H",
-                   help="voxel side in m for --model voxel (default: mean radius / 4)")
+    p.add_argument("--voxel-size", type=length("m"), default=None, metavar="H",
+                   help="voxel side for --model voxel, m when bare, or with a unit (3um) "
+                        "(default: mean radius / 4)")
     p.add_argument("--voxel-operator", choices=["assembled", "matrix-free"], default=None,
                    help="--model voxel's stiffness: assembled (AIJ + GAMG, default) or "
                         "matrix-free (elements on the fly, two-grid preconditioner: a few kB "

@@ -10,6 +10,8 @@ from decimal import Decimal
 import numpy as np
 
 from amfe.cli.homogenize import add_material_args, add_memory_arg, given_material
+from amfe.io.units import length
+from amfe.dataset.density import PRECISION, solid_fraction
 from amfe.errors import AmfeError
 from amfe.io.bedfile import write_bed
 from amfe.io.paths import check_output
@@ -69,6 +71,10 @@ BED_ARGS = (
                                             "are shrunk (default: 0.98; must be below the "
                                             "critical 0.9934)")),
 )
+#: The length options and their unit when bare (a value may carry its own: amfe.io.units).
+LENGTH_UNITS = {"--mean-radius": length("um"), "--layer-thickness": length("mm"),
+                "--track-width": length("mm"), "--hatch-spacing": length("mm"),
+                "--skip-length": length("mm"), "--offset": length("mm")}
 SCAN_ARGS = (
     ("--track-width", dict(metavar="MM", help="laser track width in mm")),
     ("--hatch-spacing", dict(metavar="MM", help="centre-to-centre distance of tracks in mm")),
@@ -95,8 +101,9 @@ def register(subparsers):
                     "Lengths in mm.")
     p.add_argument("-o", "--output", default="bed.h5", metavar="BED.h5",
                    help="output HDF5 file (default: bed.h5)")
-    p.add_argument("--size", nargs=3, type=float, metavar=("LX", "LY", "LZ"),
-                   help="box size in mm (default: 0.25 0.25 0.1)")
+    p.add_argument("--size", nargs=3, type=length("mm"), metavar=("LX", "LY", "LZ"),
+                   help="box size, mm when bare, or with a unit (0.6mm, 600um) "
+                        "(default: 0.25 0.25 0.1)")
     p.add_argument("--seed", type=int, help="random seed, integer >= 0 (default: 0); with "
                    "--scale, the bed seed (a data-set record's /seed)")
     p.add_argument("--scale", choices=list(SCALES),
@@ -109,11 +116,11 @@ def register(subparsers):
                         "periodic): the box snaps to whole periods of the HCP lattice (the "
                         "shift is printed), bonds cross the faces by minimum image")
     for flag, kw in BED_ARGS:
-        p.add_argument(flag, type=float, **kw)
+        p.add_argument(flag, type=LENGTH_UNITS.get(flag, float), **kw)
     g = p.add_argument_group("scan path (paper figure 3); give at least --track-width and "
                              "--hatch-spacing, otherwise the bed is fully scanned")
     for flag, kw in SCAN_ARGS:
-        g.add_argument(flag, type=float, **kw)
+        g.add_argument(flag, type=LENGTH_UNITS.get(flag, float), **kw)
     g.add_argument("--skip-seed", type=int, metavar="S",
                    help="draw the skipped pieces from their own seed S (>= 0), so beds of other "
                         "--seed keep the same holes (default: from --seed, as always)")
@@ -206,7 +213,6 @@ def report(bed, output, title, material=None):
         else find_bonds(bed.centers, bed.radii)
     write_bed(output, bed)
     a_star_max = bed.attrs["a_star_max"]
-    box = float(np.prod(bed.attrs["size"]))
     print(title)
     if periodic:
         print(f"  periodic box      {' x '.join(f'{v * 1e3:.6g}' for v in bed.attrs['periodic'])} "
@@ -215,8 +221,10 @@ def report(bed, output, title, material=None):
     print(f"  particles         {bed.n} (of {bed.attrs['n_lattice']} lattice sites)")
     print(f"  bonds             {len(bonds)}")
     print(f"  mean radius       {bed.radii.mean() * 1e6:.4f} um")
-    print(f"  packing fraction  {bed.sphere_volume() / box:.4f} "
-          "(sphere volumes / box volume; overlaps counted twice)")
+    fraction, error = solid_fraction(bed.centers, bed.radii, np.zeros(3),
+                                     np.asarray(bed.attrs["size"], dtype=float))
+    print(f"  solid fraction    {fraction:.4f} (the union of the spheres over the box; "
+          f"+- {PRECISION:g}; relative density)")
     if len(bonds):
         s = bonds.a_star
         print(f"  a* min/mean/max   {s.min():.4f} / {s.mean():.4f} / {s.max():.4f} "

@@ -21,7 +21,7 @@ import numpy as np
 
 from amfe.model.bonds import (COINCIDENT, bond_springs, bonded_among, contact_geometry,
                                find_bonds)
-from amfe.model.springs import A_STAR_MARGIN, critical_a_star
+from amfe.model.springs import A_STAR_MARGIN, critical_a_star, spring_model
 from amfe.errors import AmfeError
 from amfe.dataset.images import DEFAULT_CELL, DEFAULT_LAYER_THICKNESS, image_box
 from amfe.dataset.pixelkernel import use_kernel
@@ -48,11 +48,12 @@ def _find_bonds(centers, radii, engine):
     return find_bonds(centers, radii)
 
 
-def _compiled_sums(centers, radii, material, box):
+def _compiled_sums(centers, radii, material, box, springs="paper"):
     """The bond image's per-cell sums of k_n L^2 (flat, float64) by the compiled kernels, or
     None where they step aside (coincident centres, a bed too sparse, a bond that the numpy
-    path refuses). box = (lo, hi, cell, n) as in amfe.dataset._jit.bond_sums."""
-    from amfe.dataset._jit import bond_sums, candidate_pairs
+    path refuses). box = (lo, hi, cell, n) as in amfe.dataset._jit.bond_sums_for; springs:
+    the spring model (amfe.model.springs.SPRING_MODELS) whose k_n the kernel is compiled with."""
+    from amfe.dataset._jit import bond_sums_for, candidate_pairs
     c, r = np.ascontiguousarray(centers, np.float64), np.ascontiguousarray(radii, np.float64)
     i, j, ok = candidate_pairs(c, r, 2.0 * COINCIDENT)
     if not ok:
@@ -60,11 +61,11 @@ def _compiled_sums(centers, radii, material, box):
     i, j = bonded_among(c, r, i, j)
     branch = c[j] - c[i]                               # contact_geometry's lengths, its way
     length = np.sqrt(np.einsum("ij,ij->i", branch, branch))
-    nu, psi = float(material.nu), float(material.psi)
-    consts = (float(material.E), 1.0 - nu**2, np.pi / 6.0 * (1.0 - nu**2), psi,
+    model = spring_model(springs)
+    consts = (tuple(float(v) for v in model.coefficients(material)),
               critical_a_star(material.nu, material.psi) - A_STAR_MARGIN, COINCIDENT)
     sums = np.zeros(int(np.prod(box[3])))
-    ok = bond_sums(c, r, (i, j, length), consts,
+    ok = bond_sums_for(springs)(c, r, (i, j, length), consts,
                    tuple(np.ascontiguousarray(v) for v in box), sums)
     return sums if ok else None
 

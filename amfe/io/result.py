@@ -6,6 +6,7 @@
 conventions), then the constants and the solver record; it follows the
 shipped JSON Schema. Arrays are numpy; units are SI (Pa, 1/Pa, m^3, m, N).
 """
+import json
 import os
 from dataclasses import dataclass, field, fields as dc_fields
 
@@ -58,6 +59,23 @@ class Result:
         kw["C"], kw["S"] = np.asarray(d["C"], float), np.asarray(d["S"], float)
         extra = {k: v for k, v in d.items() if k not in names and k != "schema_version"}
         return cls(**kw, extra=extra, fields=fields)
+
+    @classmethod
+    def from_json(cls, path: str | os.PathLike) -> "Result":
+        """The Result that :meth:`to_json` (or ``amfe homogenize -o``) wrote to ``path``.
+
+        AmfeError for a file of another kind (``--bc all``: :func:`amfe.read_result`).
+        """
+        data = load_json(path)
+        if data.get("bc") == "all" or data.get("command") == "predict":
+            kind = "--bc all" if data.get("bc") == "all" else "predict"
+            raise AmfeError(f"{os.fspath(path)} holds the results of {kind}, not one Result: "
+                            "read it with amfe.read_result")
+        try:
+            return cls.from_dict(data)
+        except (KeyError, TypeError, ValueError) as exc:
+            raise AmfeError(f"{os.fspath(path)} is not a complete amfe result "
+                            f"({type(exc).__name__}: {exc})") from None
 
     def __getattr__(self, name):
         if name in CONSTANT_NAMES:
@@ -124,3 +142,18 @@ class Result:
                      f"iterations {s.get('iterations')}"
                      + (", with fields)" if self.fields is not None else ")"))
         return "\n".join(lines)
+
+
+def load_json(path: str | os.PathLike) -> dict:
+    """The JSON object of a result file amfe wrote; AmfeError naming the file for one that is
+    missing, not JSON, or without a schema_version (not amfe's)."""
+    try:
+        with open(path) as f:
+            data = json.load(f)
+    except FileNotFoundError:
+        raise AmfeError(f"{os.fspath(path)} does not exist") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise AmfeError(f"cannot read {os.fspath(path)} as JSON: {exc}") from None
+    if not isinstance(data, dict) or "schema_version" not in data:
+        raise AmfeError(f"{os.fspath(path)} is not a result amfe wrote (no schema_version)")
+    return data

@@ -46,6 +46,26 @@ class Bed:
                             f"{type(self.attrs).__name__} {self.attrs!r}"[:300])
         self.attrs = dict(self.attrs)
 
+    def __repr__(self) -> str:
+        """One line: the count, the radii, the box and its source, the material."""
+        n = self.radii.size
+        size = self.attrs.get("size")
+        if size is not None:
+            box, source = np.asarray(size, dtype=float), "recorded size"
+        else:
+            box = ((self.centers + self.radii[:, None]).max(axis=0)
+                   - (self.centers - self.radii[:, None]).min(axis=0))
+            source = "spheres' bounding box"
+        if "periodic" in self.attrs:
+            source += ", periodic"
+        try:
+            m = self.material()
+            material = f"E {m.E / 1e9:g} GPa, nu {m.nu:g}, psi {m.psi:g}"
+        except AmfeError as exc:
+            material = f"material unreadable: {exc}"
+        return (f"Bed({n} particles, mean radius {1e6 * float(self.radii.mean()):.4g} um, box "
+                f"{' x '.join(f'{1e3 * v:.4g}' for v in box)} mm ({source}), {material})")
+
     def __len__(self):
         return self.radii.size
 

@@ -1,24 +1,85 @@
-"""The four bond springs of paper eqs. (1)-(4) (Liu et al. / Gopal).
+"""The four bond springs of paper eqs. (1)-(4) (Liu et al. / Gopal), in one place.
 
 All functions are vectorised over bonds. Inputs: contact radius ``a`` (M,) [m],
 effective radius ``R`` (M,) [m] with 1/R = 1/R_i + 1/R_j, and a* = a / R (M,).
 Outputs in SI: k_n, k_t [N/m]; kappa_n, kappa_t [N m].
+
+A spring model (:data:`SPRING_MODELS`) is two plain functions: ``coefficients``
+(Material -> tuple of floats, run once per material in Python) and ``springs``
+(a, R, coefficients -> (k_n, k_t, kappa_n, kappa_t)). ``springs`` and the
+helpers it calls use only arithmetic, ``**`` and np.sqrt, the same on numpy
+arrays and on floats, so the numba kernel of the bond image
+(amfe.dataset._jit) compiles these very functions and gives the same floats
+bit for bit (cubes are written ``**3.0``: numba's ``**3`` multiplies, numpy's
+calls pow). A second model is a second entry here; the kernel reads the table.
 """
+from collections.abc import Callable
+from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
 from scipy.optimize import brentq
 
+from amfe.errors import AmfeError
 from amfe.model.material import Material
 
 
-def _numerator(a_star, nu):
-    # 1 + a* [pi/6 (1 - nu^2)(1 + 2a*) - a*]
-    return 1.0 + a_star * _bracket(a_star, nu)
+def _paper_parts(s, k_br, psi):
+    """(Num, sqrt(1 - a*^2), Den) of eqs. 1-4 at a* = s; k_br = pi/6 (1 - nu^2).
+
+    bracket = pi/6 (1 - nu^2)(1 + 2a*) - a*;  Num = 1 + a* bracket;
+    Den = sqrt(1 - a*^2) - psi (a* + a*^2 bracket).
+    """
+    bracket = k_br * (1.0 + 2.0 * s) - s
+    root = np.sqrt(1.0 - s * s)
+    return 1.0 + s * bracket, root, root - psi * (s + s * s * bracket)
 
 
-def _bracket(a_star, nu):
-    return np.pi / 6.0 * (1.0 - nu**2) * (1.0 + 2.0 * a_star) - a_star
+def paper_coefficients(material: Material):
+    """The material's constants of eqs. 1-4: (E, psi, 1 - nu^2, pi/6 (1 - nu^2), (2 - nu)(1 + nu))."""
+    nu = material.nu
+    return (material.E, material.psi, 1.0 - nu**2, np.pi / 6.0 * (1.0 - nu**2),
+            (2.0 - nu) * (1.0 + nu))
+
+
+def paper_springs(a, R, coef):
+    """k_n, k_t, kappa_n, kappa_t of paper eqs. 1-4 (docs/model.md, section 3).
+
+    a, R: arrays or floats [m]; coef: :func:`paper_coefficients`.
+    """
+    E, psi, one_m_nu2, k_br, two_m_nu_one_p_nu = coef
+    s = a / R
+    num, root, den = _paper_parts(s, k_br, psi)
+    k_n = E * a / one_m_nu2 * num / den
+    k_t = 2.0 * E * a / two_m_nu_one_p_nu * num / root
+    kappa_n = 8.0 * E * R**3.0 * s**3.0 / two_m_nu_one_p_nu * num / root
+    kappa_t = 2.0 * E * R**3.0 * s**3.0 / one_m_nu2 * num / den
+    return k_n, k_t, kappa_n, kappa_t
+
+
+@dataclass(frozen=True)
+class SpringModel:
+    """A bond-spring model: coefficients(material) -> tuple of floats, once per material;
+    springs(a, R, coefficients) -> (k_n, k_t, kappa_n, kappa_t), numpy or numba alike;
+    helpers: the plain functions springs calls (numba compiles them with it)."""
+
+    name: str
+    coefficients: Callable
+    springs: Callable
+    helpers: tuple = ()
+
+
+SPRING_MODELS = {"paper": SpringModel("paper", paper_coefficients, paper_springs, (_paper_parts,))}
+"""The spring models by name; the paper's eqs. 1-4 are the default."""
+
+
+def spring_model(name="paper") -> SpringModel:
+    """The :class:`SpringModel` called ``name``; AmfeError for an unknown name."""
+    try:
+        return SPRING_MODELS[name]
+    except (KeyError, TypeError):
+        raise AmfeError(f"unknown spring model {name!r}; choose one of "
+                        f"{', '.join(SPRING_MODELS)}") from None
 
 
 def normal_denominator(a_star, nu, psi):
@@ -28,7 +89,7 @@ def normal_denominator(a_star, nu, psi):
     negative beyond: a bond there has no physical spring.
     """
     a_star = np.asarray(a_star, dtype=float)
-    return np.sqrt(1.0 - a_star**2) - psi * (a_star + a_star**2 * _bracket(a_star, nu))
+    return _paper_parts(a_star, np.pi / 6.0 * (1.0 - nu**2), psi)[2]
 
 
 A_STAR_MARGIN = 1e-10
@@ -50,21 +111,13 @@ def critical_a_star(nu, psi):
                         xtol=1e-15, rtol=1e-15))
 
 
-def spring_constants(a, R, material: Material):
+def spring_constants(a, R, material: Material, springs: str = "paper"):
     """k_n, k_t, kappa_n, kappa_t (each (M,)) for contact radii a and effective radii R.
 
-    Assumes 0 < a* = a/R < critical_a_star; :func:`amfe.model.bonds.bond_springs`
-    checks that before calling.
+    ``springs`` names an entry of :data:`SPRING_MODELS`. Assumes 0 < a* = a/R <
+    critical_a_star; :func:`amfe.model.bonds.bond_springs` checks that before calling.
     """
-    E, nu, psi = material.E, material.nu, material.psi
+    chosen = spring_model(springs)
     a = np.asarray(a, dtype=float)
     R = np.asarray(R, dtype=float)
-    s = a / R
-    num = _numerator(s, nu)
-    root = np.sqrt(1.0 - s**2)
-    den = normal_denominator(s, nu, psi)
-    k_n = E * a / (1.0 - nu**2) * num / den
-    k_t = 2.0 * E * a / ((2.0 - nu) * (1.0 + nu)) * num / root
-    kappa_n = 8.0 * E * R**3 * s**3 / ((2.0 - nu) * (1.0 + nu)) * num / root
-    kappa_t = 2.0 * E * R**3 * s**3 / (1.0 - nu**2) * num / den
-    return k_n, k_t, kappa_n, kappa_t
+    return chosen.springs(a, R, chosen.coefficients(material))

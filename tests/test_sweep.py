@@ -1,0 +1,159 @@
+"""amfe sweep: a grid of scan parameters times seeds, its tables, its resumption and its rows."""
+import csv
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from cli_fixtures import run_main
+from helpers import MPI_ENV, ROOT, run_cli
+
+import amfe
+from amfe.errors import AmfeError
+from amfe.study.spec import SweepSpec, read_spec_file
+
+GRID = ["--grid", "hatch_spacing=0.1,0.12", "--grid", "track_width=0.05,0.08"]
+TINY = ["--size", "0.2", "0.2", "0.2", "--seeds", "2", "--no-progress"]
+CONSTANTS = ["Ex", "Ey", "Ez", "nu_yz", "nu_xz", "nu_xy", "G_yz", "G_xz", "G_xy"]
+
+
+def read_csv(path, drop=("seconds [s]",)):
+    with open(path) as f:
+        rows = list(csv.DictReader(f))
+    return [{k: v for k, v in r.items() if k not in drop} for r in rows]
+
+
+@pytest.fixture(scope="module")
+def swept(tmp_path_factory):
+    out = tmp_path_factory.mktemp("sweep") / "s"
+    code, stdout, err = run_main(["sweep", "-o", out, *GRID, *TINY])
+    assert code == 0, err
+    return out, stdout
+
+
+def test_it_writes_every_table_and_the_plot(swept):
+    out, stdout = swept
+    for name in ("beds.csv", "points.csv", "sweep.h5", "sweep_Ex.png", "sweep.json"):
+        assert (out / name).is_file(), name
+    beds = read_csv(out / "beds.csv")
+    assert len(beds) == 8 and {r["source"] for r in beds} == {"solver"}
+    assert "Ex [GPa]" in stdout
+
+
+def test_the_points_are_the_mean_and_spread_of_their_beds(swept):
+    out, _ = swept
+    beds, points = read_csv(out / "beds.csv"), read_csv(out / "points.csv")
+    for p in points:
+        mine = [float(b["Ex [Pa]"]) for b in beds if b["point"] == p["point"]]
+        assert int(p["count"]) == len(mine) == 2
+        assert float(p["Ex_mean [Pa]"]) == pytest.approx(np.mean(mine), rel=1e-15)
+        assert float(p["Ex_std [Pa]"]) == pytest.approx(np.std(mine, ddof=1), rel=1e-12)
+    import h5py
+    with h5py.File(out / "sweep.h5") as f:
+        assert np.array_equal(f["beds/Ex"][()], [float(b["Ex [Pa]"]) for b in beds])
+        assert json.loads(f.attrs["spec"])["seeds"] == [0, 1]
+
+
+def test_a_row_equals_amfe_homogenize_of_the_same_bed(swept, tmp_path):
+    out, _ = swept
+    row = read_csv(out / "beds.csv")[5]           # point 2 (0.12, 0.05 mm), seed 1
+    assert (row["point"], row["seed"]) == ("2", "1")
+    bed = tmp_path / "bed.h5"
+    pack = run_cli(["pack", "-o", str(bed), "--size", "0.2", "0.2", "0.2", "--track-width",
+                    "0.05", "--hatch-spacing", "0.12", "--seed", "1", "--skip-seed", "1"])
+    assert pack.returncode == 0, pack.stderr
+    solve = run_cli(["homogenize", str(bed), "-o", str(tmp_path / "r.json"), "--quiet"])
+    assert solve.returncode == 0, solve.stderr
+    with open(tmp_path / "r.json") as f:
+        props = json.load(f)["properties"]
+    for name in CONSTANTS:
+        unit = "Pa" if name[0] in "EG" else "-"
+        assert float(row[f"{name} [{unit}]"]) == pytest.approx(props[name], rel=1e-12, abs=0)
+
+
+def test_the_python_face_gives_the_command_lines_table(swept, tmp_path):
+    out, _ = swept
+    table = amfe.sweep({"hatch_spacing": [0.1e-3, 0.12e-3], "track_width": [0.05e-3, 0.08e-3]},
+                       seeds=2, size=(0.2e-3, 0.2e-3, 0.2e-3), output=tmp_path / "py")
+    cli = read_csv(out / "beds.csv")
+    assert table.beds["Ex"].tolist() == [float(r["Ex [Pa]"]) for r in cli]
+    assert "4 points" in repr(table)
+
+
+def test_a_killed_sweep_resumes_to_the_same_table(swept, tmp_path):
+    out, _ = swept
+    again = tmp_path / "k"
+    cmd = [sys.executable, "-m", "amfe.cli", "sweep", "-o", str(again), *GRID, *TINY]
+    proc = subprocess.Popen(cmd, cwd=ROOT, env=MPI_ENV, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 60
+    rows = again / "rows"
+    while time.monotonic() < deadline and (not rows.is_dir() or len(os.listdir(rows)) < 3):
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert 3 <= len(os.listdir(rows)) < 8 or not (again / "beds.csv").exists()
+    code, _, err = run_main(["sweep", "-o", again, *GRID, *TINY])
+    assert code == 0, err
+    for name in ("beds.csv", "points.csv"):
+        assert read_csv(again / name) == read_csv(out / name), name
+
+
+def test_another_sweep_in_the_same_directory_is_refused(swept):
+    out, _ = swept
+    code, _, err = run_main(["sweep", "-o", out, "--grid", "hatch_spacing=0.1", *TINY])
+    assert code != 0 and "holds another sweep" in err
+
+
+def test_a_toml_file_gives_the_same_spec(tmp_path):
+    f = tmp_path / "s.toml"
+    f.write_text('seeds = 2\nsize = ["0.2mm", "200um", 0.2]\n[grid]\n'
+                 'hatch_spacing = [0.1, "0.12mm"]\ntrack_width = ["50um", 0.08]\n')
+    spec = SweepSpec(**read_spec_file(f))
+    assert spec.points[1] == {"hatch_spacing": 0.1e-3, "track_width": 0.08e-3}
+    assert spec.size == (0.2e-3, 0.2e-3, 0.2e-3) and spec.n_beds == 8
+
+
+@pytest.mark.parametrize("args,match", [
+    (["--grid", "hatch=0.1"], "unknown parameter"),
+    (["--grid", "hatch_spacing=0.1,abc"], "is not a length"),
+    (["--grid", "hatch_spacing"], "NAME=V1"),
+    (["--grid", "hatch_spacing=0.1", "--fallback"], "needs --method surrogate")])
+def test_bad_sweeps_are_one_line(tmp_path, args, match):
+    code, _, err = run_main(["sweep", "-o", tmp_path / "x", *args, *TINY])
+    assert code != 0 and match in err and "Traceback" not in err
+
+
+def test_a_bed_that_cannot_be_made_is_a_failed_row(tmp_path):
+    table = amfe.sweep({"track_width": [0.05e-3]}, seeds=1, size=(0.2e-3, 0.2e-3, 0.2e-3),
+                       base={"hatch_spacing": 0.05e-3, "mean_radius": 1.0})
+    assert table.beds["source"].tolist() == ["failed"] and "error" in table.beds
+    with pytest.raises(AmfeError, match="unknown parameter"):
+        amfe.sweep({"hatch": [1e-4]}, seeds=1)
+
+
+def test_the_surrogate_rows_and_the_fallback(tmp_path):
+    """On the shipped model's size: every row has intervals and a flag; with --fallback a
+    flagged row is solved (source solver, the solver's constants), the others keep the
+    surrogate's."""
+    grid = ["--grid", "hatch_spacing=0.1", "--grid", "track_width=0.05,0.1", "--seeds", "2",
+            "--no-progress", "--method", "surrogate"]
+    code, _, err = run_main(["sweep", "-o", tmp_path / "s", *grid])
+    assert code == 0, err
+    code, _, err = run_main(["sweep", "-o", tmp_path / "f", *grid, "--fallback"])
+    assert code == 0, err
+    alone, fall = read_csv(tmp_path / "s" / "beds.csv"), read_csv(tmp_path / "f" / "beds.csv")
+    assert {r["source"] for r in alone} == {"surrogate"}
+    assert all(r["Ex_lo [Pa]"] and float(r["Ex_lo [Pa]"]) <= float(r["Ex [Pa]"]) for r in alone)
+    for a, f in zip(alone, fall):
+        assert f["flagged"] == a["flagged"]
+        assert f["source"] == ("solver" if a["flagged"] == "true" else "surrogate")
+        if f["source"] == "surrogate":
+            assert f["Ex [Pa]"] == a["Ex [Pa]"]
+    points = read_csv(tmp_path / "f" / "points.csv")
+    assert sum(int(p["solved"]) for p in points) == sum(r["source"] == "solver" for r in fall)
