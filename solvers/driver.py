@@ -31,11 +31,12 @@ from amfe.solvers.correction import (STRAIN_ADJOINT_DEFAULT, free_strain_share,
                                      moment_corrections, relative_size)
 from amfe.solvers.mgchoice import CHOSEN_OPTIONS, choose_multigrid, multigrid_features
 from amfe.solvers.choice import (USER_METHOD_OPTIONS, Problem, choose_solver, cholesky_package,
-                                 solve_features)
+                                 shown_method, solve_features)
 from amfe.solvers.inputs import checked_inputs, given_options
 from amfe.solvers.ksp import DEFAULT_RTOL, RESIDUAL_FACTOR
 from amfe.solvers.loadcases import solve_load_cases
-from amfe.solvers.petsc import init_petsc, unused_options_warning
+from amfe.solvers.options import call_options
+from amfe.solvers.petsc import unused_options_warning
 from amfe.solvers.petsclib import PETSc
 
 
@@ -123,8 +124,13 @@ def homogenize_bed(bed: Bed, options: SolveOptions | None = None, comm: object =
     """
     if options is None and input_error is None:
         options = SolveOptions()
-    # per-call PETSc options go into the database (PETSc itself was initialised on import)
-    init_petsc(options.petsc_args if isinstance(options, SolveOptions) else None)
+    # this call's PETSc options, in the database for this call alone (amfe.solvers.options)
+    with call_options(options.petsc_args if isinstance(options, SolveOptions) else ()) as scope:
+        return _homogenize(bed, options, comm, input_error, scope)
+
+
+def _homogenize(bed, options, comm, input_error, scope):
+    """:func:`homogenize_bed` inside its :func:`~amfe.solvers.options.call_options`."""
     comm = petsc_comm(comm)
     mpi = comm.tompi4py()
     inp = checked_inputs(mpi, bed, options, CONDITIONS, input_error)
@@ -153,7 +159,7 @@ def homogenize_bed(bed: Bed, options: SolveOptions | None = None, comm: object =
         cholesky_package(),
         given_options(USER_METHOD_OPTIONS, options.ksp_options),
         problem, check_memory=inp.check_memory)
-    log(f"solver: {method} ({reason})")
+    log(f"solver: {shown_method(method, options.ksp_options)} ({reason})")
     multigrid = None
     if method == "gamg":  # aggregation per bed (:mod:`amfe.solvers.mgchoice`)
         mg_options, mg_reason = choose_multigrid(
@@ -179,9 +185,11 @@ def homogenize_bed(bed: Bed, options: SolveOptions | None = None, comm: object =
     # of the per-solve options, only the caller's count (not those the solver choice adds)
     mine = {k.lstrip("-") for k in options.ksp_options}
     unused = unused_options_warning(mpi.rank,
-                                    [n for n in sol.unused_options if n.lstrip("-") in mine])
+                                    [n for n in sol.unused_options if n.lstrip("-") in mine],
+                                    names=scope.unused())
+    ignored = scope.ignored_warning(mpi.rank)
     solved = Solved(frame, groups, sol, t_frame, mpi.size, inp.record,
-                    warnings + ([unused] if unused else []), bed)
+                    warnings + [w for w in (unused, ignored) if w], bed)
     d = on_root(mpi, _average, solved, options)
     d["solver"].update(method=method, reason=reason, requested=options.solver)
     if multigrid is not None:

@@ -5,6 +5,8 @@ from dataclasses import dataclass
 import math
 
 from amfe.errors import AmfeError
+from amfe.model.tolerance import LOOSEST_RTOL
+from amfe.solvers.options import refuse_crashing
 from amfe.solvers.petsc import unused_options
 from amfe.solvers.petsclib import PETSc
 
@@ -91,6 +93,7 @@ def petsc_options(options=None):
     """
     db = PETSc.Options()
     options = {k.lstrip("-"): ("" if v is None else str(v)) for k, v in (options or {}).items()}
+    refuse_crashing(options)   # before PETSc sees them (issue 45)
     saved = {k: db.getString(k) if db.hasName(k) else None for k in options}
     for k, v in options.items():
         db.setValue(k, v)
@@ -142,6 +145,18 @@ def check_solution(ksp, label, residual, pc_residual, accept=False):
         check_converged(ksp, label)
         raise AmfeError(f"{label}: the {how} gave a non-finite solution (true residual "
                         f"{residual}) after {its} iterations; check the bed and the options")
+    # converged on the initial guess, within the contract of a loose rtol (a residual above it
+    # is the contract's error below, which accept_unconverged may keep)
+    if (reason > 0 and its == 0 and RESIDUAL_FACTOR * LOOSEST_RTOL < residual
+            <= RESIDUAL_FACTOR * rtol):
+        floor = pc_residual()[2]
+        if residual > RESIDUAL_FACTOR * max(LOOSEST_RTOL, floor):
+            raise AmfeError(
+                f"{label}: the {how} stopped after 0 iterations ({reason_name(reason)} at rtol "
+                f"{rtol:g}, atol {atol:g}) with the initial guess's true relative residual at "
+                f"{residual:.2e}: nothing was solved, and the constants would be those of the "
+                f"guess. The tolerance is too loose: give rtol {LOOSEST_RTOL:g} or less "
+                f"(the loosest amfe homogenize accepts, docs/model.md section 5)")
     if reason <= 0:
         message = converged_message(ksp, label) + f"; true relative residual {residual:.2e}"
     elif residual <= RESIDUAL_FACTOR * rtol:

@@ -121,10 +121,13 @@ class ConstrainedOperator:
             self.block_option = PETSc.Options().getString("amfe_block", "yes")
             self.correct_option = PETSc.Options().getString("amfe_correction", "yes")
             block = block_path_expected(len(group.values), self.block_option, diagnose)
+            # the block path's GAMG defaults also when diagnosing (one case at a time), so that
+            # --diagnose describes the preconditioner of the run without it (issue 45)
+            defaults = block or block_path_expected(len(group.values), self.block_option, False)
         if self.correct_option not in ("yes", "no"):  # refused before the set-up's cost
             raise AmfeError(f"-amfe_correction {self.correct_option!r}: give yes (the "
                             "second-order averages, the default) or no")
-        if block:  # the block path multiplies with AIJ only, and has its GAMG defaults
+        if defaults:  # the block path multiplies with AIJ only (block), and has its GAMG defaults
             smoothed = group.smoothed_aggregation and rtol <= group.smoothed_rtol_max
             ksp_options = with_block_defaults(ksp_options, smoothed,
                                               comm.getSize())

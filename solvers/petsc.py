@@ -9,27 +9,75 @@ from amfe.errors import AmfeError
 def init_petsc(argv=None):
     """Initialise petsc4py if needed and return the PETSc module.
 
-    ``argv``: PETSc options such as ["-ksp_monitor", "-log_view"]. On the first
-    call they go to PetscInitialize (which -log_view needs); if PETSc is already
-    initialised they are added to its options database instead.
+    ``argv``: the command line's PETSc options, such as ["-ksp_monitor",
+    "-log_view"]. On the first call they go to PetscInitialize (which -log_view
+    needs); if PETSc is already initialised they are added to its options
+    database instead (in place of an earlier command line's). Either way they
+    are recorded as the command line's (:func:`command_line_pairs`): every
+    solve of this process applies them (:mod:`amfe.solvers.options`). None (or
+    no argument): initialise if needed, change nothing.
     """
-    argv = list(argv or [])
-    check_startup_options(argv)
+    if argv is not None:
+        argv = list(argv)
+        check_startup_options(argv)
     if "petsc4py.PETSc" not in sys.modules:
         import petsc4py
+        # the program's name first; under `python -c` sys.argv[0] is "-c", which
+        # PETSc would take for an option ("PETSc options never used: -c")
+        prog = sys.argv[0] if sys.argv and sys.argv[0] and not sys.argv[0].startswith("-") \
+            else "amfe"
         try:
-            petsc4py.init([sys.argv[0] if sys.argv and sys.argv[0] else "amfe"] + argv)
+            petsc4py.init([prog] + (argv or []))
         except Exception as exc:   # petsc4py.PETSc.Error: PetscInitialize failed (every rank)
-            raise AmfeError(f"PETSc could not start with the options {' '.join(argv)} "
+            raise AmfeError(f"PETSc could not start with the options {' '.join(argv or [])} "
                             f"({exc}); check them against the PETSc manual") from None
         _keep_python_signals()
+        _command_line[:] = option_pairs(argv or [])
         from petsc4py import PETSc
         return PETSc
     from petsc4py import PETSc
-    opts = PETSc.Options()
-    for name, value in option_pairs(argv):
-        opts.setValue(name, value)
+    if argv is not None:
+        opts = PETSc.Options()
+        pairs = option_pairs(argv)
+        for name, _ in _command_line:
+            if name not in dict(pairs) and opts.hasName(name):
+                opts.delValue(name)
+        for name, value in pairs:
+            opts.setValue(name, value)
+        _command_line[:] = pairs
     return PETSc
+
+
+_command_line = []   # [(name, value)]: the command line's PETSc options (init_petsc)
+
+
+def command_line_pairs():
+    """[(name, value)] of the PETSc options of the command line (:func:`init_petsc`)."""
+    return list(_command_line)
+
+
+#: Option names (without the dash) that set up PETSc objects or amfe's solves: one call's.
+OBJECT_PREFIXES = ("ksp_", "pc_", "mg_", "mat", "vec_", "sub_", "redundant_", "fieldsplit_",
+                   "amfe_", "snes_", "ts_", "tao_", "dm_", "is_", "sf_", "gamg_", "esteig_")
+
+
+def is_object_option(name):
+    """True for an option of a solver object (``ksp_rtol``, ``-pc_type``), False for a
+    process-wide one (``log_view``, ``info``, ``malloc_debug``, ``help``)."""
+    return name.lstrip("-").startswith(OBJECT_PREFIXES)
+
+
+def forget_command_line():
+    """The end of a command (amfe.cli): its solver options out of the database and the record
+    (a later call in this process, a test's, is not that command's); process-wide ones such as
+    -log_view stay for PetscFinalize."""
+    if "petsc4py.PETSc" in sys.modules:
+        from petsc4py import PETSc
+        opts = PETSc.Options()
+        for name, _ in _command_line:
+            if is_object_option(name) and opts.hasName(name):
+                opts.delValue(name)
+    _command_line[:] = []
 
 
 # Options amfe refuses before PETSc starts, with why.
@@ -156,13 +204,13 @@ def unused_options(names=None):
             if n.lstrip("-") not in READ_AT_FINALIZE and option_used(n.lstrip("-")) is False]
 
 
-def unused_options_warning(rank, extra=()):
-    """One line naming the options never used (with ``extra``, names already found unused
-    elsewhere), or None. Rank 0 logs it as a warning (logger "amfe.solvers") the first time
+def unused_options_warning(rank, extra=(), names=None):
+    """One line naming the options never used (of ``names``, "-name", else of the whole
+    database; with ``extra``, names already found unused elsewhere), or None. Rank 0 logs it as a warning (logger "amfe.solvers") the first time
     these names come up in this process (a data set's hundred solves warn once); every rank
     returns it for the JSON.
     """
-    names = sorted(set(unused_options()) | set(extra))
+    names = sorted(set(unused_options() if names is None else names) | set(extra))
     if not names:
         return None
     line = (f"PETSc options never used: {' '.join(names)} (misspelt, or meant for a solver "

@@ -413,7 +413,9 @@ def test_fuzz_option_conflicts(tiny, data):
             r = amfe.homogenize(tiny[1], rtol=rtol, max_it=max_it, solver=solver,
                                 petsc_options=options)
         except amfe.AmfeError as exc:
-            assert conflict and "give only one of them" in str(exc), exc
+            # issue 45: rtol 0.5 may stop CG at its initial guess, which is refused
+            assert (conflict and "give only one of them" in str(exc)) or (
+                ksp_rtol == "0.5" and "after 0 iterations" in str(exc)), exc
             return
         assert not conflict
         if r.solver["method"] == "gamg":
@@ -436,7 +438,8 @@ def test_fuzz_option_conflicts(tiny, data):
     finally:   # the command line's PETSc options stay in the database: take them out again
         for name in set(opts.getAll()) - before:
             opts.delValue(name)
-    assert (code == 2) == conflict, (argv, code)
+    # issue 45: -ksp_rtol 0.5 is looser than amfe homogenize accepts (1e-4)
+    assert (code == 2) == (conflict or ksp_rtol == "0.5"), (argv, code)
 
 
 # ---------------------------------------------------------------- issue 31: training data faults

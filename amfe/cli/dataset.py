@@ -100,6 +100,8 @@ def run(args):
     from amfe.dataset.plan import DEFAULT_MAX_FAILED_SHARE
     from amfe.solvers.petsc import init_petsc
 
+    from amfe.model.tolerance import check_command_rtol
+    check_command_rtol("dataset", args.rtol, "--rtol")   # the loosest rtol (issue 45)
     if init_petsc(args.petsc_args).Options().hasName("ksp_rtol"):   # every rank alike
         raise AmfeError("-ksp_rtol would silently override the tolerance the data set records "
                         "(--rtol, or its default); give the tolerance as --rtol")

@@ -94,6 +94,8 @@ def run(args):
     from amfe.io.paths import check_output, check_output_dir, is_stdout
     from amfe.model.memory import parse_size
     from amfe.model.options import check_rtol
+    from amfe.model.tolerance import check_command_rtol, given_rtol
+    from amfe.solvers.petsc import option_pairs
     from amfe.solvers.petsc import init_petsc
 
     init_petsc(args.petsc_args)
@@ -104,6 +106,9 @@ def run(args):
             raise AmfeError("--voxel-operator is an option of --model voxel")
         if args.rtol is not None:
             check_rtol(args.rtol, "--rtol")
+        given = given_rtol(args.rtol, option_pairs(args.petsc_args))
+        if len(given) == 1:   # the loosest rtol (issue 45); both given: the conflict's error
+            check_command_rtol("homogenize", given[0][1], given[0][0])
         if args.output is not None:   # -o '' is an error, not "no output"
             check_output(args.output, inputs=[args.bed], allow_stdout=True)
         if args.vtu is not None:   # --vtu '' is an error too

@@ -79,6 +79,10 @@ def check_args(args):
                         "full-stiffness model")
     if args.output is not None:
         check_output(args.output, inputs=[*args.bed, args.model], allow_stdout=True)
+    from amfe.model.tolerance import check_command_rtol, given_rtol
+    from amfe.solvers.petsc import option_pairs
+    for name, value in given_rtol(None, option_pairs(args.petsc_args)):   # issue 45
+        check_command_rtol("predict --check" if args.check else "homogenize", value, name)
 
 
 def run(args):
