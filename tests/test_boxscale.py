@@ -200,3 +200,39 @@ def test_moduli_scale_exactly_with_E():
         assert p2[n] == pytest.approx(p1[n], rel=1e-12, abs=0)
     C1, C2 = np.array(out[0]["C"]), np.array(out[1]["C"])
     assert np.max(np.abs(C2 - ratio * C1)) <= 1e-12 * np.max(np.abs(C2))
+
+
+def test_a_side_of_no_whole_cells_is_cropped_as_the_surrogate_reads_it(tmp_path):
+    """0.16 x 0.17 mm: 5 x 5 whole cells, the strips cropped; the record's image is the one
+    training/anysize.py's whole-cell rule makes of the same bed."""
+    pytest.importorskip("torch")
+    from training.anysize import cropped_box, image_any_size
+
+    name = box_name((0.16, 0.17, 0.3), "AlSi10Mg")
+    sc = get_scale(name)
+    assert sc.image_shape == (3, 5, 5) and sc.image_box == cropped_box(sc.size, sc.cell)
+    assert sc.image_box[:2] == pytest.approx((0.15e-3, 0.15e-3), rel=1e-12)
+    out = tmp_path / "d.h5"
+    ok(run_cli(["dataset", "-o", str(out), "--count", "2", "--seed", "5", "--size", "0.16",
+                "0.17", "0.3", "--materials", "AlSi10Mg", "--no-progress"]))
+    data = rows(out)
+    assert data["attrs"]["scale"] == name
+    for k in range(2):
+        bed = bed_for(name, int(data["seed"][k]))
+        image, box = image_any_size(bed, bed.attrs["size"], sc.cell, sc.layer_thickness,
+                                    sc.image_spacing)
+        assert box == sc.image_box and np.array_equal(image, data["images"][k])
+        assert data["params"]["E"][k] == ALLOYS["AlSi10Mg"].E
+
+
+@pytest.mark.mpi
+def test_records_do_not_depend_on_the_rank_count(made, tmp_path):
+    out = tmp_path / "two.h5"
+    ok(run_cli(["dataset", "-o", str(out), "--count", str(COUNT), "--seed", str(SEED),
+                "--size", "0.15", "0.15", "0.2", "--materials", "draw", "--no-progress"],
+               ranks=2))
+    a, b = rows(made[0]), rows(out)
+    for key in ("images", "bond_images", "labels", "C", "seed"):
+        assert np.array_equal(a[key], b[key]), key
+    for n in ("E", "nu", "psi", "a_star_max", "track_width"):
+        assert np.array_equal(a["params"][n], b["params"][n], equal_nan=True), n

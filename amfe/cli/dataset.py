@@ -2,6 +2,8 @@
 
     mpirun -n N amfe dataset -o DATA.h5 --count M [--seed S] [--scale small|paper]
                              [--ranks-per-bed k] [--max-failed-share F]
+    amfe dataset -o DATA.h5 --count M --size X Y Z [--materials steel|draw|316L|Ti64|IN718|AlSi10Mg]
+                             [--nu LO HI --psi LO HI]
     amfe dataset --check DATA.h5
     amfe dataset --add-bond-images DATA.h5
     amfe dataset --prefix-of DATA.h5 -o FIRST.h5 [--count N]
@@ -33,7 +35,8 @@ def register(sub):
         description=__doc__.split("\n\n")[0] + " Run it as `mpirun -n N amfe dataset ...` or "
                     "alone; rerun the same command to resume after a kill.",
         epilog="Any -option (single dash) goes to PETSc. Scales: small (0.6 x 0.6 x 0.3 mm, "
-               "images 3x20x20), paper (3 x 3 x 0.3 mm, images 3x100x100); tiny is for tests.")
+               "images 3x20x20), paper (3 x 3 x 0.3 mm, images 3x100x100); tiny is for tests; "
+               "--size X Y Z: small's distribution at any box (docs/datasets.md, Box scales).")
     p.add_argument("-o", "--output", metavar="DATA.h5", help="data-set file to make (HDF5)")
     p.add_argument("--count", type=int, metavar="M",
                    help="number of records; a larger M grows an unfinished run, keeping its records")
