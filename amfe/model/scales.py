@@ -73,6 +73,13 @@ Scales:
   ranges as the others: a size between ``small`` and ``paper`` for the
   any-size surrogate (issue 32, item 4). About four times the particles of
   a ``small`` bed (docs/datasets.md gives the measured times).
+- box scales (``amfe dataset --size X Y Z``, :mod:`amfe.model.boxscale`): these
+  draws at any box, named ``box{X}x{Y}x{Z}um`` (micrometres) with an
+  optional material suffix (an alloy, or nu and psi drawn per bed from a
+  stream of their own); ``get_scale`` parses the name. ``box600x600x300um``
+  makes ``small``'s beds bit for bit. Their images follow the whole-cell rule
+  (:attr:`Scale.image_box`): a side that is not whole cells is imaged on its
+  whole cells, the remainder strip cropped.
 - ``tiny``: for the test suite only: 0.15 mm x 0.15 mm x 0.1 mm (one
   layer, images 1 x 5 x 5, a few hundred particles) and a fifth of its beds
   deliberately empty (the hatch lies outside the box, so generate_bed refuses
