@@ -236,3 +236,13 @@ def test_records_do_not_depend_on_the_rank_count(made, tmp_path):
         assert np.array_equal(a[key], b[key]), key
     for n in ("E", "nu", "psi", "a_star_max", "track_width"):
         assert np.array_equal(a["params"][n], b["params"][n], equal_nan=True), n
+
+
+def test_parts_written_before_the_material_columns_read_as_steel():
+    from amfe.dataset.datafile import _padded
+    old = np.arange(len(PARAM_NAMES) - 3, dtype=float)
+    row = _padded(old)
+    assert row.shape == (len(PARAM_NAMES),) and np.array_equal(row[:-3], old)
+    assert tuple(row[-3:]) == (STEEL.E, STEEL.nu, STEEL.psi)
+    new = np.arange(len(PARAM_NAMES), dtype=float)
+    assert np.array_equal(_padded(new), new)
