@@ -105,11 +105,13 @@ def register(subparsers):
                         "(default: 0.25 0.25 0.1)")
     p.add_argument("--seed", type=int, help="random seed, integer >= 0 (default: 0); with "
                    "--scale, the bed seed (a data-set record's /seed)")
-    p.add_argument("--scale", choices=list(SCALES),
+    p.add_argument("--scale", type=_scale_name, metavar="SCALE",
                    help="draw every generation parameter from this data-set scale's "
                         "distribution (amfe.model.scales), seeded by --seed: `amfe pack --scale S "
                         "--seed <a record's seed>` regenerates that record's bed exactly; no "
-                        "other generation option may be given with it")
+                        "other generation option may be given with it; SCALE is one of "
+                        f"{', '.join(SCALES)} or a box scale (amfe dataset --size, e.g. "
+                        "box900x900x300um_Ti64)")
     p.add_argument("--periodic", action="store_true",
                    help="make a bed that tiles space in x, y and z (for homogenize --bc "
                         "periodic): the box snaps to whole periods of the HCP lattice (the "
@@ -183,6 +185,17 @@ def run(args):
     report(bed, args.output, f"amfe pack: {size[0]:g} x {size[1]:g} x {size[2]:g} mm, seed "
                              f"{seed}, scan {bed.attrs['scan']}", record)
     return 0
+
+
+def _scale_name(name):
+    """--scale's value if it names a scale (amfe.model.scales.get_scale); argparse's error else."""
+    import argparse
+
+    from amfe.model.scales import get_scale
+    try:
+        return get_scale(name).name
+    except AmfeError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def run_scale(args, max_memory=None):

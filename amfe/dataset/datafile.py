@@ -132,8 +132,18 @@ def _copy_parts(rows, bonds, output, parts, params):
             bonds[k] = rec["bond_image"]
         else:
             all_bonds = False
-        pdata[k] = rec["params"]
+        pdata[k] = _padded(rec["params"])
     return all_bonds, pdata
+
+
+def _padded(params):
+    """A part's params row in :data:`PARAM_NAMES`' order: parts written before the material
+    columns (E, nu, psi) existed were steel's, and get steel's values."""
+    from amfe.model.material import STEEL
+    params = np.asarray(params, np.float64)
+    tail = [STEEL.E, STEEL.nu, STEEL.psi][params.shape[0] - len(PARAM_NAMES):] \
+        if params.shape[0] < len(PARAM_NAMES) else []
+    return np.concatenate([params, tail])
 
 
 def _layout_attrs(sc):
@@ -143,12 +153,21 @@ def _layout_attrs(sc):
         "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
         "bed_size": list(sc.size), "layer_thickness": sc.layer_thickness,
         "image_cell": [sc.cell[0], sc.cell[1], sc.layer_thickness],
-        "image_shape": list(sc.image_shape),
+        "image_shape": list(sc.image_shape), "image_box": list(sc.image_box),
+        "material_spec": _material_spec(sc),
         "image_spacing": sc.image_spacing,
         "density_definition": DENSITY_DEFINITION,
         "status_codes": "0 ok, 1 failed (see reason)",
         "label_rule_version": LABEL_RULE_VERSION, "imaging_version": IMAGING_VERSION,
     }
+
+
+def _material_spec(sc):
+    """The scale's particle material, in words (the values of each record: params/E, nu, psi)."""
+    if sc.material == "draw":
+        return (f"drawn per bed: nu ~ U({sc.nu_range[0]:g}, {sc.nu_range[1]:g}), psi ~ "
+                f"U({sc.psi_range[0]:g}, {sc.psi_range[1]:g}), E steel's 210 GPa")
+    return f"{sc.material} for every bed (amfe.model.material)"
 
 
 # ---------------------------------------------------------------- merge
@@ -289,7 +308,33 @@ def _layout_problems(data, attrs):
     elif expect is not None and img.shape[1:] != tuple(expect):
         problems.append(f"/images rows have shape {img.shape[1:]}, scale {attrs.get('scale')} "
                         f"makes {tuple(expect)}")
+    if expect is not None and "bed_size" in attrs and not np.array_equal(
+            np.asarray(attrs["bed_size"], np.float64), np.asarray(get_scale(attrs["scale"]).size)):
+        problems.append(f"the bed_size attribute {list(attrs['bed_size'])} is not scale "
+                        f"{attrs.get('scale')}'s box")
     return problems
+
+
+def _material_problems(data, attrs):
+    """Records whose material (params/E, nu, psi) is not one the scale's spec can draw."""
+    from amfe.model.boxscale import draw_material
+    p = data.get("params", {})
+    if not all(n in p for n in ("E", "nu", "psi")):
+        return []   # files made before the material columns: steel
+    sc = get_scale(attrs.get("scale"))
+    E, nu, psi = (np.asarray(p[n], np.float64) for n in ("E", "nu", "psi"))
+    if sc.material == "draw":
+        ok = ((E == draw_material(sc, 0).E) & (nu >= sc.nu_range[0]) & (nu <= sc.nu_range[1])
+              & (psi >= sc.psi_range[0]) & (psi <= sc.psi_range[1]))
+    else:
+        m = draw_material(sc, 0)
+        ok = (E == m.E) & (nu == m.nu) & (psi == m.psi)
+    ok |= np.isnan(E) & (data["status"] != STATUS_OK)   # a bed that failed before its draw
+    bad = np.flatnonzero(~ok)
+    if not bad.size:
+        return []
+    return [f"records {_list_items(np.ravel(data['index'][bad]), 8)} have a material (params/E, "
+            f"nu, psi) that scale {attrs.get('scale')} does not make"]
 
 
 def _record_problems(data, attrs):
@@ -337,6 +382,7 @@ def _record_problems(data, attrs):
     fin = np.isfinite(dens)
     if np.any((dens[fin] < 0) | (dens[fin] > 1)):
         problems.append("packing densities outside [0, 1]")
+    problems += _material_problems(data, attrs)
     if "bond_images" in data:
         b = data["bond_images"]
         if b.shape != img.shape:

@@ -99,7 +99,7 @@ def regenerate(k, dataset_seed, scale, group, pixelate):
         rec["seconds"][0] = t1 - t0
         if group.rank == 0:
             image = np.asarray(pixelate(bed, cell=sc.cell, layer_thickness=sc.layer_thickness,
-                                        box=((0.0, 0.0, 0.0), sc.size),
+                                        box=((0.0, 0.0, 0.0), sc.image_box),
                                         spacing=sc.image_spacing), np.float32)
             if image.shape != sc.image_shape:
                 raise AmfeError(f"pixelate gave an image of shape {image.shape}, expected "

@@ -15,7 +15,7 @@ def record_bond_image(bed, sc):
     """The bond image of a record's bed on its scale's grid (box [0, scale size])."""
     from amfe.dataset.bondimage import bond_image
     return bond_image(bed, cell=sc.cell, layer_thickness=sc.layer_thickness,
-                      box=((0.0, 0.0, 0.0), sc.size))
+                      box=((0.0, 0.0, 0.0), sc.image_box))
 
 
 

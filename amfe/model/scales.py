@@ -73,6 +73,13 @@ Scales:
   ranges as the others: a size between ``small`` and ``paper`` for the
   any-size surrogate (issue 32, item 4). About four times the particles of
   a ``small`` bed (docs/datasets.md gives the measured times).
+- box scales (``amfe dataset --size X Y Z``, :mod:`amfe.model.boxscale`): these
+  draws at any box, named ``box{X}x{Y}x{Z}um`` (micrometres) with an
+  optional material suffix (an alloy, or nu and psi drawn per bed from a
+  stream of their own); ``get_scale`` parses the name. ``box600x600x300um``
+  makes ``small``'s beds bit for bit. Their images follow the whole-cell rule
+  (:attr:`Scale.image_box`): a side that is not whole cells is imaged on its
+  whole cells, the remainder strip cropped.
 - ``tiny``: for the test suite only: 0.15 mm x 0.15 mm x 0.1 mm (one
   layer, images 1 x 5 x 5, a few hundred particles) and a fifth of its beds
   deliberately empty (the hatch lies outside the box, so generate_bed refuses
@@ -92,6 +99,13 @@ PARAM_STREAM = 0x5CA1E  # second word of the parameter stream's SeedSequence
 
 MM = 1e-3
 UM = 1e-6
+# A side this close (in cells) to a whole number of cells is that whole number (as in
+# training/anysize.py: 0.6e-3 / 30e-6 is 19.999999999999996 in floating point).
+WHOLE_CELL_TOL = 1e-6
+
+
+def _whole_cells(length, cell):
+    return int(math.floor(length / cell + WHOLE_CELL_TOL))
 
 
 @dataclass(frozen=True)
@@ -116,6 +130,11 @@ class Scale:
     skip_length: tuple = (0.1 * MM, 0.3 * MM)
     empty_probability: float = 0.0   # tests only: share of deliberately empty beds
     purpose: str = ""
+    # Box scales (amfe.model.boxscale): "steel", an alloy of amfe.model.material.ALLOYS, or
+    # "draw" (nu, psi uniform in nu_range, psi_range; E steel's) from a stream of its own.
+    material: str = "steel"
+    nu_range: tuple = None
+    psi_range: tuple = None
 
     @property
     def n_layers(self):
@@ -123,9 +142,20 @@ class Scale:
 
     @property
     def image_shape(self):
-        """(layers, H, W) = (powder layers, cells along y, cells along x)."""
-        return (self.n_layers, int(round(self.size[1] / self.cell[1])),
-                int(round(self.size[0] / self.cell[0])))
+        """(layers, H, W) = (powder layers, whole cells along y, whole cells along x)."""
+        return (self.n_layers, _whole_cells(self.size[1], self.cell[1]),
+                _whole_cells(self.size[0], self.cell[0]))
+
+    @property
+    def image_box(self):
+        """The imaged box's far corner (x, y, z) [m]: the size itself when its sides are whole
+        cells, else x and y cropped to whole cells (the whole-cell rule of training/anysize.py:
+        the strip under one cell wide is not imaged)."""
+        nx, ny = _whole_cells(self.size[0], self.cell[0]), _whole_cells(self.size[1], self.cell[1])
+        if all(abs(L / c - n) <= WHOLE_CELL_TOL for L, c, n in
+               ((self.size[0], self.cell[0], nx), (self.size[1], self.cell[1], ny))):
+            return self.size
+        return (nx * self.cell[0], ny * self.cell[1], self.size[2])
 
     def describe(self):
         lx, ly, lz = (s / MM for s in self.size)
@@ -147,18 +177,22 @@ SCALES = {
 # The flat per-record parameters a data set stores (params/<name>), in this order.
 PARAM_NAMES = ("enlargement_lo", "enlargement_hi", "track_width", "hatch_spacing", "coverage",
                "angle", "layer_rotation", "offset", "skip_fraction", "skip_length",
-               "mean_radius", "jitter", "a_star_max", "empty")
+               "mean_radius", "jitter", "a_star_max", "empty", "E", "nu", "psi")
 PARAM_UNITS = {"enlargement_lo": "-", "enlargement_hi": "-", "track_width": "m",
                "hatch_spacing": "m", "coverage": "- (track width / hatch spacing)",
                "angle": "deg", "layer_rotation": "deg", "offset": "m", "skip_fraction": "-",
                "skip_length": "m", "mean_radius": "m", "jitter": "- (fraction of R)",
-               "a_star_max": "-", "empty": "1 if the bed was made empty on purpose (tiny scale)"}
+               "a_star_max": "-", "empty": "1 if the bed was made empty on purpose (tiny scale)",
+               "E": "Pa (the particle material)", "nu": "-", "psi": "-"}
 
 
 def get_scale(scale):
     """The :class:`Scale` named ``scale`` (or ``scale`` itself); AmfeError for an unknown name."""
     if isinstance(scale, Scale):
         return scale
+    if isinstance(scale, str) and scale.startswith("box"):
+        from amfe.model.boxscale import parse_box
+        return parse_box(scale)
     try:
         return SCALES[scale]
     except (KeyError, TypeError):
@@ -219,7 +253,7 @@ def sample_bed_params(scale, bed_seed):
         far = 1000.0 * max(sc.size)
         scan = ScanPath(track_width=width, hatch_spacing=4.0 * far, angle=0.0,
                         layer_rotation=0.0, offset=far)
-    return {
+    out = {
         "size": tuple(float(s) for s in sc.size),
         "mean_radius": sc.mean_radius,
         "enlargement": (sc.enlargement_lo, hi),
@@ -229,6 +263,11 @@ def sample_bed_params(scale, bed_seed):
         "seed": bed_seed,
         "a_star_max": sc.a_star_max,
     }
+    if sc.material != "steel":   # box scales: from a stream of its own, the draws above unchanged
+        from amfe.model.boxscale import a_star_cap, draw_material
+        out["material"] = draw_material(sc, bed_seed)
+        out["a_star_max"] = a_star_cap(sc.a_star_max, out["material"])
+    return out
 
 
 def param_record(params):
@@ -237,12 +276,15 @@ def param_record(params):
     A fully scanned bed (``scan`` None or full) has coverage 1 and no tracks
     (track width, spacing, angle, rotation, offset NaN).
     """
+    from amfe.model.material import STEEL
     scan = params.get("scan")
+    mat = params.get("material", STEEL)
     lo, hi = params["enlargement"]
     rec = dict.fromkeys(PARAM_NAMES, float("nan"))
     rec.update(enlargement_lo=float(lo), enlargement_hi=float(hi),
                mean_radius=float(params["mean_radius"]), jitter=float(params["jitter"]),
-               a_star_max=float(params["a_star_max"]), skip_fraction=0.0, coverage=1.0)
+               a_star_max=float(params["a_star_max"]), skip_fraction=0.0, coverage=1.0,
+               E=mat.E, nu=mat.nu, psi=mat.psi)
     if scan is not None and not scan.is_full:
         far = scan.offset > 10.0 * max(params["size"])
         rec.update(track_width=scan.track_width, hatch_spacing=scan.hatch_spacing,
