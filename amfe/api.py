@@ -17,8 +17,7 @@ from amfe.io.vtu import write_fields_vtu
 from amfe.model.bed import Bed
 from amfe.model.conditions import CONDITIONS, condition_names
 from amfe.model.material import Material, resolve_material
-from amfe.model.options import (SolveOptions, check_choice, check_flag,
-                                check_petsc_options)
+from amfe.model.options import SolveOptions, check_choice, check_flag, check_petsc_options
 
 
 def homogenize(bed: Bed | str | os.PathLike | tuple, *, bc: str = "kubc",

@@ -14,31 +14,48 @@ from collections import namedtuple
 
 import numpy as np
 
+from amfe.errors import AmfeError
+from amfe.io.fields import frame_fields
+from amfe.io.mpi import on_root
+from amfe.io.result import Result
+from amfe.io.result_meta import homogenize_header
+from amfe.model.averages import (
+    asymmetry,
+    bagi_strain,
+    compliance_and_constants,
+    hull_of,
+    stiffness,
+    symmetric,
+    voigt,
+    voigt_strain,
+)
 from amfe.model.bed import Bed
 from amfe.model.carrying import frame_warnings
 from amfe.model.conditions import CONDITIONS, get_condition, solver_part
 from amfe.model.frame import build_frame
 from amfe.model.options import SolveOptions
-from amfe.model.averages import (asymmetry, bagi_strain, compliance_and_constants, hull_of,
-                             stiffness, symmetric, voigt, voigt_strain)
-from amfe.errors import AmfeError
-from amfe.io.mpi import on_root
-from amfe.io.fields import frame_fields
-from amfe.io.result_meta import homogenize_header
-from amfe.io.result import Result
 from amfe.solvers.adjoint import attach_strain_adjoint
-from amfe.solvers.correction import (STRAIN_ADJOINT_DEFAULT, free_strain_share,
-                                     moment_corrections, relative_size)
-from amfe.solvers.mgchoice import CHOSEN_OPTIONS, choose_multigrid, multigrid_features
-from amfe.solvers.choice import (USER_METHOD_OPTIONS, Problem, choose_solver, cholesky_package,
-                                 shown_method, solve_features)
+from amfe.solvers.choice import (
+    USER_METHOD_OPTIONS,
+    Problem,
+    cholesky_package,
+    choose_solver,
+    shown_method,
+    solve_features,
+)
+from amfe.solvers.correction import (
+    STRAIN_ADJOINT_DEFAULT,
+    free_strain_share,
+    moment_corrections,
+    relative_size,
+)
 from amfe.solvers.inputs import checked_inputs, given_options
 from amfe.solvers.ksp import DEFAULT_RTOL, RESIDUAL_FACTOR
 from amfe.solvers.loadcases import solve_load_cases
+from amfe.solvers.mgchoice import CHOSEN_OPTIONS, choose_multigrid, multigrid_features
 from amfe.solvers.options import call_options
 from amfe.solvers.petsc import unused_options_warning
 from amfe.solvers.petsclib import PETSc
-
 
 LOG = logging.getLogger("amfe.solvers")
 

@@ -17,12 +17,11 @@ from amfe.errors import AmfeError
 from amfe.model.bed import Bed
 from amfe.model.bonds import check_a_star_cap
 from amfe.model.material import resolve_material
-from amfe.model.options import SolveOptions, check_rtol
 from amfe.model.memory import check_memory, default_limit, solve_bytes
+from amfe.model.options import SolveOptions, check_rtol
 from amfe.model.torus import NOT_PERIODIC
 from amfe.solvers.consistency import agree_across_ranks, digest
 from amfe.solvers.petsclib import PETSc
-
 
 #: What :func:`checked_inputs` hands on: the options, the material, its record for the
 #: result ({E, nu, psi, source}), the periodic box (or None) and check_memory(estimate, what).

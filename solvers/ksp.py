@@ -1,8 +1,7 @@
 """KSP/PC set-up and the convergence check every solve goes through."""
+import math
 from contextlib import contextmanager
 from dataclasses import dataclass
-
-import math
 
 from amfe.errors import AmfeError
 from amfe.model.tolerance import LOOSEST_RTOL

@@ -26,13 +26,16 @@ from amfe.errors import AmfeError
 from amfe.model.averages import bagi_stress
 from amfe.solvers.adjoint import strain_cross
 from amfe.solvers.assembly import aij_from_blocks, sbaij_operator
-from amfe.solvers.blocksolve import (block_path_applies, block_path_expected, solve_block,
-                                     with_block_defaults)
+from amfe.solvers.blocksolve import (
+    block_path_applies,
+    block_path_expected,
+    solve_block,
+    with_block_defaults,
+)
 from amfe.solvers.correction import takes_correction
 from amfe.solvers.ksp import CaseSettings, check_solution, make_ksp, petsc_options
 from amfe.solvers.nullspace import near_nullspace, orthonormal_nullspace
 from amfe.solvers.petsclib import PETSc
-
 
 AMFE_OPTIONS = ("amfe_operator_type", "amfe_block", "amfe_correction", "amfe_strain_adjoint")
 """amfe's own PETSc options (docs/model.md, section 5)."""

@@ -29,8 +29,14 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 from amfe.errors import AmfeError
-from amfe.solvers.petsc import (READ_AT_FINALIZE, command_line_pairs, init_petsc,
-                                is_object_option, option_pairs, option_used)
+from amfe.solvers.petsc import (
+    READ_AT_FINALIZE,
+    command_line_pairs,
+    init_petsc,
+    is_object_option,
+    option_pairs,
+    option_used,
+)
 
 LOG = logging.getLogger("amfe.solvers")
 

@@ -11,9 +11,17 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from amfe.model.averages import (
+    bagi_strain,
+    bagi_stress,
+    box_center,
+    hull_of,
+    stiffness,
+    unit_strains,
+    voigt,
+    voigt_strain,
+)
 from amfe.model.element import element_matrices
-from amfe.model.averages import (bagi_strain, bagi_stress, box_center, hull_of, stiffness,
-                                 unit_strains, voigt, voigt_strain)
 from amfe.model.kubc import boundary_particles, kubc_displacements
 
 

@@ -23,22 +23,21 @@ import numpy as np
 import scipy.sparse as sp
 
 from amfe.errors import AmfeError
-from amfe.model.averages import (asymmetry, compliance_and_constants, dual_corrected,
-                                 unit_strains)
+from amfe.io.result import Result
+from amfe.io.result_meta import header
+from amfe.model.averages import asymmetry, compliance_and_constants, dual_corrected, unit_strains
 from amfe.model.hex8 import VERTICES, element_stiffness
 from amfe.model.material import STEEL
 from amfe.model.memory import check_memory
 from amfe.model.options import SolveOptions
 from amfe.model.voxel import voxel_bytes, voxel_solid
 from amfe.model.voxelmesh import block_rows, build_mesh, element_loads
-from amfe.io.result import Result
-from amfe.io.result_meta import header
 from amfe.solvers.consistency import agree_across_ranks
 from amfe.solvers.driver import petsc_comm
 from amfe.solvers.inputs import checked_inputs
 from amfe.solvers.ksp import RESIDUAL_FACTOR, check_solution, make_ksp, petsc_options
-from amfe.solvers.partition import row_ranges
 from amfe.solvers.options import call_options
+from amfe.solvers.partition import row_ranges
 from amfe.solvers.petsc import unused_options_warning
 from amfe.solvers.petsclib import PETSc
 

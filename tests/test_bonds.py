@@ -4,9 +4,9 @@ import math
 import numpy as np
 import pytest
 
+from amfe.errors import AmfeError
 from amfe.model.bed import Bed
 from amfe.model.bonds import bond_springs, contact_geometry, find_bonds, find_pairs
-from amfe.errors import AmfeError
 from amfe.model.material import Material
 from amfe.model.springs import critical_a_star
 

@@ -4,24 +4,29 @@ import json
 
 import numpy as np
 import pytest
+from helpers import cubic_lattice, homogenize_arrays, run_cli
+from test_hard_cases import NEAR_MECHANISMS, near_critical_interior_bed
 
 from amfe.errors import AmfeError
 from amfe.io.bedfile import write_bed
 from amfe.model.averages import box_center, hull_of, symmetric
-from amfe.model.carrying import bed_box
 from amfe.model.bed import Bed, generate_bed
+from amfe.model.carrying import bed_box
 from amfe.model.frame import build_frame
 from amfe.model.kubc import boundary_particles
 from amfe.model.periodic import love_weber_stiffness
 from amfe.model.scales import sample_bed_params
 from amfe.model.scanpath import ScanPath
-from amfe.model.subc import (check_boundary_spans_volume, energy_gap, kubc_admissible_strain,
-                             subc_average, subc_groups, subc_strain, subc_weights)
-from helpers import homogenize_arrays
+from amfe.model.subc import (
+    check_boundary_spans_volume,
+    energy_gap,
+    kubc_admissible_strain,
+    subc_average,
+    subc_groups,
+    subc_strain,
+    subc_weights,
+)
 from amfe.solvers.scipy_direct import group_solve_scipy, kubc_stiffness_scipy
-
-from helpers import cubic_lattice, run_cli
-from test_hard_cases import NEAR_MECHANISMS, near_critical_interior_bed
 
 SPACING, RADIUS = 1.8e-6, 1e-6          # simple cubic lattice: sqrt(2) r < s < 2 r
 STRAINS = np.vstack([np.eye(6), np.random.default_rng(7).normal(size=(30, 6))])

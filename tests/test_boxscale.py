@@ -10,16 +10,22 @@ and that the moduli scale exactly with E.
 import h5py
 import numpy as np
 import pytest
+from helpers import run_cli
 
 from amfe.dataset.labels import read_tables
 from amfe.errors import AmfeError
 from amfe.io.bedfile import read_bed
 from amfe.model.boxscale import DEFAULT_NU, DEFAULT_PSI, a_star_cap, box_name, parse_box
 from amfe.model.material import ALLOYS, STEEL, Material
-from amfe.model.scales import (PARAM_NAMES, SCALES, bed_for, get_scale, param_record,
-                               record_seed, sample_bed_params)
-
-from helpers import run_cli
+from amfe.model.scales import (
+    PARAM_NAMES,
+    SCALES,
+    bed_for,
+    get_scale,
+    param_record,
+    record_seed,
+    sample_bed_params,
+)
 
 DRAW = "box150x150x200um_nu250to400psi40to120"
 SEED, COUNT = 46099, 4

@@ -5,7 +5,6 @@ import json
 import h5py
 import numpy as np
 import pytest
-
 from helpers import cubic_lattice, run_cli
 
 from amfe.io.bedfile import write_bed

@@ -5,8 +5,7 @@ import numpy as np
 import pytest
 
 from amfe.errors import AmfeError
-from amfe.training.conformal import (calibrate, calibration, interval_block, intervals,
-                                     size_key)
+from amfe.training.conformal import calibrate, calibration, interval_block, intervals, size_key
 
 NAMES = ("Ex", "Ey", "nu_xy")
 
@@ -89,10 +88,9 @@ def test_wide_intervals_flag_the_bed():
 def test_calibrate_script_stores_the_sizes_calibration(tmp_path):
     """run/train/calibrate_intervals.py on a held-out tiny data set: the checkpoint's quantiles are
     calibrate()'s on the model's own predictions, and predict then gives intervals."""
-    import importlib.util
-    import os
 
     from cli_fixtures import tiny_dataset, tiny_model
+
     from amfe.training.checkpoint import load_checkpoint
     from amfe.training.data import dataset_info, read_rows
     from amfe.training.predict import Surrogate
@@ -121,11 +119,10 @@ def test_calibrate_script_stores_the_sizes_calibration(tmp_path):
 def test_two_data_sets_of_one_size_calibrate_together(tmp_path):
     """Held-out sets of the same bed size are pooled (not the last one kept): the quantiles
     are calibrate()'s on both sets' predictions together, n their sum."""
-    import importlib.util
-    import os
 
     from cli_fixtures import TINY_ATTRS, tiny_model
     from test_training import write_synthetic
+
     from amfe.training.checkpoint import load_checkpoint
     from amfe.training.data import dataset_info, read_rows
     from amfe.training.predict import Surrogate

@@ -20,20 +20,26 @@ import time
 import h5py
 import numpy as np
 import pytest
+from helpers import MPI_ENV, ROOT, run_cli
+from test_dataset import ROW_KEYS, _session_pids, dataset_cmd, read_rows
 
 import amfe.dataset.parts as datasetparts
 from amfe.cli import main
+from amfe.dataset.datafile import merge_parts
 from amfe.dataset.lock import DatasetLock, lock_path, read_lock
+from amfe.dataset.parts import (
+    part_path,
+    parts_dir,
+    read_part,
+    rejected_dir,
+    run_params,
+    write_params_json,
+    write_part,
+)
 from amfe.errors import AmfeError
 from amfe.io.atomic import atomic_write, atomic_write_h5, host_name, write_json
-from amfe.dataset.datafile import merge_parts
-from amfe.dataset.parts import (PARAMS_JSON, part_path, parts_dir, read_part, rejected_dir,
-                                run_params, write_params_json, write_part)
 from amfe.model.scales import PARAM_NAMES, record_seed
 from amfe.solvers.choice import GAMG_RTOL_AUTO  # the default run: --solver auto
-
-from helpers import MPI_ENV, ROOT, run_cli
-from test_dataset import ROW_KEYS, _session_pids, dataset_cmd, read_rows
 
 pytestmark = pytest.mark.mpi
 

@@ -1,11 +1,7 @@
 """run/train/eval_surrogate.py's pure parts: the size-curve fit and the verdicts."""
-import os
-import sys
 
 import numpy as np
 import pytest
-
-from helpers import ROOT
 
 from run.train import eval_surrogate as ev
 

@@ -5,6 +5,7 @@ import h5py
 import numpy as np
 import pytest
 import torch
+from test_training import write_synthetic
 
 from amfe.errors import AmfeError
 from amfe.training.checkpoint import load_checkpoint, save_checkpoint
@@ -12,8 +13,6 @@ from amfe.training.data import Normalizer, read_rows
 from amfe.training.merge import merge_members
 from amfe.training.predict import Surrogate
 from amfe.training.train import TrainConfig, train_model
-
-from test_training import write_synthetic
 
 torch.set_num_threads(1)
 QUIET = {"progress": False, "log": lambda line: None}

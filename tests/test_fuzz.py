@@ -28,10 +28,9 @@ import tempfile
 import h5py
 import numpy as np
 import pytest
+from cli_fixtures import assert_one_error, mutated_checkpoint, run_main, sha256, tiny_model
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-
-from cli_fixtures import assert_one_error, mutated_checkpoint, run_main, sha256, tiny_model
 
 ALL = os.environ.get("AMFE_FUZZ_ALL", "1") == "1"
 FUZZ = settings(max_examples=25, deadline=None, derandomize=True, database=None,
@@ -460,8 +459,9 @@ def test_fuzz_training_data_faults(data):
     """A tiny data set with none or one drawn fault in a drawn ok record, and training options
     (a learning rate that diverges, no validation, --max-train 0): a model with finite
     metrics only for good data and options, else one line and no file."""
-    from amfe.training.checkpoint import load_checkpoint
     from cli_fixtures import tiny_dataset
+
+    from amfe.training.checkpoint import load_checkpoint
     fault = data.draw(st.sampled_from(["none"] + sorted(TRAIN_DATA_FAULTS)), label="fault")
     row = data.draw(st.sampled_from([0, 10, 21, 39]), label="row")   # ok rows of tiny_dataset
     lr = data.draw(st.sampled_from(["1e-3", "1e6"]), label="--lr")

@@ -17,17 +17,15 @@ import json
 
 import numpy as np
 import pytest
+from helpers import homogenize_arrays, run_cli
 from scipy.spatial.transform import Rotation
 
-from amfe.model.bed import Bed, generate_bed
-from amfe.io.bedfile import write_bed
 from amfe.errors import AmfeError
+from amfe.io.bedfile import write_bed
+from amfe.model.bed import Bed, generate_bed
 from amfe.model.frame import build_frame
 from amfe.model.springs import critical_a_star
-from helpers import homogenize_arrays
 from amfe.solvers.scipy_direct import kubc_stiffness_scipy
-
-from helpers import run_cli
 
 R = 1e-6
 S = 1.8 * R

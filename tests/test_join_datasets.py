@@ -1,11 +1,8 @@
 """run/train/join_datasets.py and run/train/split_dataset.py: held-out sets of one kind joined record after
 record, others refused; a split joined again gives the records back."""
-import os
-import sys
 
 import h5py
 import numpy as np
-
 from test_training import TINY_ATTRS, write_synthetic
 
 from run.train import join_datasets, split_dataset

@@ -5,8 +5,8 @@ io, solvers, dataset, training, face (amfe/__init__, api, cli). No module
 imports from a layer above its own, indented (lazy) imports included.
 """
 import ast
-import re
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path

@@ -6,14 +6,13 @@ import os
 import h5py
 import numpy as np
 import pytest
+from cli_fixtures import assert_one_error, run_main, tiny_dataset, tiny_model
 
 import amfe
 from amfe.errors import AmfeError
 from amfe.io.bedfile import read_bed, write_bed
 from amfe.model.bed import Bed, generate_bed
 from amfe.model.frame import build_frame, frame_origin
-
-from cli_fixtures import assert_one_error, run_main, tiny_dataset, tiny_model
 
 SIZE = (0.1e-3, 0.1e-3, 0.06e-3)   # 28 particles: a direct solve in well under a second
 NAMES = ("Ex", "Ey", "Ez", "nu_yz", "nu_xz", "nu_xy", "G_yz", "G_xz", "G_xy")
@@ -212,8 +211,8 @@ def test_diverged_training_exits_non_zero_and_writes_nothing(tmp_path, extra):
 
 
 def test_a_trained_model_records_its_error_against_the_mean(tmp_path):
-    from amfe.training.guards import DIVERGED_FACTOR
     from amfe.training.checkpoint import load_checkpoint
+    from amfe.training.guards import DIVERGED_FACTOR
     data = tiny_dataset(str(tmp_path / "d.h5"))
     code, err, model = _train(tmp_path, data, "--epochs", "3")
     assert code == 0, err

@@ -1,7 +1,6 @@
 """The model-error table and the main job's line, from stored ladders (docs/model.md sec. 10)."""
 import json
 import os
-import sys
 
 import pytest
 

@@ -4,13 +4,12 @@ import os
 
 import numpy as np
 import pytest
+from helpers import run_cli
 
-from amfe.model.bed import generate_bed
 from amfe.io.bedfile import write_bed
 from amfe.io.result_meta import HEADER_KEYS
 from amfe.io.vtu import read_case
-
-from helpers import run_cli
+from amfe.model.bed import generate_bed
 
 pytestmark = pytest.mark.mpi
 
@@ -129,6 +128,7 @@ def test_groups_of_a_split_communicator_solve_their_own_beds(tmp_path):
         "if w.rank == 0: print(json.dumps(out))\n")
     import subprocess
     import sys
+
     from helpers import MPI_ENV, ROOT
     proc = subprocess.run(["mpirun", "-n", "2", sys.executable, str(script)], capture_output=True,
                           text=True, cwd=ROOT, env=MPI_ENV, timeout=120)

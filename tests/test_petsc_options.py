@@ -8,13 +8,12 @@ import subprocess
 import sys
 
 import pytest
+from helpers import MPI_ENV, ROOT
 
 from amfe.errors import AmfeError
 from amfe.model.bed import generate_bed
 from amfe.model.options import SolveOptions
 from amfe.solvers.driver import homogenize_bed
-
-from helpers import MPI_ENV, ROOT
 
 SIZE = (0.1e-3, 0.1e-3, 0.06e-3)   # a small bed, a GAMG solve in well under a second
 SEED = 1

@@ -3,7 +3,6 @@ import json
 
 import numpy as np
 import pytest
-
 from cli_fixtures import run_main, tiny_model
 
 from amfe.io.result_meta import validate
@@ -64,8 +63,9 @@ def test_batch_schema_refuses_a_bed_without_its_path(model_and_beds):
 
 def _with_conformal(src, dst, sizes, q=0.05, flag_half_width=0.1):
     from cli_fixtures import mutated_checkpoint
-    from amfe.vocab import LABEL_NAMES
+
     from amfe.training.conformal import calibration
+    from amfe.vocab import LABEL_NAMES
 
     def change(ckpt):
         cal = {"n": 99, "quantile": {k: q for k in LABEL_NAMES},

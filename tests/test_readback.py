@@ -4,7 +4,6 @@ import os
 import shutil
 
 import pytest
-
 from cli_fixtures import run_main, tiny_model
 from helpers import ROOT
 

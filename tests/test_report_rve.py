@@ -1,11 +1,8 @@
 """Section 3 of the report (run/report/rve.py): the analysis of its rows, on synthetic rows
 whose limits, offsets and orderings are known."""
 import os
-import sys
 
 import pytest
-
-from helpers import ROOT
 
 from run.report import rve as R
 
@@ -137,6 +134,7 @@ def test_convergence_of_periodic_beds():
 def test_section_markdown_and_plot(tmp_path):
     """The writer's tables carry the rows' numbers; one PNG; JSON-ready analysis."""
     import json
+
     from run.report.rve_write import section_rve
     c = {"kubc": 2.14e11, "subc": 2.0e11, "periodic": 2.0e11}
     rows = rows_from(lambda kind, bc, b, s: curve(c[bc], 1e9 * (bc == "kubc"), b),

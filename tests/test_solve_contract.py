@@ -5,6 +5,7 @@ Item 1: the voxel model recorded rtol 1e-5 (its default) while -ksp_rtol had set
 item 2: --rtol 0.1 or -ksp_rtol 0.1 did 0 iterations and gave constants up to 72 % off with
 exit 0 (amfe.model.tolerance, docs/model.md section 5)."""
 import pytest
+from cli_fixtures import assert_one_error, run_main
 
 from amfe.errors import AmfeError
 from amfe.io.bedfile import write_bed
@@ -12,8 +13,6 @@ from amfe.model.bed import generate_bed
 from amfe.model.options import SolveOptions
 from amfe.model.tolerance import ACCURACY, AMPLIFICATION, loosest_rtol
 from amfe.solvers.driver import homogenize_bed
-
-from cli_fixtures import assert_one_error, run_main
 
 SIZE = (0.1e-3, 0.1e-3, 0.06e-3)
 
@@ -104,6 +103,7 @@ def test_an_exact_initial_guess_still_passes():
     """0 iterations is right where the guess solves the problem: a uniform solid under KUBC
     (the affine field is exact) in the voxel model."""
     import numpy as np
+
     from amfe.model.bed import Bed
     from amfe.solvers.voxel import homogenize_voxel
     g = np.arange(4) * 1e-5

@@ -3,16 +3,21 @@ import json
 
 import numpy as np
 import pytest
+from helpers import cubic_lattice, homogenize_arrays, run_cli
 
 from amfe.errors import AmfeError
 from amfe.model.frame import build_frame
 from amfe.model.scales import bed_for
-from amfe.solvers.choice import (FILL_RATIO_MAX, GAMG_RTOL_AUTO, MAX_DIRECT_PARTICLES, Problem,
-                                 choose_solver, solve_features)
+from amfe.solvers.choice import (
+    FILL_RATIO_MAX,
+    GAMG_RTOL_AUTO,
+    MAX_DIRECT_PARTICLES,
+    Problem,
+    choose_solver,
+    solve_features,
+)
 from amfe.solvers.correction import CORRECTED_RTOL
-from helpers import homogenize_arrays
 from amfe.vocab import CONSTANT_NAMES
-from helpers import cubic_lattice, run_cli
 
 SPARSE = {"n_particles": 3000, "n_bonds": 9000, "fill_ratio": FILL_RATIO_MAX - 1}
 DENSE = {"n_particles": 9000, "n_bonds": 40000, "fill_ratio": FILL_RATIO_MAX + 1}

@@ -4,15 +4,14 @@ describes the run's own preconditioner, options that crash PETSc 3.18 are refuse
 import logging
 
 import pytest
+from cli_fixtures import assert_one_error, run_main
+from helpers import run_cli
 
 from amfe.errors import AmfeError
 from amfe.io.bedfile import write_bed
 from amfe.model.bed import generate_bed
 from amfe.model.options import SolveOptions
 from amfe.solvers.driver import homogenize_bed
-
-from cli_fixtures import assert_one_error, run_main
-from helpers import run_cli
 
 SIZE = (0.1e-3, 0.1e-3, 0.06e-3)
 

@@ -12,7 +12,6 @@ import h5py
 import numpy as np
 import pytest
 import torch
-
 from cli_fixtures import TINY_ATTRS, _tiny_bed, run_main
 from test_training import write_synthetic
 

@@ -10,14 +10,19 @@ import subprocess
 import sys
 
 import numpy as np
+from helpers import MPI_ENV, ROOT, homogenize_arrays
+from test_correction import box_bed, error, errors_over_rtol, rnd, round_bed  # noqa: F401 (rnd: a fixture)
 
 from amfe.model.averages import bagi_strain, hull_of, voigt_strain
 from amfe.model.frame import build_frame
 from amfe.model.kubc import kubc_groups
-from amfe.solvers.correction import (CORRECTED_RTOL, STRAIN_ADJOINT_DEFAULT, free_hull_vertices,
-                                     strain_loads, strain_weights)
-from helpers import MPI_ENV, ROOT, homogenize_arrays
-from test_correction import box_bed, error, errors_over_rtol, rnd, round_bed  # noqa: F401 (rnd: a fixture)
+from amfe.solvers.correction import (
+    CORRECTED_RTOL,
+    STRAIN_ADJOINT_DEFAULT,
+    free_hull_vertices,
+    strain_loads,
+    strain_weights,
+)
 
 FIRST_ORDER_RTOL = 1e-8  # the uncorrected default (--solver gamg)
 

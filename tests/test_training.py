@@ -1,22 +1,29 @@
 """The CNN surrogate: data set, networks, training, checkpoints, amfe train / predict."""
 import json
-import time
-import os
 import re
+import time
 
 import h5py
 import numpy as np
 import pytest
 import torch
+from helpers import run_cli
 
 from amfe.errors import AmfeError
-from helpers import run_cli
 from amfe.training import ARCH_NAMES
 from amfe.training.checkpoint import load_checkpoint, save_checkpoint
-from amfe.training.data import (BedDataset, Normalizer, augment_batch, dataset_hash, dataset_info,
-                           read_rows, split_indices, transpose_labels)
-from amfe.training.nets import build_net, count_parameters
+from amfe.training.data import (
+    BedDataset,
+    Normalizer,
+    augment_batch,
+    dataset_hash,
+    dataset_info,
+    read_rows,
+    split_indices,
+    transpose_labels,
+)
 from amfe.training.ensemble import summarize_members
+from amfe.training.nets import build_net, count_parameters
 from amfe.training.predict import Surrogate
 from amfe.training.train import Report, TrainConfig, train_member, train_model
 
@@ -279,8 +286,8 @@ def test_cli_defaults_match_train_config():
 # ---------------------------------------------------------------- command line
 
 def _tiny_bed(path):
-    from amfe.model.bed import generate_bed
     from amfe.io.bedfile import write_bed
+    from amfe.model.bed import generate_bed
     from amfe.model.scales import record_seed, sample_bed_params
     for k in range(20):
         params = sample_bed_params("tiny", record_seed(0, k))
@@ -333,8 +340,8 @@ def test_train_and_predict_check_cli(tmp_path):
     res = json.loads(out.read_text())
     assert not res["flagged"] and res["source"] == "surrogate" and "solve" not in res["timings"]
     # the same model refuses a bed whose image has another shape
-    from amfe.model.bed import generate_bed
     from amfe.io.bedfile import write_bed
+    from amfe.model.bed import generate_bed
     big = tmp_path / "big.h5"
     write_bed(big, generate_bed(size=(0.3e-3, 0.15e-3, 0.1e-3), seed=0))
     proc = run_cli(["predict", str(big), "--model", str(model)])
@@ -428,9 +435,9 @@ def test_predict_cli_images_the_bonds_of_the_bed(tmp_path):
     assert 0.05 < t["start_up"] and parts <= wall + 0.05, (t, wall)
     assert "start-up" in proc.stderr + proc.stdout
     # the same prediction from the two images made independently here
-    from amfe.io.bedfile import read_bed
     from amfe.dataset.bondimage import bond_image
     from amfe.dataset.images import pixelate
+    from amfe.io.bedfile import read_bed
     bed = read_bed(bed_path)
     a = TINY_ATTRS
     box = ((0.0, 0.0, 0.0), tuple(a["bed_size"]))

@@ -3,11 +3,10 @@ import argparse
 
 import numpy as np
 import pytest
-
 from cli_fixtures import run_main
 
-from amfe.io.units import length, parse_length
 from amfe.io.bedfile import read_bed
+from amfe.io.units import length, parse_length
 
 
 @pytest.mark.parametrize("text,unit,value", [

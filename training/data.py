@@ -36,10 +36,9 @@ import numpy as np
 import torch
 
 from amfe.dataset.parts import STATUS_OK
-from amfe.vocab import LABEL_NAMES
 from amfe.errors import AmfeError
-
 from amfe.training import AUGMENTATIONS
+from amfe.vocab import LABEL_NAMES
 
 INPUT_KINDS = {"fill": "images", "bonds": "bond_images"}   # kind: data-set array
 DEFAULT_INPUTS = ("fill",)

@@ -13,10 +13,9 @@ model again).
 import numpy as np
 
 from amfe.errors import AmfeError
-
 from amfe.training.data import Normalizer, dataset_hash, dataset_info, read_rows
-from amfe.training.train import calibrate_spread
 from amfe.training.metrics import validation_metrics
+from amfe.training.train import calibrate_spread
 
 # Checkpoint entries that must be equal in every part (training: all but the seed and timing).
 SAME = ("arch", "arch_args", "normalizer", "image_shape", "inputs", "pixelation", "material",

@@ -35,10 +35,14 @@ import numpy as np
 import torch
 
 from amfe.errors import AmfeError
-
 from amfe.training.data import dataset_hash, dataset_info, flip_images, read_rows, split_indices
-from amfe.training.stiffness import (EIG_FLOOR, N_CHOLESKY, nine_from_stiffness,
-                                     stiffness_from_raw, transform_stiffness)
+from amfe.training.stiffness import (
+    EIG_FLOOR,
+    N_CHOLESKY,
+    nine_from_stiffness,
+    stiffness_from_raw,
+    transform_stiffness,
+)
 from amfe.training.stiffness_fit import read_stiffness, stiffness_loss
 from amfe.training.stiffness_predict import HEAD, is_stiffness
 

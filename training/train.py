@@ -20,21 +20,28 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 import torch
 
-from amfe.vocab import LABEL_NAMES
 from amfe.errors import AmfeError
 from amfe.model.material import STEEL
-
-from amfe.training import AUGMENTATIONS, LOSSES, SCHEDULES
+from amfe.training import AUGMENTATIONS, LOSSES, SCHEDULES, guards
 from amfe.training.checkpoint import check_image_shape
+from amfe.training.data import (
+    DEFAULT_INPUTS,
+    BedDataset,
+    Normalizer,
+    augment_batch,
+    check_inputs,
+    dataset_hash,
+    dataset_info,
+    read_rows,
+    split_indices,
+)
 from amfe.training.device import device_of, resolve_device
+from amfe.training.ensemble import predict_raw, summarize_members, tta_mode
 from amfe.training.finetune import check_data, load_init, widened_fill_range
-from amfe.training import guards
-from amfe.training.data import (DEFAULT_INPUTS, BedDataset, Normalizer, augment_batch, check_inputs,
-                   dataset_hash, dataset_info, read_rows, split_indices)
 from amfe.training.metrics import metrics_line, property_metrics, validation_metrics
 from amfe.training.nets import build_net, count_parameters, resolved_args
-from amfe.training.ensemble import predict_raw, summarize_members, tta_mode
 from amfe.training.predict import calibrate_fill
+from amfe.vocab import LABEL_NAMES
 
 MEMORY_LIMIT = 1 << 30   # train from memory when the selected images take less (bytes)
 

@@ -27,12 +27,18 @@ import sys
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-from amfe.solvers.petsc import forget_command_line, init_petsc, is_option
-
-from amfe.cli.interrupt import (Interrupted, end_broken_pipe, end_interrupted, flush_stdout,
-                                launcher_rank, signals_raise, world)
+from amfe.cli.interrupt import (
+    Interrupted,
+    end_broken_pipe,
+    end_interrupted,
+    flush_stdout,
+    launcher_rank,
+    signals_raise,
+    world,
+)
 from amfe.errors import AmfeError
 from amfe.io.console import print_warnings
+from amfe.solvers.petsc import forget_command_line, init_petsc, is_option
 from amfe.version import __version__
 
 COMMANDS = ["pack", "homogenize", "dataset", "train", "predict", "view", "sweep"]

@@ -112,9 +112,8 @@ def run(args):
     args.scale = _scale_name(args)
     from amfe.dataset.driver import run_dataset
     from amfe.dataset.plan import DEFAULT_MAX_FAILED_SHARE
-    from amfe.solvers.petsc import init_petsc
-
     from amfe.model.tolerance import check_command_rtol
+    from amfe.solvers.petsc import init_petsc
     check_command_rtol("dataset", args.rtol, "--rtol")   # the loosest rtol (issue 45)
     if init_petsc(args.petsc_args).Options().hasName("ksp_rtol"):   # every rank alike
         raise AmfeError("-ksp_rtol would silently override the tolerance the data set records "
@@ -144,8 +143,8 @@ def _scale_name(args):
 
 
 def _check(path):
-    from amfe.dataset.summary import summary_text
     from amfe.dataset.datafile import check_dataset
+    from amfe.dataset.summary import summary_text
 
     rank = _world_rank()
     if rank != 0:

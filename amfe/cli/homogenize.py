@@ -10,8 +10,8 @@ import os
 import sys
 
 from amfe.cli.options import add_solver_args
-from amfe.io.units import length
 from amfe.errors import AmfeError
+from amfe.io.units import length
 from amfe.model.conditions import CONDITIONS
 
 PROPERTY_UNITS = [("Ex", "GPa"), ("Ey", "GPa"), ("Ez", "GPa"), ("nu_yz", ""), ("nu_xz", ""),
@@ -95,8 +95,7 @@ def run(args):
     from amfe.model.memory import parse_size
     from amfe.model.options import check_rtol
     from amfe.model.tolerance import check_command_rtol, given_rtol
-    from amfe.solvers.petsc import option_pairs
-    from amfe.solvers.petsc import init_petsc
+    from amfe.solvers.petsc import init_petsc, option_pairs
 
     init_petsc(args.petsc_args)
     comm = MPI.COMM_WORLD

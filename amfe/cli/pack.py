@@ -10,10 +10,10 @@ from decimal import Decimal
 import numpy as np
 
 from amfe.cli.homogenize import add_material_args, add_memory_arg, given_material
-from amfe.io.units import length
 from amfe.dataset.density import PRECISION, solid_fraction
 from amfe.errors import AmfeError
 from amfe.io.paths import check_output
+from amfe.io.units import length
 from amfe.model.bed import check_seed, generate_bed
 from amfe.model.bonds import find_bonds
 from amfe.model.material import SOURCE_DEFAULT, STEEL, resolve_material
@@ -224,7 +224,7 @@ def report(bed, output, title, material=None):
     periodic = "periodic" in bed.attrs
     bonds = find_periodic_bonds(bed.centers, bed.radii, bed.attrs["periodic"])[0] if periodic \
         else find_bonds(bed.centers, bed.radii)
-    from amfe.io.bedfile import write_bed   # h5py: only when a bed is written
+    from amfe.io.bedfile import write_bed  # h5py: only when a bed is written
 
     write_bed(output, bed)
     a_star_max = bed.attrs["a_star_max"]

@@ -37,8 +37,8 @@ from amfe.io.atomic import write_json
 from amfe.io.paths import check_output, is_stdout
 from amfe.io.result_meta import header, predict_block
 from amfe.model.material import resolve_material
-
 from amfe.vocab import LABEL_NAMES as SIX
+
 NINE = SIX + ("G_yz", "G_xz", "G_xy")
 
 
@@ -91,10 +91,9 @@ def run(args):
     check_args(args)
     import torch
 
+    from amfe.io.bedfile import read_bed
     from amfe.training.predict import Surrogate, check_material
     from amfe.training.shipped import shipped_model_for
-
-    from amfe.io.bedfile import read_bed
 
     if args.threads:
         torch.set_num_threads(args.threads)

@@ -14,11 +14,15 @@ training starts, so a bad -o or --test costs nothing.
 """
 import os
 import sys
-
 from types import SimpleNamespace
 
-from amfe.cli.options import (nonnegative_float, nonnegative_int, positive_float, positive_int,
-                              thread_count)
+from amfe.cli.options import (
+    nonnegative_float,
+    nonnegative_int,
+    positive_float,
+    positive_int,
+    thread_count,
+)
 from amfe.errors import AmfeError
 from amfe.io.paths import check_output
 

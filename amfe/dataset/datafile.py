@@ -50,14 +50,23 @@ import os
 
 import numpy as np
 
-from amfe.io.atomic import atomic_write_h5
-from amfe.errors import AmfeError, _list_items
-from amfe.model.scales import PARAM_NAMES, PARAM_UNITS, get_scale, record_seed
-
-from amfe.vocab import LABEL_NAMES
 from amfe.dataset.images import IMAGING_VERSION
-from amfe.dataset.parts import (LABEL_RULE_VERSION, STATUS_FAILED, STATUS_OK, done_indices,
-                                part_path, part_problem, read_part, reject_part, remove_parts)
+from amfe.dataset.parts import (
+    LABEL_RULE_VERSION,
+    STATUS_FAILED,
+    STATUS_OK,
+    done_indices,
+    part_path,
+    part_problem,
+    read_part,
+    reject_part,
+    remove_parts,
+)
+from amfe.errors import AmfeError, _list_items
+from amfe.io.atomic import atomic_write_h5
+from amfe.model.scales import PARAM_NAMES, PARAM_UNITS, get_scale, record_seed
+from amfe.vocab import LABEL_NAMES
+
 SECONDS_NAMES = ("generate", "image", "homogenize")
 DENSITY_DEFINITION = ("mean of the image: the volume fraction of the box [0,Lx]x[0,Ly]x[0,Lz] "
                       "filled by the union of the spheres")

@@ -69,18 +69,22 @@ import sys
 import time
 from dataclasses import dataclass, replace
 
+from amfe.dataset.datafile import merge_parts
 from amfe.dataset.handout import FINISHED, NEXT, Progress, Window
+from amfe.dataset.labels import read_tables, rebuild_record, table_options, table_params, table_run
 from amfe.dataset.lock import DatasetLock, this_process
-from amfe.dataset.labels import (read_tables, rebuild_record, table_options, table_params,
-                                 table_run)
-from amfe.dataset.plan import (DatasetOptions, check_arguments, failed_share_error, prepare,
-                               rejected_lines)
+from amfe.dataset.parts import STATUS_OK, describe_params, run_params, write_part
+from amfe.dataset.plan import (
+    DatasetOptions,
+    check_arguments,
+    failed_share_error,
+    prepare,
+    rejected_lines,
+)
 from amfe.dataset.record import load_pixelate, make_record
 from amfe.dataset.summary import final_summary
 from amfe.errors import AmfeError
 from amfe.io.atomic import NoSpaceError
-from amfe.dataset.datafile import merge_parts
-from amfe.dataset.parts import STATUS_OK, describe_params, run_params, write_part
 from amfe.io.mpi import on_root
 from amfe.io.paths import check_output
 from amfe.model.scales import get_scale

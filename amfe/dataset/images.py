@@ -44,9 +44,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from amfe.model.bonds import validate_particles
-from amfe.errors import AmfeError
 from amfe.dataset.pixelkernel import union_volumes, use_kernel
+from amfe.errors import AmfeError
+from amfe.model.bonds import validate_particles
 
 DEFAULT_CELL = (30e-6, 30e-6)      # paper section 6: 0.03 mm x 0.03 mm in the plane [m]
 DEFAULT_LAYER_THICKNESS = 100e-6   # one powder layer, 0.1 mm [m]

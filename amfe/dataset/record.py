@@ -11,9 +11,9 @@ import traceback
 
 import numpy as np
 
+from amfe.dataset.parts import STATUS_FAILED, STATUS_OK, empty_record
 from amfe.dataset.upgrade import record_bond_image
 from amfe.errors import AmfeError
-from amfe.dataset.parts import STATUS_FAILED, STATUS_OK, empty_record
 from amfe.model.bed import generate_bed
 from amfe.model.scales import PARAM_NAMES, get_scale, param_record, record_seed, sample_bed_params
 from amfe.solvers.ksp import DEFAULT_RTOL

@@ -3,11 +3,11 @@ import os
 
 import numpy as np
 
+from amfe.dataset.datafile import _image_dataset, check_dataset
 from amfe.dataset.lock import DatasetLock
+from amfe.dataset.parts import STATUS_OK
 from amfe.errors import AmfeError
 from amfe.io.atomic import atomic_write_h5
-from amfe.dataset.datafile import _image_dataset, check_dataset
-from amfe.dataset.parts import STATUS_OK
 from amfe.model.scales import get_scale
 
 

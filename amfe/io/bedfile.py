@@ -18,13 +18,13 @@ import os
 import h5py
 import numpy as np
 
+from amfe.errors import AmfeError
+from amfe.io.atomic import atomic_write
 from amfe.model.bed import Bed
 from amfe.model.bonds import check_shapes
 from amfe.model.material import check_material_names
 from amfe.model.memory import READ_BYTES, check_memory
 from amfe.model.torus import check_box
-from amfe.io.atomic import atomic_write
-from amfe.errors import AmfeError
 
 CENTERS = "particles/centers"
 RADII = "particles/radii"

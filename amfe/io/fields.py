@@ -20,9 +20,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from amfe.model.averages import unit_strains
+from amfe.model.conditions import get_condition
 from amfe.model.element import bond_end_loads
 from amfe.model.periodic import bond_jumps
-from amfe.model.conditions import get_condition
 from amfe.model.subc import unit_stresses
 from amfe.vocab import CASE_NAMES
 

@@ -8,7 +8,8 @@ shipped JSON Schema. Arrays are numpy; units are SI (Pa, 1/Pa, m^3, m, N).
 """
 import json
 import os
-from dataclasses import dataclass, field, fields as dc_fields
+from dataclasses import dataclass, field
+from dataclasses import fields as dc_fields
 
 import numpy as np
 

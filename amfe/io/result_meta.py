@@ -13,8 +13,8 @@ from importlib import resources
 import numpy as np
 
 from amfe.errors import AmfeError
-from amfe.model.conditions import CONDITIONS, condition_names
 from amfe.model.bonds import find_pairs
+from amfe.model.conditions import CONDITIONS, condition_names
 from amfe.version import __version__
 from amfe.vocab import CASE_NAMES
 

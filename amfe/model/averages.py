@@ -24,7 +24,8 @@ from amfe.errors import AmfeError
 from amfe.signals import signals_deferred
 
 #: Keys of the dict returned by :func:`compliance_and_constants`, in docs/model.md's order.
-from amfe.vocab import CONSTANT_NAMES as CONSTANT_KEYS, VOIGT_PAIRS as _VOIGT_PAIRS
+from amfe.vocab import CONSTANT_NAMES as CONSTANT_KEYS
+from amfe.vocab import VOIGT_PAIRS as _VOIGT_PAIRS
 
 # Voigt index pairs (xx, yy, zz, yz, xz, xy).
 _VI = np.array([p[0] for p in _VOIGT_PAIRS])

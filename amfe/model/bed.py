@@ -13,14 +13,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from amfe.version import __version__
-from amfe.model.bonds import bonded_among, contact_geometry, find_bonds, validate_particles
 from amfe.errors import AmfeError
+from amfe.model.bedparams import SEED_LIMIT, BedParams, check_seed  # noqa: F401 - re-exported
+from amfe.model.bonds import bonded_among, contact_geometry, find_bonds, validate_particles
 from amfe.model.material import STEEL, Material, material_from_attrs
 from amfe.model.memory import check_memory, generation_bytes, lattice_counts
-from amfe.model.bedparams import SEED_LIMIT, BedParams, check_seed  # noqa: F401 - re-exported
 from amfe.model.scanpath import ScanPath, scanned_mask
 from amfe.model.torus import find_periodic_bonds, periodic_hcp_lattice, snap_box, wrap
+from amfe.version import __version__
 
 SQRT3 = math.sqrt(3.0)
 

@@ -13,7 +13,6 @@ from amfe.errors import AmfeError, _list_items
 from amfe.model.material import Material
 from amfe.model.springs import A_STAR_MARGIN, critical_a_star, spring_constants
 
-
 LENGTH_RANGE = (1e-60, 1e60)
 """Radii and coordinates must lie in this range (in the caller's length unit, SI: m):
 contact radii go through R^4 (Heron's form), which under- or overflows float64

@@ -20,8 +20,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from amfe.errors import AmfeError
-from amfe.model.carrying import (kubc_carrying, mixed_carrying, periodic_carrying,
-                                 subc_carrying)
+from amfe.model.carrying import kubc_carrying, mixed_carrying, periodic_carrying, subc_carrying
 from amfe.model.kubc import kubc_groups
 from amfe.model.mixed import mixed_groups
 from amfe.model.periodic import periodic_groups

@@ -14,11 +14,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from amfe.model.bonds import Bonds, bond_springs, contact_geometry, find_pairs
 from amfe.errors import AmfeError
-from amfe.model.material import STEEL, Material
+from amfe.model.bonds import Bonds, bond_springs, contact_geometry, find_pairs
 from amfe.model.carrying import bed_box, component_labels, periodic_carrying, removed_report
 from amfe.model.conditions import get_condition
+from amfe.model.material import STEEL, Material
 from amfe.model.torus import check_box, find_periodic_pairs, wrap
 
 

@@ -11,7 +11,7 @@ reader would take for the material (material_e, Material_NU, E): ignored, it
 would leave the bed solved as steel.
 """
 import math
-from dataclasses import dataclass, asdict
+from dataclasses import asdict, dataclass
 
 import numpy as np
 

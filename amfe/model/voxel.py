@@ -288,11 +288,16 @@ def voxel_solid(centers, radii, voxel_size=None, period=None, size=None, max_mem
     (:func:`voxel_bytes`) exceeds it is refused before it is allocated. ``even``: a
     period box gets even voxel counts (:func:`grid_over`).
     """
-    from amfe.model.memory import check_memory
     from amfe.model.bonds import contact_geometry, find_pairs
+    from amfe.model.carrying import (
+        component_labels,
+        kubc_held,
+        periodic_winding,
+        removed_report,
+        removed_warning,
+    )
     from amfe.model.kubc import boundary_particles
-    from amfe.model.carrying import (component_labels, kubc_held, periodic_winding,
-                                     removed_report, removed_warning)
+    from amfe.model.memory import check_memory
     from amfe.model.torus import check_box, find_periodic_pairs, wrap
 
     centers, radii = np.asarray(centers, float), np.asarray(radii, float)

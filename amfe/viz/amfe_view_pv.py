@@ -37,12 +37,28 @@ import sys
 import time
 
 T_START = time.perf_counter()
-from paraview.simple import (ColorBy, ExtractSurface, GetActiveViewOrCreate,  # noqa: E402
-                             GetColorTransferFunction, GetScalarBar, Glyph, Interact,
-                             Outline, PassArrays, PVDReader, PythonAnnotation, ResetCamera,
-                             SaveScreenshot, SaveState, Show, Text, Tube, WarpByVector,
-                             XMLUnstructuredGridReader)
 from paraview import servermanager  # noqa: E402
+from paraview.simple import (  # noqa: E402
+    ColorBy,
+    ExtractSurface,
+    GetActiveViewOrCreate,
+    GetColorTransferFunction,
+    GetScalarBar,
+    Glyph,
+    Interact,
+    Outline,
+    PassArrays,
+    PVDReader,
+    PythonAnnotation,
+    ResetCamera,
+    SaveScreenshot,
+    SaveState,
+    Show,
+    Text,
+    Tube,
+    WarpByVector,
+    XMLUnstructuredGridReader,
+)
 
 SIGNED = ("axial_force_N", "torsion_Nm")
 SPHERE_SHARE = 0.3
