@@ -30,6 +30,7 @@ from scipy.sparse.csgraph import reverse_cuthill_mckee
 from amfe.errors import AmfeError
 from amfe.model.memory import direct_bytes
 from amfe.solvers.correction import CORRECTED_RTOL, FREE_SHARE_MAX
+from amfe.solvers.inputs import given_options
 from amfe.solvers.ksp import DEFAULT_RTOL
 from amfe.solvers.petsclib import PETSc
 
@@ -149,8 +150,8 @@ def _choose(features, nranks, requested, rtol, package, user_options, singular, 
     if requested == "cholesky":
         if nranks > 1:
             raise AmfeError(f"--solver cholesky runs on one rank; this bed is solved on {nranks} "
-                            "ranks: use --solver gamg or auto, or run it on one rank (amfe dataset: "
-                            "--ranks-per-bed 1)")
+                            "ranks: use --solver gamg or auto, or run it on one rank "
+                            "(amfe dataset: --ranks-per-bed 1)")
         if singular:
             raise AmfeError("--solver cholesky cannot factorise these boundary conditions: "
                             "they leave rigid modes free (a singular operator); use --solver gamg")
@@ -197,8 +198,6 @@ def shown_method(method, ksp_options=None):
     """How the progress line names the method: ``method``, or "KSP + PC" where the PETSc
     options (per solve, or of the call in the database) set the KSP or the PC ("-pc_type
     hypre" printed "solver: gamg" before the summary said cg+hypre)."""
-    from amfe.solvers.inputs import given_options
-    from amfe.solvers.petsclib import PETSc
     given = given_options(("ksp_type", "pc_type"), ksp_options)
     if method == "cholesky" or not given:
         return method

@@ -1,6 +1,8 @@
 """PETSc start-up: initialise petsc4py once, with command-line options if given."""
+import ctypes
 import logging
 import os
+import signal
 import sys
 
 from amfe.errors import AmfeError
@@ -21,7 +23,7 @@ def init_petsc(argv=None):
         argv = list(argv)
         check_startup_options(argv)
     if "petsc4py.PETSc" not in sys.modules:
-        import petsc4py
+        import petsc4py  # noqa: PLC0415 (heavy or optional: loaded when used)
         # the program's name first; under `python -c` sys.argv[0] is "-c", which
         # PETSc would take for an option ("PETSc options never used: -c")
         prog = sys.argv[0] if sys.argv and sys.argv[0] and not sys.argv[0].startswith("-") \
@@ -33,9 +35,9 @@ def init_petsc(argv=None):
                             f"({exc}); check them against the PETSc manual") from None
         _keep_python_signals()
         _command_line[:] = option_pairs(argv or [])
-        from petsc4py import PETSc
+        from petsc4py import PETSc  # noqa: PLC0415 (heavy or optional: loaded when used)
         return PETSc
-    from petsc4py import PETSc
+    from petsc4py import PETSc  # noqa: PLC0415 (heavy or optional: loaded when used)
     if argv is not None:
         opts = PETSc.Options()
         pairs = option_pairs(argv)
@@ -72,7 +74,7 @@ def forget_command_line():
     (a later call in this process, a test's, is not that command's); process-wide ones such as
     -log_view stay for PetscFinalize."""
     if "petsc4py.PETSc" in sys.modules:
-        from petsc4py import PETSc
+        from petsc4py import PETSc  # noqa: PLC0415 (heavy or optional: loaded when used)
         opts = PETSc.Options()
         for name, _ in _command_line:
             if is_object_option(name) and opts.hasName(name):
@@ -114,7 +116,6 @@ def _keep_python_signals():
     command line's handlers end the run with one line (amfe.cli.interrupt),
     and elsewhere the signal does what it did before PETSc started.
     """
-    import signal
     for sig in (signal.SIGPIPE, signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT):
         handler = signal.getsignal(sig)   # Python's own record, which PETSc did not change
         if handler is None:   # set outside Python: leave it
@@ -161,7 +162,6 @@ def _options_used_fn():
     petsc4py 3.18 has no binding for it; the library is the one mapped into
     this process (so the same options database), found in /proc/self/maps.
     """
-    import ctypes
     path = None
     try:
         with open("/proc/self/maps") as maps:
@@ -181,7 +181,6 @@ def _options_used_fn():
 
 def option_used(name):
     """True if PETSc has read option ``name`` (without the dash); None if that cannot be told."""
-    import ctypes
     if "fn" not in _used_fn:
         _used_fn["fn"] = _options_used_fn()
     fn = _used_fn["fn"]
@@ -206,9 +205,9 @@ def unused_options(names=None):
 
 def unused_options_warning(rank, extra=(), names=None):
     """One line naming the options never used (of ``names``, "-name", else of the whole
-    database; with ``extra``, names already found unused elsewhere), or None. Rank 0 logs it as a warning (logger "amfe.solvers") the first time
-    these names come up in this process (a data set's hundred solves warn once); every rank
-    returns it for the JSON.
+    database; with ``extra``, names already found unused elsewhere), or None. Rank 0 logs it
+    as a warning (logger "amfe.solvers") the first time these names come up in this process
+    (a data set's hundred solves warn once); every rank returns it for the JSON.
     """
     names = sorted(set(unused_options() if names is None else names) | set(extra))
     if not names:

@@ -40,6 +40,7 @@ from amfe.solvers.options import call_options
 from amfe.solvers.partition import row_ranges
 from amfe.solvers.petsc import unused_options_warning
 from amfe.solvers.petsclib import PETSc
+from amfe.solvers.voxelfree import ElementProduct, matrix_free_ksp, shell, two_grid
 
 LOG = logging.getLogger("amfe.solvers")
 EPS = float(np.finfo(float).eps)
@@ -298,7 +299,6 @@ def _assembled(A0, cases, x_local, options):
 def _matrix_free(comm, mesh, Ke, h, rows, grip, cases, options):
     """:class:`Operators` of the element shell (:mod:`amfe.solvers.voxelfree`): CG + the
     two-grid PCMG; grip: KUBC's gripped grid nodes (None: the box's faces)."""
-    from amfe.solvers.voxelfree import ElementProduct, matrix_free_ksp, shell, two_grid
     r0, r1 = rows
     fixed = np.array([0]) if mesh.periodic else mesh.boundary_nodes(grip)
     free = ElementProduct(comm, mesh, Ke, r0, r1)

@@ -1,4 +1,4 @@
-"""run/train/join_datasets.py and run/train/split_dataset.py: held-out sets of one kind joined record after
+"""run/train/join_datasets.py and split_dataset.py: held-out sets of one kind joined record after
 record, others refused; a split joined again gives the records back."""
 
 import h5py

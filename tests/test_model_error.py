@@ -4,10 +4,10 @@ import os
 
 import pytest
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-
 from run.report import voxel_model_error as V
 from run.report.voxel_write import section_voxel
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 R = 12.5e-6
 C0 = {"Ex": 160e9, "Ey": 150e9, "Ez": 140e9, "G_yz": 60e9, "G_xz": 61e9, "G_xy": 62e9}

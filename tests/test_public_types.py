@@ -1,4 +1,4 @@
-"""The public face is typed: everything ``help(amfe)`` lists has annotated parameters and returns."""
+"""The public face is typed: what ``help(amfe)`` lists has annotated parameters and returns."""
 import inspect
 
 import amfe

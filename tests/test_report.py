@@ -1,4 +1,4 @@
-"""The speed-against-error report (run/report/report.py) on a tiny case: invariants of its numbers."""
+"""The speed-against-error report (run/report/report.py) on a tiny case: its numbers' invariants."""
 import json
 import os
 import subprocess

@@ -38,6 +38,7 @@ import torch
 from amfe.dataset.parts import STATUS_OK
 from amfe.errors import AmfeError
 from amfe.training import AUGMENTATIONS
+from amfe.training.checkpoint import check_image_shape
 from amfe.vocab import LABEL_NAMES
 
 INPUT_KINDS = {"fill": "images", "bonds": "bond_images"}   # kind: data-set array
@@ -72,7 +73,7 @@ def _require_inputs(f, path, inputs):
 
 
 def _open(path):
-    import h5py
+    import h5py  # noqa: PLC0415 (heavy or optional: loaded when used)
     path = os.fspath(path)
     if not os.path.isfile(path):
         raise AmfeError(f"data set {path} does not exist")
@@ -296,7 +297,6 @@ class Normalizer:
 def image_batch(images, ckpt, path="the model"):
     """``images`` (n, channels, H, W) or one (channels, H, W) as a float32 tensor (n, channels,
     H, W); AmfeError unless it is an array of numbers of the checkpoint's image shape."""
-    from amfe.training.checkpoint import check_image_shape
     try:
         x = torch.as_tensor(np.asarray(images, np.float32))
     except (TypeError, ValueError) as exc:

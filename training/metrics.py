@@ -1,6 +1,7 @@
 """Error measures of predicted labels, per property (the paper's "average difference", and R^2)."""
 import numpy as np
 
+from amfe.training.guards import check_fit
 from amfe.vocab import LABEL_NAMES
 
 
@@ -36,7 +37,6 @@ def validation_metrics(res, labels, norm, lr, log=None):
     fraction, and error_vs_mean, the six ratios of the error to that of predicting the
     training mean; AmfeError when training diverged (:func:`amfe.training.guards.check_fit`).
     """
-    from amfe.training.guards import check_fit
 
     vs_mean = check_fit(res["mean"], labels, norm, lr, log)
     out = property_metrics(res["mean"], labels)

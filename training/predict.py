@@ -28,7 +28,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
+import amfe.version
+from amfe.dataset.bondimage import bond_image
+from amfe.dataset.images import pixelate
 from amfe.errors import AmfeError
+from amfe.io.bedfile import read_bed
+from amfe.model.carrying import rule1_factor
 from amfe.training.checkpoint import build_members, check_image_shape, describe, load_checkpoint
 from amfe.training.data import DEFAULT_INPUTS, Normalizer, check_inputs, image_batch
 from amfe.training.ensemble import predict_raw, tta_mode
@@ -42,7 +47,6 @@ TRAIN_HINT = ("train it with the commands of docs/model_card.md (`amfe train` pe
 
 def default_model_path():
     """The model shipped in the package: amfe/models/multiscale_small.pt (docs/model_card.md)."""
-    import amfe.version
     return Path(amfe.version.__file__).resolve().parent / "models" / DEFAULT_MODEL_NAME
 
 
@@ -183,7 +187,6 @@ class Surrogate:
         t = time.perf_counter()
         res = self.predict(np.stack([x for x, _, _ in made]))
         if self.label_rule < 2:
-            from amfe.model.carrying import rule1_factor
             for k, bed in enumerate(beds):
                 res["mean"][k, :3] *= rule1_factor(bed.centers, bed.radii, bed.attrs.get("size"))
         share = (time.perf_counter() - t) / len(beds)
@@ -201,7 +204,6 @@ class Surrogate:
         t2 = time.perf_counter()
         res = self.predict(x[None])
         if self.label_rule < 2:   # rule-1 moduli -> rule 2; spread is relative, unchanged
-            from amfe.model.carrying import rule1_factor
             res["mean"][:, :3] *= rule1_factor(bed.centers, bed.radii, bed.attrs.get("size"))
         times["predict"] = time.perf_counter() - t2
         return res, image, times
@@ -214,7 +216,6 @@ def _is_bed(item):
 
 def _read(item):
     if isinstance(item, (str, os.PathLike)):
-        from amfe.io.bedfile import read_bed
         return read_bed(item)
     return item
 
@@ -226,7 +227,6 @@ def pixelate_like_training(bed, ckpt, path="the model"):
     beds), else [0, the training beds' size]. AmfeError if the image's shape
     is not the model's.
     """
-    from amfe.dataset.images import pixelate
 
     px = ckpt["pixelation"]
     size = _image_size(bed, ckpt)
@@ -246,7 +246,6 @@ def pixelate_like_training(bed, ckpt, path="the model"):
 
 def bond_image_like_training(bed, ckpt):
     """The bond-stiffness image of ``bed`` (amfe.dataset.bondimage) on the training data's grid."""
-    from amfe.dataset.bondimage import bond_image
 
     px = ckpt["pixelation"]
     return bond_image(bed, cell=tuple(px["image_cell"][:2]),

@@ -20,6 +20,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 import torch
 
+from amfe.dataset.parts import label_rule
 from amfe.errors import AmfeError
 from amfe.model.material import STEEL
 from amfe.training import AUGMENTATIONS, LOSSES, SCHEDULES, guards
@@ -40,7 +41,7 @@ from amfe.training.ensemble import predict_raw, summarize_members, tta_mode
 from amfe.training.finetune import check_data, load_init, widened_fill_range
 from amfe.training.metrics import metrics_line, property_metrics, validation_metrics
 from amfe.training.nets import build_net, count_parameters, resolved_args
-from amfe.training.predict import calibrate_fill
+from amfe.training.predict import Surrogate, calibrate_fill
 from amfe.vocab import LABEL_NAMES
 
 MEMORY_LIMIT = 1 << 30   # train from memory when the selected images take less (bytes)
@@ -169,7 +170,7 @@ def train_member(train_ds, val, norm, cfg, image_shape, seed, report=Report(), i
             "epoch_seconds": []}
     bar = None
     if progress:
-        from tqdm import tqdm
+        from tqdm import tqdm  # noqa: PLC0415 (heavy or optional: loaded when used)
         bar = tqdm(total=cfg.epochs, desc=label or cfg.arch, unit="epoch", leave=False,
                    dynamic_ncols=True, file=sys.stderr)
     t_start = time.perf_counter()
@@ -291,7 +292,6 @@ def train_model(data_path, cfg, progress=True, log=print):
                                               for n, e in zip(LABEL_NAMES, hist["val_mre"][-1]))
         log(msg)
 
-    from amfe.dataset.parts import label_rule
     ckpt = {
         "arch": cfg.arch,
         "arch_args": resolved_args(cfg.arch, nets[0], cfg.arch_args),
@@ -322,7 +322,6 @@ def train_model(data_path, cfg, progress=True, log=print):
     if start is not None:
         ckpt["fill_range"] = widened_fill_range(start["fill_range"], ckpt["fill_range"])
     if len(val_rows):
-        from amfe.training.predict import Surrogate
         sur = Surrogate(ckpt, "the new model")
         members = sur.member_outputs(val_images)
         if cfg.members > 1:

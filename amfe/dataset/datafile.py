@@ -64,6 +64,8 @@ from amfe.dataset.parts import (
 )
 from amfe.errors import AmfeError, _list_items
 from amfe.io.atomic import atomic_write_h5
+from amfe.model.boxscale import draw_material
+from amfe.model.material import STEEL
 from amfe.model.scales import PARAM_NAMES, PARAM_UNITS, get_scale, record_seed
 from amfe.vocab import LABEL_NAMES
 
@@ -148,7 +150,6 @@ def _copy_parts(rows, bonds, output, parts, params):
 def _padded(params):
     """A part's params row in :data:`PARAM_NAMES`' order: parts written before the material
     columns (E, nu, psi) existed were steel's, and get steel's values."""
-    from amfe.model.material import STEEL
     params = np.asarray(params, np.float64)
     tail = [STEEL.E, STEEL.nu, STEEL.psi][params.shape[0] - len(PARAM_NAMES):] \
         if params.shape[0] < len(PARAM_NAMES) else []
@@ -326,7 +327,6 @@ def _layout_problems(data, attrs):
 
 def _material_problems(data, attrs):
     """Records whose material (params/E, nu, psi) is not one the scale's spec can draw."""
-    from amfe.model.boxscale import draw_material
     p = data.get("params", {})
     if not all(n in p for n in ("E", "nu", "psi")):
         return []   # files made before the material columns: steel

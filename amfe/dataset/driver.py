@@ -122,7 +122,7 @@ def run_dataset(output, count, *, comm=None, progress=True, pixelate=None, out=N
     kept), a table record whose bed does not regenerate, a failed merge, or
     more than ``max_failed_share`` of the records failed (the file is written).
     """
-    from mpi4py import MPI
+    from mpi4py import MPI  # noqa: PLC0415 (heavy or optional: loaded when used)
 
     opts = DatasetOptions(**options)
     world = MPI.COMM_WORLD if comm is None else comm

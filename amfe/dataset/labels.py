@@ -25,6 +25,7 @@ import glob
 import hashlib
 import json
 import os
+from dataclasses import replace
 
 import numpy as np
 
@@ -274,7 +275,6 @@ def table_run(table, count, solve_rest=False):
 
 def table_options(table, opts):
     """``opts`` (amfe.dataset.plan.DatasetOptions) with the table's scale, seed and method."""
-    from dataclasses import replace
     a = table["attrs"]
     return replace(opts, scale=a["scale"], seed=int(a["dataset_seed"]), rtol=float(a["rtol"]),
                    solver=a["solver"], bc=a["bc"], ranks_per_bed=1)

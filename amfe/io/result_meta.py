@@ -163,7 +163,7 @@ def validate(result):
     Needs ``jsonschema`` (``pip install amfe[test]``).
     """
     try:
-        import jsonschema
+        import jsonschema  # noqa: PLC0415 (optional: the test extra)
     except ImportError:
         raise AmfeError("validating a result needs jsonschema: pip install jsonschema") from None
     validator = jsonschema.Draft202012Validator(load_schema())

@@ -53,6 +53,8 @@ import numpy as np
 
 from amfe.errors import AmfeError
 from amfe.model.material import ALLOYS, STEEL, Material
+from amfe.model.scales import MM, SCALES, Scale
+from amfe.model.springs import critical_a_star
 
 MATERIAL_STREAM = 0x3A7E46  # second word of the material stream's SeedSequence
 LAYER_UM = 100              # a powder layer [um]
@@ -126,7 +128,6 @@ def box_name(size_mm, materials="steel", nu=None, psi=None):
 @lru_cache(maxsize=256)
 def parse_box(name):
     """The :class:`amfe.model.scales.Scale` of box scale ``name``; AmfeError if it is none."""
-    from amfe.model.scales import MM, SCALES, Scale
 
     m = _NAME.match(name)
     bad = AmfeError(f"unknown scale {name!r}; choose one of {', '.join(SCALES)}, or a box scale "
@@ -165,5 +166,4 @@ def draw_material(sc, bed_seed):
 
 def a_star_cap(a_star_max, material):
     """The a* bound of a bed of ``material``: min(a_star_max, critical a* - A_STAR_GAP)."""
-    from amfe.model.springs import critical_a_star
     return min(float(a_star_max), critical_a_star(material.nu, material.psi) - A_STAR_GAP)

@@ -31,6 +31,9 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from amfe.errors import AmfeError
+from amfe.model.averages import hull_of
+from amfe.model.bonds import find_pairs, validate_particles
+from amfe.model.torus import spanning_images, winding_rank
 
 #: A component is held by KUBC when a prescribed centre lies this many mean radii off
 #: the line through the others (a smaller offset is a near mechanism: docs/hard_cases.md).
@@ -133,7 +136,6 @@ def periodic_winding(n, i, j, shift, labels):
     components' windings span fewer than three directions (no macro-stress
     along the others).
     """
-    from amfe.model.torus import spanning_images, winding_rank
     kept, windings = [], []
     crossing = np.any(shift != 0, axis=1)
     for c in np.unique(labels[i[crossing]]):
@@ -275,8 +277,6 @@ def rule1_factor(centers, radii, size=None):
     move): the conversion of a surrogate trained on rule-1 labels.
     centers (N,3), radii (N,) [m]; size (3,) [m] or None.
     """
-    from amfe.model.averages import hull_of
-    from amfe.model.bonds import find_pairs, validate_particles
     x, r = validate_particles(centers, radii)
     length = float(r.mean())                      # as build_frame finds the bonds
     i, j = find_pairs(x / length, r / length)

@@ -128,8 +128,8 @@ def build_frame(centers, radii, material: Material = STEEL, a_star_cap=None, non
     image, the components that wind round the torus, which together must wrap
     round it in x, y and z (else no macro-stress along some axis: an error).
     bc: a condition of :mod:`amfe.model.conditions`, whose carrying rule picks the
-    load-carrying components (:mod:`amfe.model.carrying`; mixed: one held piece at most). size (3,) [m]:
-    the bed's recorded box (attrs ``size``); V is its volume, else that of the
+    load-carrying components (:mod:`amfe.model.carrying`; mixed: one held piece at most).
+    size (3,) [m]: the bed's recorded box (attrs ``size``); V is its volume, else that of the
     load-carrying spheres' bounding box (a periodic bed: the periods).
     """
     centers, radii = np.asarray(centers, float), np.asarray(radii, float)  # checked (a Bed's)

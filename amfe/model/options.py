@@ -121,8 +121,8 @@ def check_a_star_cap_type(value):
 class SolveOptions:
     """How to solve a bed (:func:`amfe.solvers.driver.homogenize_bed`), checked when made.
 
-    bc: a registered condition (:mod:`amfe.model.conditions`); rtol: GAMG's relative tolerance in (0, 1) or
-    None (the default of docs/model.md, section 5); solver: one of
+    bc: a registered condition (:mod:`amfe.model.conditions`); rtol: GAMG's relative
+    tolerance in (0, 1) or None (the default of docs/model.md, section 5); solver: one of
     :data:`SOLVER_NAMES`; max_it: iteration limit or None; ksp_options: PETSc
     options of this solve only ({name: value}); petsc_args: PETSc command-line
     options (["-ksp_monitor"]) added to the database; accept_unconverged: keep

@@ -92,7 +92,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from amfe.errors import AmfeError
-from amfe.model.bed import check_seed
+from amfe.model.bed import check_seed, generate_bed
+from amfe.model.boxscale import a_star_cap, draw_material, parse_box
+from amfe.model.material import STEEL
 from amfe.model.scanpath import ScanPath
 
 PARAM_STREAM = 0x5CA1E  # second word of the parameter stream's SeedSequence
@@ -191,7 +193,6 @@ def get_scale(scale):
     if isinstance(scale, Scale):
         return scale
     if isinstance(scale, str) and scale.startswith("box"):
-        from amfe.model.boxscale import parse_box
         return parse_box(scale)
     try:
         return SCALES[scale]
@@ -264,7 +265,6 @@ def sample_bed_params(scale, bed_seed):
         "a_star_max": sc.a_star_max,
     }
     if sc.material != "steel":   # box scales: from a stream of its own, the draws above unchanged
-        from amfe.model.boxscale import a_star_cap, draw_material
         out["material"] = draw_material(sc, bed_seed)
         out["a_star_max"] = a_star_cap(sc.a_star_max, out["material"])
     return out
@@ -276,7 +276,6 @@ def param_record(params):
     A fully scanned bed (``scan`` None or full) has coverage 1 and no tracks
     (track width, spacing, angle, rotation, offset NaN).
     """
-    from amfe.model.material import STEEL
     scan = params.get("scan")
     mat = params.get("material", STEEL)
     lo, hi = params["enlargement"]
@@ -299,5 +298,4 @@ def param_record(params):
 
 def bed_for(scale, bed_seed):
     """The bed with seed ``bed_seed`` of ``scale``: generate_bed(**sample_bed_params(...))."""
-    from amfe.model.bed import generate_bed
     return generate_bed(**sample_bed_params(scale, bed_seed))

@@ -14,7 +14,20 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from amfe.errors import AmfeError
+from amfe.model.bonds import contact_geometry, find_pairs
+from amfe.model.carrying import (
+    bed_box,
+    component_labels,
+    kubc_held,
+    periodic_winding,
+    removed_report,
+    removed_warning,
+)
 from amfe.model.hex8 import VERTICES
+from amfe.model.kubc import boundary_particles
+from amfe.model.material import real_number
+from amfe.model.memory import check_memory
+from amfe.model.torus import check_box, find_periodic_pairs, wrap
 
 NECK_WARN_SHARE = 0.5
 """Below this share of necks resolved by at least 2 voxels across, a warning."""
@@ -52,7 +65,6 @@ def grid_over(lo, hi, voxel_size, even=False):
     voxels are bricks within a factor (n_k + 1) / n_k of cubes. ``even``: round
     each n_k up to an even count (a periodic grid the matrix-free operator coarsens).
     """
-    from amfe.model.material import real_number
     lo, hi = np.asarray(lo, float), np.asarray(hi, float)
     voxel_size = real_number("the voxel size", voxel_size)
     if not (np.isfinite(voxel_size) and voxel_size > 0):
@@ -260,7 +272,6 @@ def kubc_box(centers, radii, size=None, kept=None):
     the load-carrying spheres' bounding box. note: bed_box's (why the recorded
     size was not used), else None.
     """
-    from amfe.model.carrying import bed_box
     L, note = bed_box(centers, radii, size, kept)
     x = centers if kept is None else centers[kept]
     r = radii if kept is None else radii[kept]
@@ -288,17 +299,6 @@ def voxel_solid(centers, radii, voxel_size=None, period=None, size=None, max_mem
     (:func:`voxel_bytes`) exceeds it is refused before it is allocated. ``even``: a
     period box gets even voxel counts (:func:`grid_over`).
     """
-    from amfe.model.bonds import contact_geometry, find_pairs
-    from amfe.model.carrying import (
-        component_labels,
-        kubc_held,
-        periodic_winding,
-        removed_report,
-        removed_warning,
-    )
-    from amfe.model.kubc import boundary_particles
-    from amfe.model.memory import check_memory
-    from amfe.model.torus import check_box, find_periodic_pairs, wrap
 
     centers, radii = np.asarray(centers, float), np.asarray(radii, float)
     if voxel_size is None:

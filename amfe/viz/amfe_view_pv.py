@@ -36,6 +36,8 @@ import os
 import sys
 import time
 
+import numpy as np
+
 T_START = time.perf_counter()
 from paraview import servermanager  # noqa: E402
 from paraview.simple import (  # noqa: E402
@@ -91,8 +93,7 @@ def parse(argv):
 
 def measure(reader, color):
     """Warp factor and 2-98 percentile range from the data, as amfe view computes them."""
-    import numpy as np
-    from vtkmodules.numpy_interface import dataset_adapter as dsa
+    from vtkmodules.numpy_interface import dataset_adapter as dsa  # noqa: PLC0415 (heavy or optional: loaded when used)
 
     data = dsa.WrapDataObject(servermanager.Fetch(reader))
     x = np.asarray(data.Points)
