@@ -91,3 +91,92 @@ def test_box_rule_sources_and_a_given_box():
     per = generate_bed(size=(110e-6, 110e-6, 100e-6), seed=1, periodic=True)
     assert build_frame(per.centers, per.radii, box=per.attrs["periodic"]).box_source \
         == "periodic box"
+
+
+# --------------------------------------------------------------- item 9: damaged HDF5 chunks
+def _compress(path, name, chunk_rows=4):
+    import h5py
+    with h5py.File(path, "a") as f:
+        a = f[name][()]
+        del f[name]
+        f.create_dataset(name, data=a, chunks=(chunk_rows,) + a.shape[1:], compression="gzip",
+                         shuffle=True)
+
+
+def _corrupt_chunk(path, name, chunk=1):
+    """Flip 16 bytes in the middle of compressed chunk ``chunk`` of /name: inflate() fails."""
+    import h5py
+    with h5py.File(path, "r") as f:
+        info = f[name].id.get_chunk_info(chunk)
+    with open(path, "r+b") as fh:
+        fh.seek(info.byte_offset + info.size // 2)
+        b = fh.read(16)
+        fh.seek(info.byte_offset + info.size // 2)
+        fh.write(bytes(x ^ 0xFF for x in b))
+
+
+def _damaged_dataset(tmp_path, name="images"):
+    from cli_fixtures import tiny_dataset
+    p = tmp_path / "tiny.h5"
+    tiny_dataset(p)
+    _compress(p, name)
+    _corrupt_chunk(p, name)
+    return p
+
+
+ONE_LINE = "cannot read data set .*\\(a damaged or truncated file\\); restore it from a copy"
+
+
+def test_a_damaged_chunk_of_a_data_set_is_one_line_for_check_and_train(tmp_path):
+    from cli_fixtures import run_main
+    p = _damaged_dataset(tmp_path)
+    code, out, err = run_main(["dataset", "--check", p])
+    assert code == 2 and "inflate() failed" in err and str(p) in err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+    code, out, err = run_main(["train", p, "-o", tmp_path / "m.pt", "--quiet", "--epochs", "1"])
+    assert code == 2 and len(err.strip().splitlines()) == 1, err
+    assert "damaged or truncated file" in err and str(p) in err
+    assert not (tmp_path / "m.pt").exists()
+
+
+def test_check_reads_every_chunk_even_of_a_dataset_it_does_not_load(tmp_path):
+    """A damaged chunk in an extra dataset (a group load_dataset does not read) is found."""
+    import h5py
+    from cli_fixtures import run_main, tiny_dataset
+    p = tmp_path / "tiny.h5"
+    tiny_dataset(p)
+    code, _, err = run_main(["dataset", "--check", p])
+    assert code == 1 and "damaged" not in err   # a synthetic file: layout problems, no damage
+    with h5py.File(p, "a") as f:
+        f.create_dataset("extra/notes", data=np.arange(4000.0), chunks=(500,),
+                         compression="gzip")
+    _corrupt_chunk(p, "extra/notes")
+    code, _, err = run_main(["dataset", "--check", p])
+    assert code == 2 and "damaged or truncated file" in err
+
+
+def test_training_reads_of_a_damaged_data_set_are_amfe_errors(tmp_path):
+    from training.data import BedDataset, read_rows
+    p = _damaged_dataset(tmp_path)
+    with pytest.raises(AmfeError, match=ONE_LINE):
+        read_rows(p)
+    ds = BedDataset(p)               # status and labels are sound: opening works
+    with pytest.raises(AmfeError, match=ONE_LINE):
+        [ds[k] for k in range(len(ds))]
+
+
+def test_a_damaged_label_shard_is_one_line(tmp_path):
+    import h5py
+    from amfe.dataset.labels import IDENTITY, TABLE_FORMAT, read_tables
+    p = tmp_path / "shard.h5"
+    with h5py.File(p, "w") as f:
+        f.attrs.update({k: 1 for k in IDENTITY})
+        f.attrs["format"] = TABLE_FORMAT
+        f.create_dataset("index", data=np.arange(4000), chunks=(500,), compression="gzip")
+    _corrupt_chunk(p, "index")
+    with pytest.raises(AmfeError, match="cannot read label table .*shard.h5: .*inflate.*"
+                       "damaged or truncated file\\); export it again"):
+        read_tables([p])
+    from cli_fixtures import run_main
+    code, _, err = run_main(["dataset", "--from-labels", p, "-o", tmp_path / "d.h5"])
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "export it again" in err, err
