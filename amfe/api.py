@@ -165,7 +165,11 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
     if bc != "all":
         return one(bc, vtu_dir)
     names = ["kubc", "subc"] + (["periodic"] if error is None and "periodic" in bed.attrs else [])
-    return {name: one(name, vtu_dir and os.path.join(vtu_dir, name)) for name in names}
+    results = {name: one(name, vtu_dir and os.path.join(vtu_dir, name)) for name in names}
+    if vtu_dir is not None:   # an older set beside the new one: `amfe view` must not find it
+        from amfe.io.vtuset import clear_stale_sets
+        on_root(mpi, clear_stale_sets, vtu_dir, names)
+    return results
 
 
 def _voxel(bed, options, error, comm, spec):

@@ -1,6 +1,8 @@
 """Issue 45, round three of the faults: a Bed owns its arrays (item 4), stray pieces do not
 define the box (item 6, the one box rule of amfe.model.carrying), VTU sets own their
 directory (item 7) and corrupt HDF5 chunks give one line (item 9). docs/hard_cases.md."""
+import os
+
 import numpy as np
 import pytest
 
@@ -180,3 +182,128 @@ def test_a_damaged_label_shard_is_one_line(tmp_path):
     from cli_fixtures import run_main
     code, _, err = run_main(["dataset", "--from-labels", p, "-o", tmp_path / "d.h5"])
     assert code == 2 and len(err.strip().splitlines()) == 1 and "export it again" in err, err
+
+
+# --------------------------------------------------------------- item 7: a VTU set owns DIR
+def _fields(k=1):
+    from test_vtu import tiny_fields
+    return tiny_fields(k=k)
+
+
+def test_user_files_named_like_case_files_survive_a_new_set(tmp_path):
+    from amfe.io.vtu import write_fields_vtu
+    (tmp_path / "case_mine.vtu").write_text("the user's")
+    (tmp_path / "case_mine.vtp").write_text("the user's")
+    write_fields_vtu(tmp_path, _fields(2))
+    write_fields_vtu(tmp_path, _fields(1))            # the earlier set's case_yy.vtu goes
+    assert (tmp_path / "case_mine.vtu").read_text() == "the user's"
+    assert (tmp_path / "case_mine.vtp").read_text() == "the user's"
+    assert not (tmp_path / "case_yy.vtu").exists() and (tmp_path / "case_xx.vtu").exists()
+
+
+def test_a_planted_link_is_replaced_not_written_through(tmp_path):
+    from amfe.io.vtu import write_fields_vtu
+    outside = tmp_path / "outside.txt"
+    outside.write_text("precious")
+    d = tmp_path / "set"
+    d.mkdir()
+    os.symlink(outside, d / "case_xx.vtu")
+    os.symlink(outside, d / "cases.json")
+    write_fields_vtu(d, _fields(1))
+    assert outside.read_text() == "precious"
+    assert not os.path.islink(d / "case_xx.vtu") and not os.path.islink(d / "cases.json")
+    assert (d / "case_xx.vtu").read_bytes().startswith(b"<?xml")
+
+
+def test_a_second_writer_of_one_directory_is_refused(tmp_path):
+    from amfe.io.vtu import write_fields_vtu
+    from amfe.io.vtuset import LOCK_NAME, SetLock
+    write_fields_vtu(tmp_path, _fields(1))
+    before = {p: (tmp_path / p).read_bytes() for p in os.listdir(tmp_path)}
+    with SetLock(tmp_path):                           # another run holds DIR (a live pid)
+        with pytest.raises(AmfeError, match="being written by another amfe run .*wait for it"):
+            write_fields_vtu(tmp_path, _fields(2))
+    assert {p: (tmp_path / p).read_bytes() for p in os.listdir(tmp_path)} == before
+    assert not (tmp_path / LOCK_NAME).exists()        # released by its holder, not by us
+    import subprocess
+    import sys
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                          capture_output=True, text=True).stdout.strip()
+    from amfe.io.atomic import host_name
+    (tmp_path / LOCK_NAME).write_text(f'{{"pid": {dead}, "host": "{host_name()}"}}\n')
+    with pytest.raises(AmfeError, match="stale lock .*remove the lock and run again: rm "):
+        write_fields_vtu(tmp_path, _fields(2))
+    os.remove(tmp_path / LOCK_NAME)
+    write_fields_vtu(tmp_path, _fields(2))            # free again: the lock is gone after
+    assert not (tmp_path / LOCK_NAME).exists() and (tmp_path / "case_yy.vtu").exists()
+
+
+def test_two_processes_into_one_directory_never_mix(tmp_path):
+    """Two writers at once: one set completes, the other is refused; the cases.pvd left
+    lists exactly the files of one set, each with that set's sidecar."""
+    import subprocess
+    import sys
+    code = ("import sys; sys.path.insert(0, 'tests'); from test_vtu import tiny_fields; "
+            "from amfe.io.vtu import write_fields_vtu; from amfe.errors import AmfeError\n"
+            "k = int(sys.argv[2])\n"
+            "try:\n    [write_fields_vtu(sys.argv[1], tiny_fields(k=k)) for _ in range(5)]\n"
+            "except AmfeError as e:\n    print('refused', e)\n")
+    procs = [subprocess.Popen([sys.executable, "-c", code, str(tmp_path), str(k)],
+                              stdout=subprocess.PIPE, text=True) for k in (1, 2)]
+    outs = [p.communicate(timeout=120)[0] for p in procs]
+    from amfe.io.pvd import read_collection, read_sidecar
+    files = [os.path.basename(f) for _, f in read_collection(tmp_path / "cases.pvd")]
+    assert files in (["case_xx.vtu"], ["case_xx.vtu", "case_yy.vtu"])
+    assert [c["file"] for c in read_sidecar(tmp_path)["cases"]] == files
+    assert all(o == "" or o.startswith("refused the ParaView set in") for o in outs)
+
+
+def test_bc_all_removes_an_older_set_of_amfes_only(tmp_path):
+    from amfe.io.vtu import write_fields_vtu
+    from amfe.io.vtuset import clear_stale_sets
+    write_fields_vtu(tmp_path, _fields(2))                        # an older top-level set
+    write_fields_vtu(tmp_path / "periodic", _fields(2))           # another bed's periodic/
+    (tmp_path / "periodic" / "notes.txt").write_text("mine")
+    (tmp_path / "mine.vtu").write_text("mine")
+    for sub in ("kubc", "subc"):
+        write_fields_vtu(tmp_path / sub, _fields(1))
+    clear_stale_sets(tmp_path, ["kubc", "subc"])
+    assert sorted(os.listdir(tmp_path)) == ["kubc", "mine.vtu", "periodic", "subc"]
+    assert os.listdir(tmp_path / "periodic") == ["notes.txt"]
+    assert sorted(os.listdir(tmp_path / "kubc")) == ["case_xx.vtu", "cases.json", "cases.pvd"]
+    write_fields_vtu(tmp_path / "periodic", _fields(2))
+    os.remove(tmp_path / "periodic" / "notes.txt")
+    clear_stale_sets(tmp_path, ["kubc", "subc"])
+    assert not (tmp_path / "periodic").exists()                   # emptied: gone
+
+
+@pytest.fixture(scope="module")
+def bed_file(tmp_path_factory):
+    from amfe.io.bedfile import write_bed
+    p = tmp_path_factory.mktemp("bed") / "bed.h5"
+    write_bed(p, generate_bed(size=(110e-6, 110e-6, 100e-6), seed=1))
+    return p
+
+
+def test_bc_all_on_the_command_line_leaves_no_old_set_for_view(bed_file, tmp_path):
+    from cli_fixtures import run_main
+    from amfe.io.vtu import write_fields_vtu
+    d = tmp_path / "v"
+    write_fields_vtu(d, _fields(2))
+    write_fields_vtu(d / "periodic", _fields(2))
+    code, _, err = run_main(["homogenize", bed_file, "--bc", "all", "--vtu", d, "--quiet"])
+    assert code == 0, err
+    assert sorted(os.listdir(d)) == ["kubc", "subc"]
+
+
+@pytest.mark.parametrize("inside", ["cases.json", "case_xx.vtu", "cases.pvd",
+                                    "kubc/cases.json"])
+def test_an_output_inside_the_set_is_refused(bed_file, tmp_path, inside):
+    from cli_fixtures import run_main
+    d = tmp_path / "v"
+    (d / "kubc").mkdir(parents=True)
+    bc = ["--bc", "all"] if "/" in inside else []
+    code, _, err = run_main(["homogenize", bed_file, "--vtu", d, "-o", d / inside, *bc])
+    assert code == 2 and "falls inside the ParaView set" in err, err
+    assert len(err.strip().splitlines()) == 1
+    assert os.listdir(d) == ["kubc"] and os.listdir(d / "kubc") == []     # nothing written
