@@ -8,7 +8,7 @@ import pytest
 
 from amfe.errors import AmfeError
 from amfe.model.bed import Bed, generate_bed
-from amfe.model.carrying import box_rule, stray_pieces, component_labels
+from amfe.model.carrying import GivenBox, box_rule, component_labels, stray_pieces
 from amfe.model.frame import build_frame
 
 from helpers import homogenize_arrays
@@ -87,7 +87,7 @@ def test_box_rule_sources_and_a_given_box():
         box_rule(x, r, size, given=np.array(size) * 0.5)
     with pytest.raises(AmfeError, match="three positive lengths"):
         box_rule(x, r, given=[1e-4, -1, 1e-4])
-    fr = build_frame(x, r, size=size, given_box=given)
+    fr = build_frame(x, r, size=GivenBox(given))
     assert fr.box_source == "given box"
     assert fr.volume * fr.length_scale**3 == pytest.approx(np.prod(given), rel=1e-12)
     per = generate_bed(size=(110e-6, 110e-6, 100e-6), seed=1, periodic=True)

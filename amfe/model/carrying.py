@@ -204,6 +204,11 @@ def stray_pieces(x, r, labels):
 BOX_SOURCES = ("recorded size", "periodic box", "spheres' box", "given box")
 
 
+class GivenBox(tuple):
+    """(Lx, Ly, Lz): a box the user gives (issue 48's --box); as ``size`` of
+    :func:`box_rule` (or of :func:`amfe.model.frame.build_frame`) it is ``given``."""
+
+
 def box_rule(centers, radii, size=None, kept=None, given=None):
     """(L (3,), note, source): the bed's box lengths, whose product is V, in the arguments' units.
 
@@ -219,6 +224,8 @@ def box_rule(centers, radii, size=None, kept=None, given=None):
     "periodic box", set by the frame). Either way a floating or stray piece
     (:func:`stray_pieces`), kept out, changes no volume.
     """
+    if isinstance(size, GivenBox):
+        size, given = None, size
     x = np.asarray(centers, dtype=float)
     r = np.asarray(radii, dtype=float)
     x, r = (x, r) if kept is None else (x[kept], r[kept])

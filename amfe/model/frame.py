@@ -117,7 +117,7 @@ def _check_spans_volume(x, mean_radius):
 
 
 def build_frame(centers, radii, material: Material = STEEL, a_star_cap=None, nondimensional=True,
-                box=None, bc="kubc", size=None, given_box=None):
+                box=None, bc="kubc", size=None):
     """The load-carrying, non-dimensionalised frame of a bed under condition ``bc``.
 
     centers (N,3) [m], radii (N,) [m]: a :class:`~amfe.model.bed.Bed`'s arrays, checked
@@ -132,9 +132,9 @@ def build_frame(centers, radii, material: Material = STEEL, a_star_cap=None, non
     bc: "kubc", "mixed" or "subc" picks the finite rule of
     :mod:`amfe.model.carrying` (mixed: one held piece at most). size (3,) [m]:
     the bed's recorded box (attrs ``size``); V is its volume, else that of the
-    load-carrying spheres' bounding box (a periodic bed: the periods);
-    given_box (3,) [m]: V's box as the user states it, checked against the kept
-    centres (:func:`amfe.model.carrying.box_rule`, the one box rule).
+    load-carrying spheres' bounding box (a periodic bed: the periods); a
+    :class:`amfe.model.carrying.GivenBox` is V's box as the user states it, checked
+    against the kept centres (:func:`amfe.model.carrying.box_rule`, the one box rule).
     """
     centers, radii = np.asarray(centers, float), np.asarray(radii, float)  # checked (a Bed's)
     n_input = centers.shape[0]
@@ -166,8 +166,8 @@ def build_frame(centers, radii, material: Material = STEEL, a_star_cap=None, non
     removed = removed_report(x, r, labels, ids, n_input)
     size_f, box_note, box_source = L, None, "periodic box"  # periodic: the periods
     if box is None:                                  # in SI, then in frame units
-        size_f, box_note, box_source = box_rule(centers - origin, radii, size, kept,
-                                                given_box)  # exact (frame_origin)
+        size_f, box_note, box_source = box_rule(centers - origin, radii, size,
+                                                kept)  # exact (frame_origin)
         size_f = size_f / length
     new_index = np.full(n_input, -1, np.int64)
     new_index[kept] = np.arange(kept.size)
