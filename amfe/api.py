@@ -14,6 +14,7 @@ from amfe.io.mpi import on_root, same_on_every_rank
 from amfe.io.result import Result
 from amfe.io.result_meta import describe_input
 from amfe.io.vtu import write_fields_vtu
+from amfe.io.vtuset import clear_stale_sets
 from amfe.model.bed import Bed
 from amfe.model.conditions import CONDITIONS, condition_names
 from amfe.model.material import Material, resolve_material
@@ -173,7 +174,10 @@ def homogenize(bed: Bed | str | os.PathLike | tuple, *, bc: str = "kubc",
         return one(bc, vtu_dir)
     periodic_bed = error is None and "periodic" in bed.attrs
     names = [n for n, c in CONDITIONS.items() if c.in_all and (periodic_bed or not c.periodic)]
-    return {name: one(name, vtu_dir and os.path.join(vtu_dir, name)) for name in names}
+    results = {name: one(name, vtu_dir and os.path.join(vtu_dir, name)) for name in names}
+    if vtu_dir is not None:   # an older set beside the new one: `amfe view` must not find it
+        on_root(mpi, clear_stale_sets, vtu_dir, names)
+    return results
 
 
 def _voxel(bed, options, error, comm, spec):

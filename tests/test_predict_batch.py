@@ -11,14 +11,14 @@ from amfe.io.result_meta import validate
 @pytest.fixture(scope="module")
 def model_and_beds(tmp_path_factory):
     from amfe.io.bedfile import read_bed, write_bed
+    from amfe.model.bed import Bed
     d = tmp_path_factory.mktemp("batch")
     model, bed = tiny_model(str(d))
     base = read_bed(bed)
     beds = [bed]
     # Two more beds: the first one's particles shifted and shrunk (different images).
     for k, (shift, shrink) in enumerate([(10e-6, 0.97), (-15e-6, 0.93)]):
-        base.centers[:, 0] += shift
-        base.radii *= shrink
+        base = Bed(base.centers + [shift, 0.0, 0.0], base.radii * shrink, base.attrs)
         path = d / f"bed{k}.h5"
         write_bed(path, base)
         beds.append(path)

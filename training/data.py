@@ -37,9 +37,16 @@ import torch
 
 from amfe.dataset.parts import STATUS_OK
 from amfe.errors import AmfeError
+from amfe.io.h5damage import damaged
 from amfe.training import AUGMENTATIONS
 from amfe.training.checkpoint import check_image_shape
 from amfe.vocab import LABEL_NAMES
+
+
+def _damaged(path):
+    """A damaged chunk of the data set ``path`` read below: one AmfeError line (issue 45)."""
+    from amfe.dataset.datafile import DATA_SET_FIX
+    return damaged(path, "data set", DATA_SET_FIX)
 
 INPUT_KINDS = {"fill": "images", "bonds": "bond_images"}   # kind: data-set array
 DEFAULT_INPUTS = ("fill",)
@@ -79,7 +86,8 @@ def _open(path):
         raise AmfeError(f"data set {path} does not exist")
     if not h5py.is_hdf5(path):
         raise AmfeError(f"{path} is not an HDF5 file")
-    f = h5py.File(path, "r")
+    with _damaged(path):
+        f = h5py.File(path, "r")
     for name in ("images", "labels", "status"):
         if name not in f:
             f.close()
@@ -116,7 +124,7 @@ def dataset_info(path, inputs=DEFAULT_INPUTS):
     AmfeError if the file lacks an image kind of ``inputs``.
     """
     inputs = check_inputs(inputs)
-    with _open(path) as f:
+    with _open(path) as f, _damaged(path):
         _require_inputs(f, path, inputs)
         status = f["status"][()]
         labels = f["labels"][()]
@@ -141,7 +149,7 @@ def read_rows(path, rows=None, inputs=DEFAULT_INPUTS):
     if rows is None:
         rows = dataset_info(path, inputs)["ok"]
     rows = np.asarray(rows, np.int64)
-    with _open(path) as f:
+    with _open(path) as f, _damaged(path):
         _require_inputs(f, path, inputs)
         # h5py wants increasing indices; read sorted, then restore the order asked for.
         order = np.argsort(rows, kind="stable")
@@ -228,10 +236,11 @@ class BedDataset(torch.utils.data.Dataset):
             return torch.from_numpy(images[k]), torch.from_numpy(labels[k])
         f = self._handle()
         row = int(self.rows[k])
-        image = np.concatenate([np.asarray(f[INPUT_KINDS[kind]][row], np.float32)
-                                for kind in self.inputs], axis=0)
-        return (torch.from_numpy(image),
-                torch.from_numpy(np.asarray(f["labels"][row], np.float64)))
+        with _damaged(self.path):
+            image = np.concatenate([np.asarray(f[INPUT_KINDS[kind]][row], np.float32)
+                                    for kind in self.inputs], axis=0)
+            label = np.asarray(f["labels"][row], np.float64)
+        return torch.from_numpy(image), torch.from_numpy(label)
 
     def __getstate__(self):
         state = dict(self.__dict__)

@@ -112,6 +112,8 @@ def run(args):
             check_output(args.output, inputs=[args.bed], allow_stdout=True)
         if args.vtu is not None:   # --vtu '' is an error too
             check_output_dir(args.vtu)
+            from amfe.io.vtuset import check_outside_set
+            check_outside_set(args.output, args.vtu, args.bc)   # -o must not overwrite the set
         return None if args.max_memory is None else parse_size(args.max_memory)
 
     max_memory = on_root(comm, check_arguments)

@@ -247,6 +247,11 @@ REQUIRED = {  # name: (trailing shape or None for the image's, dtype kinds)
 }
 
 
+#: What to do with a data set HDF5 cannot read (:func:`amfe.io.h5damage.damaged`).
+DATA_SET_FIX = ("restore it from a copy, or make it again with amfe dataset (its label tables "
+                "rebuild it without solving: amfe dataset --from-labels)")
+
+
 def load_dataset(path, images=True):
     """All arrays of a data-set file as a dict (params as a nested dict), and its attrs."""
     import h5py
@@ -275,10 +280,13 @@ def check_dataset(path):
     labels, C and density, positive moduli; failed rows have a reason; image
     values are finite and in [0, 1].
     """
-    try:
+    import h5py
+
+    from amfe.io.h5damage import damaged, read_every_chunk
+    with damaged(path, "data set", DATA_SET_FIX):
         data, attrs = load_dataset(path)
-    except OSError as exc:
-        raise AmfeError(f"cannot read {path}: {exc}") from None
+        with h5py.File(path, "r") as f:   # every chunk, also of datasets load_dataset skips
+            read_every_chunk(f)
     problems = _layout_problems(data, attrs)
     if problems:
         return problems, data, attrs

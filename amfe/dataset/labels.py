@@ -180,14 +180,18 @@ def _shard_end(directory, ident):
     return end
 
 
+#: What to do with a label shard HDF5 cannot read (:func:`amfe.io.h5damage.damaged`).
+TABLE_FIX = ("export it again from its data set (amfe dataset --export-labels DATA.h5 -o "
+             "LABELS.h5), or restore it from a copy")
+
+
 def _read_attrs(path):
     import h5py
-    try:
-        with h5py.File(path, "r") as f:
-            return {k: (v.decode() if isinstance(v, bytes) else
-                        v.item() if isinstance(v, np.generic) else v) for k, v in f.attrs.items()}
-    except OSError as exc:
-        raise AmfeError(f"cannot read label table {path}: {exc}") from None
+
+    from amfe.io.h5damage import damaged
+    with damaged(path, "label table", TABLE_FIX), h5py.File(path, "r") as f:
+        return {k: (v.decode() if isinstance(v, bytes) else
+                    v.item() if isinstance(v, np.generic) else v) for k, v in f.attrs.items()}
 
 
 # ---------------------------------------------------------------- read
@@ -203,6 +207,7 @@ def read_tables(paths):
     """
     import h5py
 
+    from amfe.io.h5damage import damaged
     if isinstance(paths, (str, os.PathLike)):
         paths = [paths]
     parts, ident = [], None
@@ -215,7 +220,7 @@ def read_tables(paths):
             raise AmfeError(f"{path} is a table of another data set or method ({_describe(mine)}) "
                             f"than {paths[0]} ({_describe(ident)})")
         ident = mine
-        with h5py.File(path, "r") as f:
+        with damaged(path, "label table", TABLE_FIX), h5py.File(path, "r") as f:
             parts.append({n: f[n][()] for n in f})
     _check_versions(paths[0], ident)
     table = {n: np.concatenate([p[n] for p in parts]) for n in parts[0]}

@@ -32,6 +32,8 @@ class Bed:
     centers: (N,3) float64 particle centres [m]; radii: (N,) float64 radii [m];
     attrs: material and generation parameters (str, bool, int, float, or small
     numeric lists), SI units; see :func:`generate_bed` for the keys it writes.
+    The arrays are the bed's own read-only copies, checked once: make a new Bed to
+    change them.
     """
 
     centers: np.ndarray
@@ -40,7 +42,12 @@ class Bed:
 
     def __post_init__(self):
         # the one place a bed's arrays are checked: below the face nothing checks them again
-        self.centers, self.radii = validate_particles(self.centers, self.radii)
+        # copied and read-only: a NaN written into the caller's arrays (or these) after the
+        # check must not reach the solver (docs/hard_cases.md, issue 45 item 4)
+        centers, radii = validate_particles(self.centers, self.radii)
+        self.centers, self.radii = np.array(centers, np.float64), np.array(radii, np.float64)
+        self.centers.flags.writeable = False
+        self.radii.flags.writeable = False
         if not isinstance(self.attrs, Mapping) or not all(isinstance(k, str) for k in self.attrs):
             raise AmfeError(f"Bed attrs must be a dict with str keys, got "
                             f"{type(self.attrs).__name__} {self.attrs!r}"[:300])

@@ -16,7 +16,7 @@ import numpy as np
 
 from amfe.errors import AmfeError
 from amfe.model.bonds import Bonds, bond_springs, contact_geometry, find_pairs
-from amfe.model.carrying import bed_box, component_labels, periodic_carrying, removed_report
+from amfe.model.carrying import box_rule, component_labels, periodic_carrying, removed_report
 from amfe.model.conditions import get_condition
 from amfe.model.material import STEEL, Material
 from amfe.model.torus import check_box, find_periodic_pairs, wrap
@@ -40,7 +40,8 @@ class Frame:
     bed's box, volume = its product [length_scale^3], V of every average;
     parts (n,) int: the kept component (0..k-1) of each particle; removed: the
     report of :func:`amfe.model.carrying.removed_report`; box_note: why the
-    recorded size was not V's box (None when it was, or there was none).
+    recorded size was not V's box (None when it was, or there was none);
+    box_source: where V's box came from (:data:`amfe.model.carrying.BOX_SOURCES`).
     """
 
     centers: np.ndarray
@@ -63,6 +64,7 @@ class Frame:
     parts: np.ndarray = None
     removed: dict = None
     box_note: str = None
+    box_source: str = None
 
     @property
     def volume(self):
@@ -130,7 +132,9 @@ def build_frame(centers, radii, material: Material = STEEL, a_star_cap=None, non
     bc: a condition of :mod:`amfe.model.conditions`, whose carrying rule picks the
     load-carrying components (:mod:`amfe.model.carrying`; mixed: one held piece at most).
     size (3,) [m]: the bed's recorded box (attrs ``size``); V is its volume, else that of the
-    load-carrying spheres' bounding box (a periodic bed: the periods).
+    load-carrying spheres' bounding box (a periodic bed: the periods); a
+    :class:`amfe.model.carrying.GivenBox` is V's box as the user states it, checked
+    against the kept centres (:func:`amfe.model.carrying.box_rule`, the one box rule).
     """
     centers, radii = np.asarray(centers, float), np.asarray(radii, float)  # checked (a Bed's)
     n_input = centers.shape[0]
@@ -163,9 +167,10 @@ def build_frame(centers, radii, material: Material = STEEL, a_star_cap=None, non
     kept = kept[morton_order(x[kept])]
     parts = np.searchsorted(ids, labels[kept])
     removed = removed_report(x, r, labels, ids, n_input)
-    size_f, box_note = L, None                       # periodic: the periods
+    size_f, box_note, box_source = L, None, "periodic box"  # periodic: the periods
     if box is None:                                  # in SI, then in frame units
-        size_f, box_note = bed_box(centers - origin, radii, size, kept)  # exact (frame_origin)
+        size_f, box_note, box_source = box_rule(centers - origin, radii, size,
+                                                kept)  # exact (frame_origin)
         size_f = size_f / length
     new_index = np.full(n_input, -1, np.int64)
     new_index[kept] = np.arange(kept.size)
@@ -193,7 +198,7 @@ def build_frame(centers, radii, material: Material = STEEL, a_star_cap=None, non
                  kappa_n=kappa_n, kappa_t=kappa_t, n_input=n_input, n_capped=n_capped,
                  length_scale=length, force_scale=material.E / E * length**2, material=material,
                  box=L, shift=shift, size=size_f, parts=parts, removed=removed,
-                 box_note=box_note, origin=origin)
+                 box_note=box_note, box_source=box_source, origin=origin)
 
 
 FAR = 4.0
