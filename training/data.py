@@ -35,6 +35,7 @@ import os
 import numpy as np
 import torch
 
+from amfe.dataset.datafile import DATA_SET_FIX
 from amfe.dataset.parts import STATUS_OK
 from amfe.errors import AmfeError
 from amfe.io.h5damage import damaged
@@ -45,7 +46,6 @@ from amfe.vocab import LABEL_NAMES
 
 def _damaged(path):
     """A damaged chunk of the data set ``path`` read below: one AmfeError line (issue 45)."""
-    from amfe.dataset.datafile import DATA_SET_FIX
     return damaged(path, "data set", DATA_SET_FIX)
 
 INPUT_KINDS = {"fill": "images", "bonds": "bond_images"}   # kind: data-set array

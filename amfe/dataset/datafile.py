@@ -64,6 +64,7 @@ from amfe.dataset.parts import (
 )
 from amfe.errors import AmfeError, _list_items
 from amfe.io.atomic import atomic_write_h5
+from amfe.io.h5damage import damaged, read_every_chunk
 from amfe.model.boxscale import draw_material
 from amfe.model.material import STEEL
 from amfe.model.scales import PARAM_NAMES, PARAM_UNITS, get_scale, record_seed
@@ -282,7 +283,6 @@ def check_dataset(path):
     """
     import h5py
 
-    from amfe.io.h5damage import damaged, read_every_chunk
     with damaged(path, "data set", DATA_SET_FIX):
         data, attrs = load_dataset(path)
         with h5py.File(path, "r") as f:   # every chunk, also of datasets load_dataset skips

@@ -36,6 +36,7 @@ from amfe.dataset.plan import MAX_COUNT
 from amfe.dataset.record import regenerate
 from amfe.errors import AmfeError, _list_items
 from amfe.io.atomic import atomic_write_h5
+from amfe.io.h5damage import damaged
 from amfe.model.averages import compliance_and_constants
 from amfe.model.scales import bed_for, record_seed
 from amfe.vocab import LABEL_NAMES
@@ -188,7 +189,6 @@ TABLE_FIX = ("export it again from its data set (amfe dataset --export-labels DA
 def _read_attrs(path):
     import h5py
 
-    from amfe.io.h5damage import damaged
     with damaged(path, "label table", TABLE_FIX), h5py.File(path, "r") as f:
         return {k: (v.decode() if isinstance(v, bytes) else
                     v.item() if isinstance(v, np.generic) else v) for k, v in f.attrs.items()}
@@ -207,7 +207,6 @@ def read_tables(paths):
     """
     import h5py
 
-    from amfe.io.h5damage import damaged
     if isinstance(paths, (str, os.PathLike)):
         paths = [paths]
     parts, ident = [], None

@@ -46,6 +46,7 @@ import numpy as np
 from amfe.errors import AmfeError
 from amfe.io.atomic import atomic_write, fsync_dir
 from amfe.io.pvd import PVD_NAME, SIDECAR_NAME, case_fields, pvd_text
+from amfe.io.vtuset import SetLock, listed_files, unlink_links
 from amfe.version import __version__
 
 COMPRESSION = None
@@ -239,7 +240,6 @@ def _check(f):
 
 
 def _write_set(directory, write_case, names, sidecar_text):
-    from amfe.io.vtuset import SetLock, listed_files, unlink_links
     try:
         os.makedirs(directory, exist_ok=True)
     except OSError as exc:

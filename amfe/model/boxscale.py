@@ -53,7 +53,7 @@ import numpy as np
 
 from amfe.errors import AmfeError
 from amfe.model.material import ALLOYS, STEEL, Material
-from amfe.model.scales import MM, SCALES, Scale
+from amfe.model.scale import MM, SCALES, Scale
 from amfe.model.springs import critical_a_star
 
 MATERIAL_STREAM = 0x3A7E46  # second word of the material stream's SeedSequence
