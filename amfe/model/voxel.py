@@ -293,7 +293,7 @@ def kubc_box(centers, radii, size=None, kept=None):
 
 
 def voxel_solid(centers, radii, voxel_size=None, period=None, size=None, max_memory=None,
-                ranks=1, even=False, operator=None):
+                ranks=1, even=False):
     """The :class:`VoxelSolid` of a bed: centers (N, 3) [m], radii (N,) [m] (a Bed's, checked).
 
     The particles kept are the frame's under the same condition (docs/model.md,
@@ -306,8 +306,8 @@ def voxel_solid(centers, radii, voxel_size=None, period=None, size=None, max_mem
     ``max_memory`` [bytes] (default: half the machine's): a grid whose estimate
     (:func:`voxel_bytes`) exceeds it is refused before it is allocated. ``even``: a
     period box gets even voxel counts (:func:`grid_over`). The whole model's estimate
-    (:func:`amfe.model.voxelmemory.voxel_estimate`, ``operator`` "assembled" or "matrix-free", default by
-    ``even``) is checked first, before any pair is found or voxel made.
+    (:func:`amfe.model.voxelmemory.voxel_estimate`; ``even`` is the matrix-free
+    operator's) is checked first, before any pair is found or voxel made.
     """
     from amfe.model.memory import check_memory
     from amfe.model.bonds import contact_geometry, find_pairs
@@ -320,8 +320,8 @@ def voxel_solid(centers, radii, voxel_size=None, period=None, size=None, max_mem
     if voxel_size is None:
         voxel_size = float(radii.mean()) / DEFAULT_VOXELS_PER_RADIUS
     from amfe.model.voxelmemory import check_estimate
-    check_estimate(centers, radii, voxel_size, period, size, max_memory, ranks, even,
-                   operator or ("matrix-free" if even else "assembled"))
+    check_estimate(centers, radii, voxel_size, max_memory, period=period, size=size,
+                   ranks=ranks, even=even, operator="matrix-free" if even else "assembled")
     shift = None
     if period is not None:
         L = check_box(period, radii)

@@ -37,26 +37,28 @@ def voxel_estimate(centers, radii, voxel_size, period=None, size=None, ranks=1, 
     return voxel_bytes(voxels, nodes, ranks, operator), nodes, grid, phi
 
 
-def check_estimate(centers, radii, voxel_size, period, size, max_memory, ranks, even, operator):
+def check_estimate(centers, radii, voxel_size, max_memory, **where):
     """AmfeError (:func:`amfe.model.memory.check_memory`'s rule and limit) when
     :func:`voxel_estimate` exceeds ``max_memory`` [bytes] (default half the machine's),
     naming the fixes: a coarser voxel size (one that would fit), the matrix-free operator,
-    or a smaller window of the bed."""
+    or a smaller window of the bed. ``where``: :func:`voxel_estimate`'s keywords (period,
+    size, ranks, even, operator)."""
     from amfe.model.memory import _gib, check_memory, default_limit
-    estimate, nodes, grid, phi = voxel_estimate(centers, radii, voxel_size, period, size,
-                                                ranks, even, operator)
+    estimate, nodes, grid, phi = voxel_estimate(centers, radii, voxel_size, **where)
     limit = default_limit() if max_memory is None else float(max_memory)
     if estimate <= limit:
         return
     h = float(grid.h.max())
     fixes = [f"a coarser --voxel-size (about {1.1 * h * (estimate / limit) ** (1 / 3):.3g} m "
              f"would fit; the default is the mean radius / {DEFAULT_VOXELS_PER_RADIUS})"]
-    if operator == "assembled":
-        free = voxel_estimate(centers, radii, voxel_size, period, size, ranks, True,
-                              "matrix-free")[0]
+    if where.get("operator", "assembled") == "assembled":
+        free = voxel_estimate(centers, radii, voxel_size,
+                              **{**where, "even": True, "operator": "matrix-free"})[0]
         fixes.append(f"--voxel-operator matrix-free (about {_gib(free)})")
     fixes.append("a smaller window of the bed")
     check_memory(estimate, max_memory,
                  f"a voxel model of about {nodes:.3g} nodes ({'x'.join(map(str, grid.n))} "
-                 f"voxels of {h:.3g} m, solid fraction about {phi:.2f}) on {ranks} rank(s)",
+                 f"voxels of {h:.3g} m, solid fraction about {phi:.2f}) on "
+                 f"{where.get('ranks', 1)} "
+                 "rank(s)",
                  fix="give " + ", ".join(fixes[:-1]) + " or " + fixes[-1])
