@@ -93,6 +93,26 @@ def _plain(obj, where):
                     "strings, lists, dicts); a checkpoint holds nothing else")
 
 
+def _check_signature(path):
+    """AmfeError when ``path`` is not a torch file (a zip archive, or a legacy pickle) but,
+    say, an HDF5 bed or data set or a text file: named for what it is, not "pickled objects"."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(8)
+    except OSError as exc:
+        raise AmfeError(f"cannot read model file {path}: {exc.strerror}") from None
+    if head.startswith(b"PK\x03\x04") or head[:1] == b"\x80":
+        return
+    if head == b"\x89HDF\r\n\x1a\n":
+        what = "an HDF5 file (a bed or a data set?), not a model"
+    elif not head:
+        what = "empty"
+    else:
+        what = "not a model (a torch checkpoint is a zip archive)"
+    raise AmfeError(f"model file {path} is {what}; give the .pt file that "
+                    "amfe train wrote")
+
+
 def load_checkpoint(path):
     """The checkpoint dict at ``path``, read with weights_only=True and validated.
 
@@ -105,6 +125,7 @@ def load_checkpoint(path):
         raise AmfeError(f"model file {path} is a directory; give the .pt file (amfe train -o)")
     if not os.path.isfile(path):
         raise AmfeError(f"model file {path} does not exist")
+    _check_signature(path)
     try:
         ckpt = torch.load(path, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as exc:

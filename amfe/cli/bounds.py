@@ -22,15 +22,36 @@ GAP_MEANING = (
     "wide both sit 1/n below it); the periodic column, where shown, is the material's own "
     "stiffness (docs/model.md, section 9).")
 
-ABOVE_E = ("note: {names} exceed the particles' own E = {E:.4g} GPa. This is not a unit error: "
+ABOVE_E = ("note: {names} {verb} the particles' own E = {E:.4g} GPa. This is not a unit error: "
            "the paper's springs (eqs. 1-4) at large contact radii make small bonded beds stiffer "
            "than the solid (docs/model.md, sections 5a and 9, explain it with numbers).")
+ABOVE_VOIGT = ("warning: {names} {verb} {bound:.4g} GPa, the solid fraction {phi:.4f} times the "
+               "solid's E = {E:.4g} GPa: no porous solid of this material is that stiff (under "
+               "KUBC and periodic conditions alike the affine strain bounds the energy, the "
+               "Voigt bound), so the voxel solve did not reach the voxel model's answer; solve "
+               "again with a tighter tolerance (--rtol)")
 
 
-def above_e_note(properties, E):
-    """The note for moduli above the particles' E [Pa], or None when none is."""
+def above_e_note(properties, E, model=None):
+    """The note for moduli above the particles' E [Pa], or None when none is.
+
+    model: the result's "model" record (the voxel model's: its solid fraction phi);
+    a voxel model's Young's moduli lie below phi E, so one above it is a warning, and
+    the frame's note (the paper's springs) is never said of it.
+    """
+    if model and model.get("name") == "voxel":
+        phi = float(model["solid_fraction"])
+        names = [k for k in CONSTANT_NAMES
+                 if k.startswith("E") and properties[k] > phi * E * (1 + 1e-9)]
+        return ABOVE_VOIGT.format(names=", ".join(names), verb=_verb(names), bound=phi * E / 1e9,
+                                  phi=phi, E=E / 1e9) if names else None
     names = [k for k in CONSTANT_NAMES if k.startswith("E") and properties[k] > E]
-    return ABOVE_E.format(names=", ".join(names), E=E / 1e9) if names else None
+    return ABOVE_E.format(names=", ".join(names), verb=_verb(names),
+                          E=E / 1e9) if names else None
+
+
+def _verb(names):
+    return "exceeds" if len(names) == 1 else "exceed"
 
 
 def compare(results):

@@ -144,7 +144,8 @@ def run(args):
             result.to_json(args.output)   # a failed write: one AmfeError naming the path
         print(summary(result.to_dict(), args.bed,
                       None if to_stdout else args.output, args.vtu), file=table_to)
-        note = above_e_note(result.properties, result.extra["material"]["E"])
+        note = above_e_note(result.properties, result.extra["material"]["E"],
+                            result.extra.get("model"))
         if note:
             print(note, file=table_to)
         table_to.flush()

@@ -26,6 +26,9 @@ from amfe.model.bonds import COINCIDENT, bond_springs, bonded_among, contact_geo
 from amfe.model.springs import A_STAR_MARGIN, critical_a_star, spring_model
 
 _KERNEL_FROM = 20_000   # particles from which engine "auto" finds the bonds compiled
+NO_CAP_FIX = ("Reduce the particle overlaps: a bond image (amfe predict's input, amfe dataset's "
+              "bond images) takes no a* cap; amfe homogenize BED --cap-a-star A solves such a "
+              "bed with the bonds capped.")
 
 
 def _find_bonds(centers, radii, engine):
@@ -75,7 +78,7 @@ def _numpy_sums(centers, radii, material, box, a_star_cap, engine):
     bonds = _find_bonds(centers, radii, engine)
     if not len(bonds):
         return np.zeros(int(n[2] * n[1] * n[0]))
-    k_n = bond_springs(bonds, material, a_star_cap=a_star_cap)[0]
+    k_n = bond_springs(bonds, material, a_star_cap=a_star_cap, fix=NO_CAP_FIX)[0]
     mid = 0.5 * (np.asarray(centers, np.float64)[bonds.i]
                  + np.asarray(centers, np.float64)[bonds.j])
     idx = np.floor((mid - lo) / cell).astype(np.int64)

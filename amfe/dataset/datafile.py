@@ -253,12 +253,24 @@ DATA_SET_FIX = ("restore it from a copy, or make it again with amfe dataset (its
                 "rebuild it without solving: amfe dataset --from-labels)")
 
 
+def missing_dataset(path):
+    """Why data set ``path`` (no such file) is missing: "does not exist", or, where a run's
+    parts directory is there, that the run has not finished (its records are kept there)."""
+    parts = path + ".parts"
+    if not os.path.isdir(parts):
+        return f"data set {path} does not exist"
+    done = len(done_indices(parts, 10**12))
+    return (f"data set {path} is not finished: its run has {done} record(s) in {parts} and "
+            "writes the file when every record is done; let that run finish, or run the same "
+            "amfe dataset command again to resume it, then use the file")
+
+
 def load_dataset(path, images=True):
     """All arrays of a data-set file as a dict (params as a nested dict), and its attrs."""
     import h5py
     path = os.fspath(path)
     if not os.path.isfile(path):
-        raise AmfeError(f"data set {path} does not exist")
+        raise AmfeError(missing_dataset(path))
     if not h5py.is_hdf5(path):
         raise AmfeError(f"{path} is not an HDF5 file")
     with h5py.File(path, "r") as f:

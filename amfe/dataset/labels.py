@@ -228,9 +228,13 @@ def read_tables(paths):
     n = table["index"].shape[0]
     if not np.array_equal(table["index"], np.arange(n)):
         missing = np.setdiff1d(np.arange(int(table["index"].max(initial=-1)) + 1), table["index"])
-        raise AmfeError(f"the tables {', '.join(map(str, paths))} do not hold records 0..{n - 1} "
-                        f"once each (missing: {_list_items(missing.tolist(), 8)}); give every "
-                        "shard from the first")
+        twice = np.unique(table["index"][1:][np.diff(table["index"]) == 0])
+        what = "; ".join(f"{word}: {_list_items(a.tolist(), 8)}" for word, a in (
+            ("missing", missing), ("held by more than one shard", twice)) if a.size)
+        top = int(table["index"].max(initial=-1))
+        raise AmfeError(f"the tables {', '.join(map(str, paths))} do not hold records 0..{top} "
+                        f"once each ({what}); give every shard from the first, each once "
+                        "(shards of one data set do not overlap)")
     seeds = np.array([record_seed(ident["dataset_seed"], k) for k in range(n)])
     bad = np.flatnonzero(seeds != table["bed_seed"])
     if bad.size:

@@ -4,9 +4,8 @@ import os
 import numpy as np
 
 from amfe.dataset.bondimage import bond_image
-from amfe.dataset.datafile import _image_dataset, check_dataset
+from amfe.dataset.datafile import _image_dataset, check_dataset, missing_dataset
 from amfe.dataset.lock import DatasetLock
-from amfe.dataset.parts import STATUS_OK
 from amfe.errors import AmfeError
 from amfe.io.atomic import atomic_write_h5
 from amfe.model.scales import bed_for, get_scale
@@ -33,7 +32,7 @@ def add_bond_images(path, progress=True):
     """
     path = os.fspath(path)
     if not os.path.isfile(path):
-        raise AmfeError(f"data set {path} does not exist")
+        raise AmfeError(missing_dataset(path))
     with DatasetLock(path):   # no `amfe dataset` may write the file meanwhile
         return _add_bond_images(path, progress)
 

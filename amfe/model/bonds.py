@@ -265,7 +265,12 @@ def check_a_star_cap(a_star_cap, material):
     return cap
 
 
-def bond_springs(bonds: Bonds, material: Material, a_star_cap=None, labels=None):
+CAP_FIX = ("Reduce the particle overlaps, or cap a* explicitly (--cap-a-star A with A < the "
+           "critical value; the count of capped bonds is reported).")
+"""The fix a bond past the critical a* names where a cap can be given (homogenize)."""
+
+
+def bond_springs(bonds: Bonds, material: Material, a_star_cap=None, labels=None, fix=CAP_FIX):
     """Springs of every bond: (k_n, k_t, kappa_n, kappa_t, n_capped).
 
     Units follow the inputs: with lengths in m and E in Pa, k in N/m and kappa
@@ -276,7 +281,8 @@ def bond_springs(bonds: Bonds, material: Material, a_star_cap=None, labels=None)
     a* = a_star_cap instead, and their number is returned as n_capped; bonds
     with a* >= 1 (overlaps too deep for a neck: nearly coincident spheres)
     stay errors. ``labels`` (N,) names particles in messages (default: their
-    index in the arrays the bonds refer to).
+    index in the arrays the bonds refer to). ``fix``: the advice ending that error
+    (default :data:`CAP_FIX`, for callers that take a cap).
     """
     crit = critical_a_star(material.nu, material.psi)
     limit = crit - A_STAR_MARGIN  # closer than this no solve keeps accuracy
@@ -293,9 +299,7 @@ def bond_springs(bonds: Bonds, material: Material, a_star_cap=None, labels=None)
                 "negative or beyond any solver's accuracy. Bonds (i, j, a*): "
                 + _list_items(f"({name(bonds.i[k])}, {name(bonds.j[k])}, {a_star[k]:.6f})"
                               for k in worst)
-                + ". Reduce the particle overlaps, or cap a* explicitly "
-                "(--cap-a-star A with A < the critical value; the count of capped bonds is "
-                "reported)."
+                + ". " + fix
             )
         capped = np.zeros(a_star.shape, bool)
         s = a_star

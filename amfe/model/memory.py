@@ -112,12 +112,12 @@ def direct_bytes(n_particles, n_bonds, fill_ratio):
             + FACTOR_BYTES * fill_ratio * (n_particles + n_bonds))
 
 
-def check_memory(estimate, limit, what, default=None):
+def check_memory(estimate, limit, what, default=None, fix="make it smaller"):
     """Raise AmfeError when ``estimate`` [bytes] exceeds ``limit`` [bytes].
 
     limit None: ``default`` (default: :func:`default_limit`, half this
     machine's memory). ``what`` says what would be allocated (e.g.
-    "generating a bed of 1.3e+11 lattice sites").
+    "generating a bed of 1.3e+11 lattice sites"); ``fix``: how to make it smaller.
     """
     given = limit is not None
     limit = float(limit) if given else (default_limit() if default is None else default)
@@ -125,7 +125,7 @@ def check_memory(estimate, limit, what, default=None):
         return
     whose = "the limit given" if given else "half of the machine's memory, the default limit"
     raise AmfeError(f"{what} needs about {_gib(estimate)} of memory, more than {_gib(limit)} "
-                    f"({whose}); make it smaller, or raise the limit with --max-memory "
+                    f"({whose}); {fix}, or raise the limit with --max-memory "
                     "(max_memory= in Python) if the machine has the memory")
 
 

@@ -28,6 +28,7 @@ from amfe.model.kubc import boundary_particles
 from amfe.model.material import real_number
 from amfe.model.memory import check_memory
 from amfe.model.torus import check_box, find_periodic_pairs, wrap
+from amfe.model.voxelmemory import check_estimate
 
 NECK_WARN_SHARE = 0.5
 """Below this share of necks resolved by at least 2 voxels across, a warning."""
@@ -72,10 +73,29 @@ def grid_over(lo, hi, voxel_size, even=False):
     size = hi - lo
     if not np.all(size > 0):
         raise AmfeError(f"the voxel model needs a box of positive size, got {size.tolist()} m")
-    n = np.maximum(1, np.ceil(size / voxel_size * (1.0 - 1e-12))).astype(np.int64)
+    with np.errstate(over="ignore"):
+        counts = np.ceil(size / voxel_size * (1.0 - 1e-12))
+    if not np.all(counts < MAX_VOXELS_PER_AXIS):
+        raise AmfeError(f"a voxel size of {voxel_size:.4g} m divides the box of "
+                        f"{' x '.join(f'{x:.4g}' for x in size)} m into {_count(counts)} voxels: "
+                        "far more than any machine holds; give a larger --voxel-size (default: "
+                        f"the mean radius / {DEFAULT_VOXELS_PER_RADIUS})")
+    n = np.maximum(1, counts).astype(np.int64)
     if even:
         n += n % 2
     return Grid(lo=lo, n=n, h=size / n)
+
+
+MAX_VOXELS_PER_AXIS = 2.0**40
+"""More voxels than this along one axis are refused in :func:`grid_over` (no machine holds
+even one such row; the counts would overflow int64 in products)."""
+
+
+def _count(counts):
+    """The product of float voxel counts (3,) as text, without overflowing."""
+    with np.errstate(over="ignore"):
+        total = float(np.prod(counts))
+    return f"{total:.3g}" if np.isfinite(total) else "more than 1e308"
 
 
 def voxelize(centers, radii, grid, periodic=False):
@@ -297,12 +317,16 @@ def voxel_solid(centers, radii, voxel_size=None, period=None, size=None, max_mem
     defaults to the mean radius / :data:`DEFAULT_VOXELS_PER_RADIUS`.
     ``max_memory`` [bytes] (default: half the machine's): a grid whose estimate
     (:func:`voxel_bytes`) exceeds it is refused before it is allocated. ``even``: a
-    period box gets even voxel counts (:func:`grid_over`).
+    period box gets even voxel counts (:func:`grid_over`). The whole model's estimate
+    (:func:`amfe.model.voxelmemory.voxel_estimate`; ``even`` is the matrix-free
+    operator's) is checked first, before any pair is found or voxel made.
     """
 
     centers, radii = np.asarray(centers, float), np.asarray(radii, float)
     if voxel_size is None:
         voxel_size = float(radii.mean()) / DEFAULT_VOXELS_PER_RADIUS
+    check_estimate(centers, radii, voxel_size, max_memory, period=period, size=size,
+                   ranks=ranks, even=even, operator="matrix-free" if even else "assembled")
     shift = None
     if period is not None:
         L = check_box(period, radii)
@@ -325,7 +349,7 @@ def voxel_solid(centers, radii, voxel_size=None, period=None, size=None, max_mem
     else:
         lo, hi, note = kubc_box(centers, radii, size, kept)
         grid = grid_over(lo, hi, voxel_size)
-    voxels = int(np.prod(grid.n))
+    voxels = float(np.prod(grid.n.astype(float)))
     check_memory(voxel_bytes(voxels, 0, ranks), max_memory,
                  f"a voxel model of {voxels:.3g} voxels ({'x'.join(map(str, grid.n))}) on "
                  f"{ranks} rank(s)")
