@@ -6,6 +6,7 @@ import numpy as np
 from amfe.dataset.bondimage import bond_image
 from amfe.dataset.datafile import _image_dataset, check_dataset, missing_dataset
 from amfe.dataset.lock import DatasetLock
+from amfe.dataset.parts import STATUS_OK
 from amfe.errors import AmfeError
 from amfe.io.atomic import atomic_write_h5
 from amfe.model.scales import bed_for, get_scale

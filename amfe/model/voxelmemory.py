@@ -8,7 +8,7 @@ from the box, the voxel size and the spheres' volume, with the fixes. Pure numpy
 import numpy as np
 
 from amfe.model.memory import _gib, check_memory, default_limit
-from amfe.model.voxel import DEFAULT_VOXELS_PER_RADIUS, grid_over, voxel_bytes
+from amfe.model.voxelgrid import DEFAULT_VOXELS_PER_RADIUS, grid_over, voxel_bytes
 
 
 def voxel_estimate(centers, radii, voxel_size, period=None, size=None, ranks=1, even=False,
