@@ -18,10 +18,12 @@ NaN weights, or an overflow) is never reported: it is flagged, --fallback
 solves instead, and without --fallback it is an error (exit 2, no file).
 
 Several beds are predicted in one process: the model is loaded once and
-the beds' images go through the network in one batch. With one bed the
-JSON is that bed's result (as always); with several it is
-{schema_version, command, beds: [one result per bed, in the order given]},
-each naming its input.path. Every result names the boundary condition its
+the beds' images go through the network in one batch (amfe.cli.predict_core).
+The JSON is always {schema_version, command, beds: [one record per bed, in
+the order given]} (one bed too; amfe.predict's Prediction.to_dict() is a
+record), each naming its input.path. A bed that cannot be predicted gets a
+record with source "failed" and the reason, and the exit status is 3
+(--fallback solves it instead); a single bed that fails is an error (exit 2). Every result names the boundary condition its
 constants are for (``bc``: "kubc", as the labels).
 """
 import json
