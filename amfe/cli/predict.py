@@ -23,8 +23,9 @@ The JSON is always {schema_version, command, beds: [one record per bed, in
 the order given]} (one bed too; amfe.predict's Prediction.to_dict() is a
 record), each naming its input.path. A bed that cannot be predicted gets a
 record with source "failed" and the reason, and the exit status is 3
-(--fallback solves it instead); a single bed that fails is an error (exit 2). Every result names the boundary condition its
-constants are for (``bc``: "kubc", as the labels).
+(--fallback solves it instead); a single bed that fails is an error (exit
+2). Every result names the boundary condition its constants are for
+(``bc``: "kubc", as the labels).
 """
 import json
 import os
