@@ -21,8 +21,10 @@ The face (imported lazily: ``import amfe`` pulls in neither PETSc nor torch):
   ``homogenize_bed(bed, options, comm=None)`` takes a checked :class:`Bed` and
   one :class:`SolveOptions` and returns a :class:`Result` (it took arrays and
   keyword options and returned a dict).
-- :class:`Surrogate`: the CNN that predicts the same constants from a bed's
-  images (:mod:`amfe.training`).
+- :func:`predict` -> :class:`Prediction` (or a list): the surrogate's constants of beds,
+  the shipped model picked by each bed's size and material as ``amfe predict`` does, with
+  intervals and flag; :class:`Surrogate`: the CNN under it, on image arrays
+  (:mod:`amfe.training`).
 - :class:`AmfeError`: every error meant for a user.
 
 Under mpirun, an exception that no one catches on one rank of a script ends every
@@ -49,7 +51,8 @@ _FACE = {
     "read_result": "amfe.io.readback", "ResultSet": "amfe.io.readback",
     "sweep": "amfe.study", "SweepTable": "amfe.study.table",
     "homogenize_bed": "amfe.solvers.driver", "SolveOptions": "amfe.model.options",
-    "Surrogate": "amfe.training.predict",
+    "Surrogate": "amfe.training.predict", "predict": "amfe.predicting",
+    "Prediction": "amfe.training.prediction",
     "AmfeError": "amfe.errors",
 }
 

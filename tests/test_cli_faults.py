@@ -70,7 +70,7 @@ def test_fallback_solves_a_non_finite_prediction(model, tmp_path):
     out = tmp_path / "p.json"
     code, stdout, err = run_main(["predict", bed, "--model", nan, "--fallback", "-o", out])
     assert code == 0, err
-    res = json.loads(out.read_text())   # strict JSON: no NaN anywhere
+    res = json.loads(out.read_text())["beds"][0]   # strict JSON: no NaN anywhere
     assert res["flagged"] and "non-finite" in res["flag_reasons"] and res["source"] == "solver"
     assert "in distribution" not in stdout and "not finite" in stdout
     assert all(v is None for v in res["surrogate"]["properties"].values())
@@ -225,9 +225,9 @@ def test_json_to_stdout(model, tmp_path):
     m, bed, _ = model
     code, out, err = run_main(["predict", bed, "--model", m, "-o", "-"])
     assert code == 0, err
-    res = json.loads(out)
+    res = json.loads(out)["beds"][0]
     code, _, _ = run_main(["predict", bed, "--model", m, "-o", tmp_path / "p.json"])
-    ref = json.loads((tmp_path / "p.json").read_text())
+    ref = json.loads((tmp_path / "p.json").read_text())["beds"][0]
     assert res["properties"] == ref["properties"] and res["spread"] == ref["spread"]
     assert "source: surrogate" in err and "source" not in out.split("{", 1)[0]
     assert not os.path.exists(os.path.join(os.getcwd(), "-"))

@@ -1,7 +1,7 @@
 """The package's shape, checked from the source: one top-level package, layers, file sizes.
 
 Layers, bottom to top (README, Layout): core (errors, vocab, version, signals), model,
-io, solvers, dataset, training, face (amfe/__init__, api, cli). No module
+io, solvers, dataset, training, face (amfe/__init__, api, predicting, cli). No module
 imports from a layer above its own, indented (lazy) imports included.
 """
 import ast
@@ -36,7 +36,7 @@ def layer_of(module):
     parts = module.split(".")
     if parts[0] != "amfe":
         return None
-    if len(parts) == 1 or parts[1] in ("api", "cli", "__main__", "study"):
+    if len(parts) == 1 or parts[1] in ("api", "cli", "__main__", "study", "predicting"):
         return "face"
     if parts[1] in ("errors", "vocab", "version", "signals"):
         return "core"
@@ -148,7 +148,7 @@ def test_import_amfe_pulls_in_neither_petsc_nor_torch(tmp_path):
 
 @pytest.mark.parametrize("name", ["homogenize", "Result", "Fields", "read_bed", "Bed",
                                   "generate_bed", "Surrogate", "homogenize_bed", "SolveOptions",
-                                  "AmfeError"])
+                                  "AmfeError", "predict", "Prediction"])
 def test_the_face_lists_the_api(name):
     import amfe
     assert name in dir(amfe) and name in amfe.__all__

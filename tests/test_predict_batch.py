@@ -37,9 +37,11 @@ def test_batch_equals_one_at_a_time(model_and_beds):
     for k, bed in enumerate(beds):
         code, _, err = run_main(["predict", bed, "--model", model, "-o", d / f"one{k}.json"])
         assert code == 0, err
-        one = json.loads((d / f"one{k}.json").read_text())
-        validate(one)
-        assert "beds" not in one and one["bc"] == "kubc"
+        whole = json.loads((d / f"one{k}.json").read_text())
+        validate(whole)   # one bed: the same {"beds": [...]} layout (issue 46)
+        assert whole["command"] == "predict" and len(whole["beds"]) == 1
+        one = whole["beds"][0]
+        assert one["bc"] == "kubc" and one["source"] == "surrogate"
         singles.append(one)
     for one, got in zip(singles, batch["beds"]):
         for name, value in one["properties"].items():
@@ -82,6 +84,7 @@ def test_predict_gives_intervals_at_a_calibrated_size(model_and_beds):
     assert code == 0, err
     got = json.loads((d / "c.json").read_text())
     validate(got)
+    got = got["beds"][0]
     assert got["coverage"] == 0.9 and got["interval_calibration"]["n"] == 99
     for name, value in got["properties"].items():
         lo, hi = got["intervals"][name]
@@ -91,9 +94,9 @@ def test_predict_gives_intervals_at_a_calibrated_size(model_and_beds):
     # A half-width limit under 5 % flags every bed through its intervals.
     strict = _with_conformal(model, d / "strict.pt", ["0.15x0.15"], flag_half_width=0.01)
     code, out, err = run_main(["predict", beds[0], "--model", strict, "-o", d / "s.json"])
-    got = json.loads((d / "s.json").read_text())
+    validate(json.loads((d / "s.json").read_text()))
+    got = json.loads((d / "s.json").read_text())["beds"][0]
     assert code == 0 and got["flagged"] and "interval" in got["flag_reasons"]
-    validate(got)
 
 
 def test_predict_claims_no_interval_at_an_uncalibrated_size(model_and_beds):
@@ -103,6 +106,7 @@ def test_predict_claims_no_interval_at_an_uncalibrated_size(model_and_beds):
     assert code == 0, err
     got = json.loads((d / "u.json").read_text())
     validate(got)
+    got = got["beds"][0]
     assert got["intervals"] is None and got["coverage"] is None
     assert "no calibration beds of size 0.15x0.15 mm" in got["interval_calibration"]["note"]
     assert "no interval claimed" in out

@@ -145,8 +145,9 @@ def test_the_bounds_report_validates(bed_path):
 
 
 def test_predict_output_validates_with_its_own_block(predicted):
-    p = predicted
-    assert errors(p) == []
+    assert errors(predicted) == []
+    assert list(predicted) == ["schema_version", "command", "beds"]   # always, one bed too
+    p = predicted["beds"][0]
     assert p["command"] == "predict" and p["counts"]["particles_input"] > 0
     block = p["predict"]
     assert block["model"]["members"] == p["members"] and block["source"] == p["source"]
@@ -155,7 +156,7 @@ def test_predict_output_validates_with_its_own_block(predicted):
     assert block["flags"]["reasons"] == p["flag_reasons"]
     assert block["flags"]["fill_value"] == p["fill"]
     no_block = {k: v for k, v in p.items() if k != "predict"}
-    assert errors(no_block)
+    assert errors({**predicted, "beds": [no_block]})
     wrong = copy.deepcopy(p)
     wrong["predict"]["flags"].pop("spread")
-    assert errors(wrong)
+    assert errors({**predicted, "beds": [wrong]})

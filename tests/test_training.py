@@ -313,7 +313,7 @@ def test_train_and_predict_check_cli(tmp_path):
     proc = run_cli(["predict", str(bed), "--model", str(model), "--check", "-o", str(out),
                     "--threads", "1"])
     assert proc.returncode == 0, proc.stderr
-    res = json.loads(out.read_text())
+    res = json.loads(out.read_text())["beds"][0]
     assert res["source"] == "surrogate" and res["image_shape"] == [1, 5, 5]
     assert set(res["properties"]) == {"Ex", "Ey", "Ez", "nu_yz", "nu_xz", "nu_xy"}
     for key in res["properties"]:
@@ -332,12 +332,12 @@ def test_train_and_predict_check_cli(tmp_path):
     proc = run_cli(["predict", str(bed), "--model", str(model), "--fallback", "--threshold", "0",
                     "-o", str(out), "--threads", "1"])
     assert proc.returncode == 0, proc.stderr
-    res = json.loads(out.read_text())
+    res = json.loads(out.read_text())["beds"][0]
     assert res["flagged"] and res["source"] == "solver" and "source: solver" in proc.stdout
     assert set(res["properties"]) >= {"Ex", "nu_xy", "G_xy"} and "surrogate" in res
     proc = run_cli(["predict", str(bed), "--model", str(model), "--fallback", "--threshold",
                     "1e9", "-o", str(out), "--threads", "1"])
-    res = json.loads(out.read_text())
+    res = json.loads(out.read_text())["beds"][0]
     assert not res["flagged"] and res["source"] == "surrogate" and "solve" not in res["timings"]
     # the same model refuses a bed whose image has another shape
     from amfe.io.bedfile import write_bed
@@ -425,7 +425,7 @@ def test_predict_cli_images_the_bonds_of_the_bed(tmp_path):
                     "--threads", "1"])
     wall = time.perf_counter() - t0
     assert proc.returncode == 0, proc.stderr
-    res = json.loads(out.read_text())
+    res = json.loads(out.read_text())["beds"][0]
     assert res["inputs"] == ["fill", "bonds"] and "bonds" in res["timings"]
     # the call's time split: start-up (from the process's own start) + in-process work fit
     # inside the wall time seen from outside, and start-up includes importing torch

@@ -37,6 +37,7 @@ from amfe.model.carrying import rule1_factor
 from amfe.training.checkpoint import build_members, check_image_shape, describe, load_checkpoint
 from amfe.training.data import DEFAULT_INPUTS, Normalizer, check_inputs, image_batch
 from amfe.training.ensemble import predict_raw, tta_mode
+from amfe.training.shipped import models_dir, shipped_model_for, unrecorded_size
 from amfe.training.stiffness_predict import is_stiffness, member_constants, summarize
 from amfe.vocab import LABEL_NAMES
 
@@ -139,7 +140,9 @@ class Surrogate:
         a member's prediction not finite (NaN, inf).
         """
         if _is_bed(images):
-            return self.predict_bed(_read(images))[0]
+            bed = _read(images)
+            _check_shipped_size(bed, self.path)
+            return self.predict_bed(bed)[0]
         if isinstance(images, (list, tuple)) and any(_is_bed(b) for b in images):
             if not all(_is_bed(b) for b in images):
                 raise AmfeError("predict takes a bed, a bed file, a list of those, or an image "
@@ -214,6 +217,17 @@ def _is_bed(item):
     return isinstance(item, (str, os.PathLike)) or hasattr(item, "centers")
 
 
+def _check_shipped_size(bed, path):
+    """AmfeError naming amfe.predict when ``path`` is a shipped model and another shipped one
+    is the bed's (Surrogate.load() loads the small one; amfe.predict picks by size)."""
+    if Path(path).resolve().parent != models_dir():
+        return
+    want = shipped_model_for(bed, stiffness=Path(path).name.startswith("stiffness"))
+    if Path(want).resolve() != Path(path).resolve():
+        raise AmfeError(f"{Path(path).name} is not the shipped model for this bed's size "
+                        f"({Path(want).name} is): use amfe.predict(bed), which picks it")
+
+
 def _read(item):
     if isinstance(item, (str, os.PathLike)):
         return read_bed(item)
@@ -271,10 +285,13 @@ def _check_grid(size, px, n_kinds, ckpt, path):
 
 
 def _image_size(bed, ckpt):
-    """The imaged box's size [m]: the bed's recorded size, else the training beds'."""
+    """The imaged box's size [m]: the bed's recorded size, else its spheres' bounding box
+    from the origin cut to whole cells in x and y (training/anysize.py) and the training
+    beds' height."""
     size = bed.attrs.get("size") if hasattr(bed, "attrs") else None
     if size is None:
-        size = ckpt["pixelation"]["bed_size"]
+        size = unrecorded_size(bed, ckpt["pixelation"]["image_cell"],
+                               ckpt["pixelation"]["bed_size"][2])
     try:
         out = tuple(float(s) for s in size)
     except (TypeError, ValueError):
@@ -290,10 +307,14 @@ def _mm(size):
 
 
 def check_material(bed, ckpt, path="the model"):
-    """AmfeError if the bed's particle material is not the one the model was trained on."""
+    """The factor E_bed / E_model the predicted moduli are scaled by (1.0: the model's material).
+
+    A bed that differs from the model's material only in E is predicted by scaling (every
+    spring is E times a function of a*, R, nu and psi, docs/model.md); another nu or psi is
+    refused (AmfeError) until the network reads them."""
     want = ckpt.get("material")
     if not want:
-        return
+        return 1.0
     try:
         have = bed.material().asdict()
     except (TypeError, ValueError) as exc:   # material attributes of the wrong type
@@ -301,11 +322,14 @@ def check_material(bed, ckpt, path="the model"):
                         "material_E, material_nu, material_psi, material_density") from None
     off = [k for k in ("E", "nu", "psi") if abs(float(have[k]) - float(want[k]))
            > 1e-9 * max(1.0, abs(float(want[k])))]
+    if off == ["E"]:   # every spring is E x f(a*, R, nu, psi): the moduli scale exactly with E
+        return float(have["E"]) / float(want["E"])
     if off:
         raise AmfeError(f"the bed's particles ({', '.join(f'{k}={have[k]:g}' for k in off)}) are "
                         f"not the material {path} was trained on "
-                        f"({', '.join(f'{k}={float(want[k]):g}' for k in off)}); use amfe "
-                        "homogenize")
+                        f"({', '.join(f'{k}={float(want[k]):g}' for k in off)}); nu and psi "
+                        "inputs are coming (issue 46): solve it with amfe homogenize")
+    return 1.0
 
 
 def as_properties(row):

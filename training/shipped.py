@@ -7,9 +7,12 @@ bed), so each size the package predicts has its own fine-tuned checkpoint in
 amfe/models/, named for its scale (amfe.model.scales), with its own
 calibrated intervals. A bed is matched by its imaged in-plane size: the
 recorded size cut to whole cells (amfe.training.anysize.whole_cells); a bed
-file without a recorded size is imaged in the small box, as before.
+file without a recorded size by its spheres' bounding box cut the same way
+(issue 46; the record's notes say so).
 """
 from pathlib import Path
+
+import numpy as np
 
 import amfe.version
 from amfe.errors import AmfeError
@@ -42,17 +45,29 @@ def shipped_sizes(stiffness=False):
     return out
 
 
+def unrecorded_size(bed, cell, height):
+    """The size (x, y, z) [m] a bed file without a recorded size is imaged at: its spheres'
+    bounding box from the origin (max of centre + radius) cut to whole ``cell``s in x and y
+    (amfe.training.anysize, the whole-cell rule), and ``height``."""
+    far = np.max(np.asarray(bed.centers) + np.asarray(bed.radii)[:, None], axis=0)
+    return (whole_cells(far[0], cell[0]) * float(cell[0]),
+            whole_cells(far[1], cell[1]) * float(cell[1]), float(height))
+
+
 def shipped_model_for(bed, stiffness=False):
     """The path of the shipped checkpoint for ``bed``'s imaged size (a full-stiffness one with
-    ``stiffness``); AmfeError naming the sizes there are when none fits (give --model, or
-    solve the bed)."""
+    ``stiffness``); AmfeError quoting the bed's own size and the sizes there are when none
+    fits (give --model, or solve the bed). A bed without a recorded size is matched by its
+    spheres' bounding box (:func:`unrecorded_size`)."""
     table = STIFFNESS if stiffness else SHIPPED
     sizes = shipped_sizes(stiffness)
     size = bed.attrs.get("size") if hasattr(bed, "attrs") else None
-    if size is None:   # imaged in the small box (training/predict.py, _image_size)
-        size = get_scale("small").size
-    cell = get_scale("small").cell
+    small = get_scale("small")
+    cell = small.cell
+    how = ""
     try:
+        if size is None:
+            size, how = unrecorded_size(bed, cell, small.size[2]), " (its spheres' bounding box)"
         key = (whole_cells(float(size[0]), cell[0]), whole_cells(float(size[1]), cell[1]))
     except (TypeError, ValueError, IndexError):   # malformed: the small model says so
         return models_dir() / table["small"]
@@ -60,7 +75,8 @@ def shipped_model_for(bed, stiffness=False):
         have = ", ".join(f"{nx * cell[0] * 1e3:g} x {ny * cell[1] * 1e3:g} mm ({name})"
                          for (nx, ny), (name, _) in sorted(sizes.items()))
         kind = "full-stiffness model" if stiffness else "model"
-        raise AmfeError(f"no shipped {kind} for a {key[0] * cell[0] * 1e3:g} x "
-                        f"{key[1] * cell[1] * 1e3:g} mm bed (shipped: {have}); give --model "
-                        "MODEL.pt fine-tuned on that size, or solve it with amfe homogenize")
+        raise AmfeError(f"no shipped {kind} for a {float(size[0]) * 1e3:g} x "
+                        f"{float(size[1]) * 1e3:g} mm bed{how} (shipped: {have}); give --model "
+                        "MODEL.pt fine-tuned on that size, or solve it with amfe homogenize "
+                        "(or --fallback)")
     return sizes[key][1]

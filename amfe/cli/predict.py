@@ -18,28 +18,28 @@ NaN weights, or an overflow) is never reported: it is flagged, --fallback
 solves instead, and without --fallback it is an error (exit 2, no file).
 
 Several beds are predicted in one process: the model is loaded once and
-the beds' images go through the network in one batch. With one bed the
-JSON is that bed's result (as always); with several it is
-{schema_version, command, beds: [one result per bed, in the order given]},
-each naming its input.path. Every result names the boundary condition its
-constants are for (``bc``: "kubc", as the labels).
+the beds' images go through the network in one batch (amfe.cli.predict_core).
+The JSON is always {schema_version, command, beds: [one record per bed, in
+the order given]} (one bed too; amfe.predict's Prediction.to_dict() is a
+record), each naming its input.path. A bed that cannot be predicted gets a
+record with source "failed" and the reason, and the exit status is 3
+(--fallback solves it instead); a single bed that fails is an error (exit
+2). Every result names the boundary condition its constants are for
+(``bc``: "kubc", as the labels).
 """
 import json
-import math
 import os
 import sys
 import time
 
-from amfe.cli.interrupt import launcher_rank
 from amfe.cli.options import nonnegative_float, thread_count
+from amfe.cli.predict_core import NINE, SIX, flag_reasons, interval_of  # noqa: F401 (re-exported)
 from amfe.errors import AmfeError
 from amfe.io.atomic import write_json
 from amfe.io.paths import check_output, is_stdout
-from amfe.io.result_meta import header, predict_block
-from amfe.model.material import resolve_material
-from amfe.vocab import LABEL_NAMES as SIX
 
-NINE = SIX + ("G_yz", "G_xz", "G_xy")
+#: exit status of a batch in which some beds could not be predicted (their records say why)
+EXIT_SOME_FAILED = 3
 
 
 def register(sub):
@@ -91,149 +91,24 @@ def run(args):
     check_args(args)
     import torch
 
-    from amfe.io.bedfile import read_bed
-    from amfe.training.predict import Surrogate, check_material
-    from amfe.training.shipped import shipped_model_for
+    from amfe.cli.predict_core import predict_records
 
     if args.threads:
         torch.set_num_threads(args.threads)
     # start-up: the interpreter, amfe's and torch's imports (before any work on the bed)
     times = {"start_up": time.perf_counter() - t_start + age} if age is not None else {}
-    beds = []
-    for path in args.bed:
-        t = time.perf_counter()
-        beds.append((path, read_bed(path), time.perf_counter() - t))
-    # One model per bed size (training/shipped.py) unless --model names one for all.
-    chosen = [args.model or shipped_model_for(bed, args.stiffness) for _, bed, _ in beds]
-    outs = [None] * len(beds)
-    for model in dict.fromkeys(chosen):
-        t = time.perf_counter()
-        sur = Surrogate.load(model)
-        times["load_model"] = time.perf_counter() - t
-        threshold = args.threshold if args.threshold is not None else sur.threshold
-        if args.fallback and threshold is None and not sur.fill_range \
-                and not sur.ckpt.get("conformal"):
-            raise AmfeError(f"--fallback needs a flag threshold: {sur.path} is a single network "
-                            "without a calibrated ensemble spread; use an ensemble (amfe train "
-                            "--members 5) or give --threshold")
-        mine = [k for k, m in enumerate(chosen) if m == model]
-        for k in mine:
-            check_material(beds[k][1], sur.ckpt, sur.path)
-        predictions = sur.predict_beds([beds[k][1] for k in mine])
-        for k, (res, image, t_pred) in zip(mine, predictions):
-            path, bed, t_read = beds[k]
-            bed_times = {**times, "read_bed": t_read, **t_pred}
-            outs[k] = _one_bed(args, sur, threshold, (path, bed), (res, image), bed_times,
-                               t_start)
-    if outs[0][1] == 0:
-        write_result(outs[0][0] if len(outs) == 1 else batch_result([o for o, _ in outs]),
-                     args.output)
-    return 0
+    records, failed = predict_records(args, args.bed, times, t_start)
+    if len(records) == 1 and failed:   # one bed: its error, as amfe homogenize's (no file)
+        raise AmfeError(records[0][0]["error"])
+    if records[0][1] == 0:
+        write_result(batch_result([out for out, _ in records]), args.output)
+    return EXIT_SOME_FAILED if failed else 0
 
 
 def batch_result(results):
     """The JSON of several beds: {schema_version, command, beds: [results]}."""
     from amfe.io.result_meta import SCHEMA_VERSION
     return {"schema_version": SCHEMA_VERSION, "command": "predict", "beds": results}
-
-
-def _one_bed(args, sur, threshold, item, prediction, times, t_start):
-    """(result dict, rank) of one bed's prediction (and solve, with --check/--fallback).
-
-    item: (path, Bed); prediction: (result, image) of Surrogate.predict_beds."""
-    (path, bed), (res, image) = item, prediction
-    from amfe.training.predict import as_properties
-
-    score = float(res["score"][0])
-    reasons = flag_reasons(res, threshold, sur.n_members)
-    bars = interval_of(sur, bed, res) if "non-finite" not in reasons else None
-    if bars is not None and bars["interval_flag"]:
-        reasons.append("interval")
-    comm = None
-    if args.check or args.fallback:
-        from mpi4py import MPI
-        comm = MPI.COMM_WORLD
-        reasons = comm.bcast(reasons, root=0)   # every rank takes the same branch
-    flagged = bool(reasons)
-    if "non-finite" in reasons and not args.fallback:
-        bad = [k for k, v in zip(SIX, res["mean"][0]) if not math.isfinite(v)]
-        raise AmfeError(f"the surrogate's prediction is not finite ({', '.join(bad) or 'spread'}"
-                        f"): the model {sur.path} is damaged or overflows on this bed; run with "
-                        "--fallback to solve with PETSc instead, or use amfe homogenize")
-
-    solver = None
-    if comm is not None and (args.check or flagged):
-        from amfe.model.options import SolveOptions
-        from amfe.solvers.driver import homogenize_bed
-        from amfe.solvers.petsc import init_petsc
-        init_petsc(args.petsc_args)
-        t = time.perf_counter()
-        solver = homogenize_bed(bed, SolveOptions(material=bed.material(),
-                                                  solver="gamg")).to_dict()
-        times["solve"] = time.perf_counter() - t
-    rank = comm.rank if comm is not None else launcher_rank()
-
-    surrogate_props = _finite_or_none(as_properties(res["mean"][0]))
-    out = {
-        "bed": os.fspath(path),
-        "bc": "kubc",   # the labels' boundary condition (docs/model.md, section 5)
-        "properties": surrogate_props,
-        "spread": _finite_or_none(as_properties(res["spread"][0])),
-        "spread_score": score if math.isfinite(score) else None,
-        "threshold": threshold,
-        # Split conformal intervals at the model's nominal coverage, None where the model
-        # has no calibration for the bed's size (amfe.training.conformal).
-        "intervals": bars["intervals"] if bars else None,
-        "coverage": bars["coverage"] if bars else None,
-        "interval_calibration": bars["calibration"] if bars else None,
-        "fill": float(res["fill"][0]),
-        "fill_range": ([sur.fill_range["lo"], sur.fill_range["hi"]] if sur.fill_range
-                       else None),
-        "flagged": flagged,
-        "flag_reasons": reasons,
-        "source": "surrogate",
-        "model": os.fspath(sur.path),
-        "arch": sur.ckpt["arch"],
-        "members": sur.n_members,
-        "inputs": list(sur.inputs),
-        "labels": sur.labels,            # the label rule (docs/model.md, section 5)
-        "image_shape": list(image.shape),
-        "density": float(image.mean(dtype="float64")),
-    }
-    if "stiffness" in res:   # a stiffness head: C and the nine constants derived from it
-        out["stiffness"] = {"C": [[float(v) for v in row] for row in res["stiffness"][0]],
-                            "constants": _finite_or_none(dict(zip(NINE, map(float,
-                                                                            res["constants9"][0])))),
-                            "voigt": "xx, yy, zz, yz, xz, xy; Pa"}
-    if solver is not None:
-        solver_props = {k: float(solver["properties"][k]) for k in NINE}
-        if args.fallback and flagged:
-            out["source"] = "solver"
-            out["properties"] = solver_props
-            out["surrogate"] = {"properties": surrogate_props}
-        if args.check:
-            out["check"] = {"solver": solver_props,
-                            "relative_difference": {k: _relative(surrogate_props[k],
-                                                                 solver_props[k]) for k in SIX}}
-        out["solver"] = solver["solver"]
-    out = {**header("predict", bed.centers, bed.radii, resolve_material(bed.attrs)[1],
-                    input_path=path), **out, "predict": predict_block(out)}
-    times["total"] = time.perf_counter() - t_start
-    out["seconds"] = times["total"]
-    out["timings"] = times
-    return out, rank
-
-
-def interval_of(sur, bed, res):
-    """The bed's interval block (amfe.training.conformal.interval_block) at its imaged size."""
-    from amfe.training.conformal import interval_block
-    from amfe.training.predict import _image_size
-    conformal = sur.ckpt.get("conformal")
-    if "constants9" in res and conformal and len(conformal.get("names", ())) == 9:
-        return interval_block(res["constants9"][0], NINE, conformal, _image_size(bed, sur.ckpt),
-                              res["spread9"][0])   # a stiffness head calibrated on all nine
-    return interval_block(res["mean"][0], SIX, conformal, _image_size(bed, sur.ckpt),
-                          res["spread"][0])
 
 
 def process_age():
@@ -246,33 +121,6 @@ def process_age():
         return max(0.0, up - start_ticks / os.sysconf("SC_CLK_TCK"))
     except (OSError, ValueError, IndexError):
         return None
-
-
-def flag_reasons(res, threshold, n_members):
-    """Why the bed is flagged: a list of "spread", "fill", "non-finite" (empty: in distribution).
-
-    A NaN compares false with any threshold, so a non-finite prediction is a
-    reason of its own; it is never "in distribution".
-    """
-    reasons = []
-    score = float(res["score"][0])
-    if threshold is not None and n_members > 1 and score > threshold:
-        reasons.append("spread")
-    if bool(res["fill_out"][0]):
-        reasons.append("fill")
-    if bool(res["nonfinite"][0]):
-        reasons.append("non-finite")
-    return reasons
-
-
-def _relative(value, reference):
-    """(value - reference) / |reference|, None when the value is None (not finite)."""
-    return None if value is None else (value - reference) / abs(reference)
-
-
-def _finite_or_none(props):
-    """{name: value}, a non-finite value as None (JSON null: JSON has no NaN)."""
-    return {k: (v if math.isfinite(v) else None) for k, v in props.items()}
 
 
 def write_result(out, output):
@@ -302,6 +150,8 @@ def summary(out, output=None):
     if "beds" in out:
         tables = "\n".join(summary(one) for one in out["beds"])
         return tables + (f"\nwrote {output}" if output else "")
+    if "image_shape" not in out:   # a bed the surrogate could not predict
+        return _unpredicted(out)
     check = out.get("check")
     lines = [f"{out['bed']}: image {'x'.join(map(str, out['image_shape']))}, packing density "
              f"{out['density']:.3f}; model {out['model']} ({out['arch']}, {out['members']} "
@@ -347,6 +197,7 @@ def summary(out, output=None):
         inside = lo <= out["fill"] <= hi
         lines.append(f"fill of the fullest cells {out['fill']:.3f} (training beds {lo:.3f} - "
                      f"{hi:.3f}){'' if inside else ': outside, another enlargement?'}")
+    lines += [f"note: {note}" for note in out.get("notes") or ()]
     reasons = out.get("flag_reasons", [])
     if "non-finite" in reasons:
         lines.append("FLAGGED: the surrogate's prediction is not finite (a damaged model?)")
@@ -374,6 +225,15 @@ def summary(out, output=None):
     if output:
         lines.append(f"wrote {output}")
     return "\n".join(lines)
+
+
+def _unpredicted(out):
+    """The lines of a bed the surrogate could not predict: why, and its solve (--fallback)."""
+    if out["source"] == "failed":
+        return f"{out['bed']}: FAILED (not predicted): {out['error']}"
+    return "\n".join([f"{out['bed']}: not predicted ({out['error']}); source: solver (PETSc, "
+                      "--fallback); its constants:"]
+                     + [f"  {k:6s} {_fmt(k, out['properties'][k]):>16s}" for k in NINE])
 
 
 def _percent(fraction, width, sign):

@@ -1,0 +1,292 @@
+"""The records of ``amfe predict`` and :func:`amfe.predict`: one per bed, each bed on its own.
+
+:func:`predict_records` reads the beds, picks each one's model (the shipped one for its
+size, training/shipped.py, unless a model is given), predicts each model's beds in one
+batch and builds one record per bed (:func:`_one_bed`). A bed that cannot be predicted
+(an unreadable file, a size no model covers, another nu or psi, an image the model
+cannot read, a prediction that is not finite) gets a record of its own with source
+"failed" and the reason (training/prediction.py, failed_record); with --fallback such a
+bed is solved instead (source "solver"). A bed that differs from the model's material
+only in E is predicted with its moduli scaled by E_bed / E_model (exact: docs/model.md).
+"""
+import math
+import os
+import time
+
+from amfe.cli.interrupt import launcher_rank
+from amfe.errors import AmfeError
+from amfe.io.result_meta import header, predict_block
+from amfe.model.material import resolve_material
+from amfe.vocab import LABEL_NAMES as SIX
+
+NINE = SIX + ("G_yz", "G_xz", "G_xy")
+
+
+def predict_records(args, items, times, t_start):
+    """(records, number of failed beds) of ``items`` (bed paths or Beds), in their order.
+
+    args: the options of amfe predict (model, stiffness, fallback, check, threshold,
+    petsc_args); times: seconds spent before (start-up) shared by every record."""
+    from amfe.training.predict import Surrogate, check_material
+    from amfe.training.prediction import scale_moduli
+    from amfe.training.shipped import shipped_model_for
+
+    records, beds, chosen = [None] * len(items), [None] * len(items), [None] * len(items)
+    for k, item in enumerate(items):
+        path = os.fspath(item) if isinstance(item, (str, os.PathLike)) else None
+        try:
+            beds[k] = _read(item, path)
+            chosen[k] = args.model or shipped_model_for(beds[k][1], args.stiffness)
+        except AmfeError as exc:
+            records[k] = _failed(args, (path, beds[k] and beds[k][1]), exc, times, t_start)
+    for model in dict.fromkeys(m for m in chosen if m is not None):
+        t = time.perf_counter()
+        sur = Surrogate.load(model)
+        times["load_model"] = time.perf_counter() - t
+        threshold = args.threshold if args.threshold is not None else sur.threshold
+        if args.fallback and threshold is None and not sur.fill_range \
+                and not sur.ckpt.get("conformal"):
+            raise AmfeError(f"--fallback needs a flag threshold: {sur.path} is a single network "
+                            "without a calibrated ensemble spread; use an ensemble (amfe train "
+                            "--members 5) or give --threshold")
+        factors = {}
+        for k in (k for k, m in enumerate(chosen) if m == model):
+            try:
+                factors[k] = check_material(beds[k][1], sur.ckpt, sur.path)
+            except AmfeError as exc:
+                records[k] = _failed(args, beds[k][:2], exc, times, t_start)
+        for k, got in zip(factors, _predict_each(sur, [beds[k][1] for k in factors])):
+            path, bed, t_read = beds[k]
+            try:
+                if isinstance(got, AmfeError):
+                    raise got
+                res, image, t_pred = got
+                scale_moduli(res, factors[k])
+                extra = {"factor": factors[k], "notes": _notes(bed, factors[k], sur)}
+                records[k] = _one_bed(args, sur, threshold, (path, bed), (res, image),
+                                      {**times, "read_bed": t_read, **t_pred}, t_start, extra)
+            except AmfeError as exc:
+                records[k] = _failed(args, (path, bed), exc, times, t_start)
+    return records, sum(1 for out, _ in records if out["source"] == "failed")
+
+
+def _read(item, path):
+    """(path, Bed, seconds to read it) of a bed path or a Bed."""
+    from amfe.io.bedfile import read_bed
+    t = time.perf_counter()
+    bed = read_bed(item) if path is not None else item
+    return path, bed, time.perf_counter() - t
+
+
+def _predict_each(sur, beds):
+    """Surrogate.predict_beds of ``beds`` in one batch; if the batch fails, bed by bed, each
+    one's AmfeError in its place."""
+    if not beds:
+        return []
+    try:
+        return sur.predict_beds(beds)
+    except AmfeError:
+        out = []
+        for bed in beds:
+            try:
+                out.append(sur.predict_bed(bed))
+            except AmfeError as exc:
+                out.append(exc)
+        return out
+
+
+def _notes(bed, factor, sur):
+    """What the record says about how the bed was read: no recorded size, E scaling."""
+    from amfe.training.predict import _image_size
+    notes = []
+    if bed.attrs.get("size") is None:
+        size = _image_size(bed, sur.ckpt)
+        notes.append(f"the bed file records no size: imaged on its spheres' bounding box, "
+                     f"{size[0] * 1e3:g} x {size[1] * 1e3:g} mm (whole cells)")
+    if factor != 1.0:
+        notes.append(f"the bed's E differs from the model's material only in E: moduli scaled "
+                     f"by E_bed / E_model = {factor:.6g} (exact, docs/model.md)")
+    return notes
+
+
+def _failed(args, item, error, times, t_start):
+    """(record, rank) of a bed that cannot be predicted: solved with --fallback (when it was
+    read), else source "failed" with the reason."""
+    from amfe.training.prediction import failed_record
+    path, bed = item
+    if not (args.fallback and bed is not None):
+        return failed_record(path, error, times={**times,
+                                                 "total": time.perf_counter() - t_start}), \
+            launcher_rank()
+    from mpi4py import MPI
+
+    from amfe.model.options import SolveOptions
+    from amfe.solvers.driver import homogenize_bed
+    from amfe.solvers.petsc import init_petsc
+    init_petsc(args.petsc_args)
+    t = time.perf_counter()
+    solver = homogenize_bed(bed, SolveOptions(material=bed.material(), solver="gamg")).to_dict()
+    times = {**times, "solve": time.perf_counter() - t}
+    out = {"bed": path, "bc": "kubc", "properties": {k: float(solver["properties"][k])
+                                                     for k in NINE},
+           "intervals": None, "coverage": None, "flagged": True, "flag_reasons": ["failed"],
+           "source": "solver", "error": str(error), "size": bed.attrs.get("size"),
+           "notes": [], "model": None,
+           "solver": solver["solver"]}
+    out = {**header("predict", bed.centers, bed.radii, resolve_material(bed.attrs)[1],
+                    input_path=path), **out}
+    out["timings"] = {**times, "total": time.perf_counter() - t_start}
+    out["seconds"] = out["timings"]["total"]
+    return out, MPI.COMM_WORLD.rank
+
+
+def _one_bed(args, sur, threshold, item, prediction, times, t_start, extra):
+    """(result dict, rank) of one bed's prediction (and solve, with --check/--fallback).
+
+    item: (path, Bed); prediction: (result, image) of Surrogate.predict_beds, its moduli
+    already scaled by extra["factor"] (E_bed / E_model); extra["notes"]: lines for the record."""
+    (path, bed), (res, image) = item, prediction
+    from amfe.training.predict import _image_size, as_properties
+
+    score = float(res["score"][0])
+    reasons = flag_reasons(res, threshold, sur.n_members)
+    bars = interval_of(sur, bed, res, extra["factor"]) if "non-finite" not in reasons else None
+    if bars is not None and bars["interval_flag"]:
+        reasons.append("interval")
+    comm = None
+    if args.check or args.fallback:
+        from mpi4py import MPI
+        comm = MPI.COMM_WORLD
+        reasons = comm.bcast(reasons, root=0)   # every rank takes the same branch
+    flagged = bool(reasons)
+    if "non-finite" in reasons and not args.fallback:
+        bad = [k for k, v in zip(SIX, res["mean"][0]) if not math.isfinite(v)]
+        raise AmfeError(f"the surrogate's prediction is not finite ({', '.join(bad) or 'spread'}"
+                        f"): the model {sur.path} is damaged or overflows on this bed; run with "
+                        "--fallback to solve with PETSc instead, or use amfe homogenize")
+
+    solver = None
+    if comm is not None and (args.check or flagged):
+        from amfe.model.options import SolveOptions
+        from amfe.solvers.driver import homogenize_bed
+        from amfe.solvers.petsc import init_petsc
+        init_petsc(args.petsc_args)
+        t = time.perf_counter()
+        solver = homogenize_bed(bed, SolveOptions(material=bed.material(),
+                                                  solver="gamg")).to_dict()
+        times["solve"] = time.perf_counter() - t
+    rank = comm.rank if comm is not None else launcher_rank()
+
+    surrogate_props = _properties(res)
+    out = {
+        "bed": None if path is None else os.fspath(path),
+        "bc": "kubc",   # the labels' boundary condition (docs/model.md, section 5)
+        "properties": surrogate_props,
+        "spread": _finite_or_none(as_properties(res["spread"][0])),
+        "spread_score": score if math.isfinite(score) else None,
+        "threshold": threshold,
+        # Split conformal intervals at the model's nominal coverage, None where the model
+        # has no calibration for the bed's size (amfe.training.conformal).
+        "intervals": bars["intervals"] if bars else None,
+        "coverage": bars["coverage"] if bars else None,
+        "interval_calibration": bars["calibration"] if bars else None,
+        "fill": float(res["fill"][0]),
+        "fill_range": ([sur.fill_range["lo"], sur.fill_range["hi"]] if sur.fill_range
+                       else None),
+        "flagged": flagged,
+        "flag_reasons": reasons,
+        "source": "surrogate", "error": None, "notes": list(extra["notes"]),
+        "size": list(_image_size(bed, sur.ckpt)),   # the imaged box [m]
+        "model": os.fspath(sur.path),
+        "arch": sur.ckpt["arch"],
+        "members": sur.n_members,
+        "inputs": list(sur.inputs),
+        "labels": sur.labels,            # the label rule (docs/model.md, section 5)
+        "image_shape": list(image.shape),
+        "density": float(image.mean(dtype="float64")),
+    }
+    if "stiffness" in res:   # a stiffness head: C and the nine constants derived from it
+        out["stiffness"] = {"C": [[float(v) for v in row] for row in res["stiffness"][0]],
+                            "constants": _finite_or_none(dict(zip(NINE, map(float,
+                                                                            res["constants9"][0])))),
+                            "voigt": "xx, yy, zz, yz, xz, xy; Pa"}
+    if solver is not None:
+        solver_props = {k: float(solver["properties"][k]) for k in NINE}
+        if args.fallback and flagged:
+            out["source"] = "solver"
+            out["properties"] = solver_props
+            out["surrogate"] = {"properties": surrogate_props}
+        if args.check:
+            out["check"] = {"solver": solver_props,
+                            "relative_difference": {k: _relative(surrogate_props[k],
+                                                                 solver_props[k]) for k in SIX}}
+        out["solver"] = solver["solver"]
+    return _finish(out, (path, bed), times, t_start), rank
+
+
+def _finish(out, item, times, t_start):
+    """The record with its header, predict block and timings."""
+    path, bed = item
+    out = {**header("predict", bed.centers, bed.radii, resolve_material(bed.attrs)[1],
+                    input_path=path), **out, "predict": predict_block(out)}
+    times["total"] = time.perf_counter() - t_start
+    out["seconds"] = times["total"]
+    out["timings"] = times
+    return out
+
+
+def interval_of(sur, bed, res, factor=1.0):
+    """The bed's interval block (amfe.training.conformal.interval_block) at its imaged size;
+    ``res``'s moduli scaled by ``factor`` (E_bed / E_model) are unscaled for the model's
+    calibration and the intervals scaled back."""
+    from amfe.training.conformal import interval_block
+    from amfe.training.predict import _image_size
+    from amfe.training.prediction import scale_intervals
+    conformal = sur.ckpt.get("conformal")
+    size = _image_size(bed, sur.ckpt)
+    if "constants9" in res and conformal and len(conformal.get("names", ())) == 9:
+        row, names, spread = res["constants9"][0].copy(), NINE, res["spread9"][0]
+        row[[0, 1, 2, 6, 7, 8]] /= factor   # a stiffness head calibrated on all nine
+    else:
+        row, names, spread = res["mean"][0].copy(), SIX, res["spread"][0]
+        row[:3] /= factor
+    return scale_intervals(interval_block(row, names, conformal, size, spread), factor)
+
+
+def flag_reasons(res, threshold, n_members):
+    """Why the bed is flagged: a list of "spread", "fill", "non-finite" (empty: in distribution).
+
+    A NaN compares false with any threshold, so a non-finite prediction is a
+    reason of its own; it is never "in distribution".
+    """
+    reasons = []
+    score = float(res["score"][0])
+    if threshold is not None and n_members > 1 and score > threshold:
+        reasons.append("spread")
+    if bool(res["fill_out"][0]):
+        reasons.append("fill")
+    if bool(res["nonfinite"][0]):
+        reasons.append("non-finite")
+    return reasons
+
+
+def _properties(res):
+    """The predicted constants {name: value}: the six, and with a stiffness head the shear
+    moduli too (issue 46: under properties); non-finite ones None."""
+    from amfe.training.predict import as_properties
+    props = as_properties(res["mean"][0])
+    if "constants9" in res:
+        props.update(zip(NINE[6:], map(float, res["constants9"][0, 6:])))
+    return _finite_or_none(props)
+
+
+def _relative(value, reference):
+    """(value - reference) / |reference|, None when the value is None (not finite)."""
+    return None if value is None else (value - reference) / abs(reference)
+
+
+def _finite_or_none(props):
+    """{name: value}, a non-finite value as None (JSON null: JSON has no NaN)."""
+    return {k: (v if math.isfinite(v) else None) for k, v in props.items()}
+
+

@@ -1,0 +1,41 @@
+"""amfe.predict: the surrogate's constants of beds from Python, as ``amfe predict`` gives them.
+
+>>> p = amfe.predict("bed.h5")                      # doctest: +SKIP
+>>> p.properties["Ex"], p.intervals["Ex"], p.flagged   # doctest: +SKIP
+
+The records are built by the command's own code (amfe.cli.predict_core), so
+``amfe.predict(beds)[k].to_dict()`` is bed k's record in ``amfe predict -o``'s
+``beds``, number for number.
+"""
+import os
+import time
+from types import SimpleNamespace
+
+from amfe.cli.predict_core import predict_records
+from amfe.errors import AmfeError
+
+
+def predict(beds, *, fallback=False, stiffness=False, model=None, threshold=None,
+            check=False, petsc_args=()):
+    """Predict each bed's elastic constants with the shipped model for its size and material.
+
+    beds: a bed file's path, a :class:`~amfe.model.bed.Bed`, or a list of them.
+    fallback: solve (PETSc) a bed that is flagged or cannot be predicted; stiffness: the
+    shipped full-stiffness model (C and the shear moduli too); model: a checkpoint for every
+    bed instead of the shipped ones; threshold: the spread flag's threshold (default: the
+    model's); check: also solve every bed. Returns a
+    :class:`~amfe.training.prediction.Prediction` for one bed, a list for a list; a bed that
+    cannot be predicted gets source "failed" and its ``error`` (never an exception).
+    """
+    from amfe.training.prediction import Prediction  # noqa: TID253 (torch only when called)
+    if stiffness and model:
+        raise AmfeError("give model or stiffness, not both: stiffness picks the shipped "
+                        "full-stiffness model")
+    one = isinstance(beds, (str, os.PathLike)) or hasattr(beds, "centers")
+    items = [beds] if one else list(beds)
+    args = SimpleNamespace(model=None if model is None else os.fspath(model),
+                           stiffness=stiffness, fallback=fallback, check=check,
+                           threshold=threshold, petsc_args=list(petsc_args))
+    records, _ = predict_records(args, items, {}, time.perf_counter())
+    out = [Prediction(record) for record, _ in records]
+    return out[0] if one else out
