@@ -109,7 +109,7 @@ def _check_signature(path):
     elif not head:
         what = "empty"
     else:
-        what = "not a model (a torch checkpoint is a zip archive)"
+        what = "not a plain amfe checkpoint (a torch checkpoint is a zip archive)"
     raise AmfeError(f"model file {path} is {what}; give the .pt file that "
                     "amfe train wrote")
 
