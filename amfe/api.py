@@ -11,18 +11,26 @@ from dataclasses import replace
 from amfe.errors import AmfeError
 from amfe.io.console import messages
 from amfe.io.mpi import on_root, same_on_every_rank
-from amfe.io.result import Result  # noqa: F401 - the type homogenize returns
+from amfe.io.result import Result
 from amfe.io.result_meta import describe_input
 from amfe.io.vtu import write_fields_vtu
-from amfe.model.options import (BC_NAMES, SolveOptions, check_choice, check_flag,
-                                check_petsc_options)
+from amfe.io.vtuset import clear_stale_sets
+from amfe.model.bed import Bed
+from amfe.model.conditions import CONDITIONS, condition_names
+from amfe.model.material import Material, resolve_material
+from amfe.model.options import SolveOptions, check_choice, check_flag, check_petsc_options
 
 
-def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_options=None,
-               a_star_cap=None, material=None, max_it=None, diagnose=False, progress=False,
-               vtu_dir=None, solver="auto", accept_unconverged=False, max_memory=None,
-               material_source=None, input_path=None, model="frame", voxel_size=None,
-               voxel_operator="assembled"):
+def homogenize(bed: Bed | str | os.PathLike | tuple, *, bc: str = "kubc",
+               rtol: float | None = None, comm: object = None, fields: bool = False,
+               petsc_options: dict | None = None, a_star_cap: float | None = None,
+               material: Material | dict | None = None, max_it: int | None = None,
+               diagnose: bool = False, progress: bool = False,
+               vtu_dir: str | os.PathLike | None = None, solver: str = "auto",
+               accept_unconverged: bool = False, max_memory: float | str | None = None,
+               material_source: str | None = None, input_path: str | os.PathLike | None = None,
+               model: str = "frame", voxel_size: float | None = None,
+               voxel_operator: str = "assembled") -> Result | dict[str, Result]:
     """Effective elastic constants of a powder bed, as a :class:`~amfe.io.result.Result`.
 
     Parameters
@@ -122,7 +130,7 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
                             f"{type(value).__name__} {value!r}")
     if material_source is not None and not isinstance(material_source, str):
         raise AmfeError(f"homogenize: material_source must be a str, got {material_source!r}")
-    check_choice("bc", bc, BC_NAMES + ("all",))
+    check_choice("bc", bc, condition_names() + ("all",))
     pcomm = petsc_comm(comm)
     mpi = pcomm.tompi4py()
     # Collective, before the first collective that depends on them: a path on one rank and
@@ -164,8 +172,12 @@ def homogenize(bed, *, bc="kubc", rtol=None, comm=None, fields=False, petsc_opti
         return result
     if bc != "all":
         return one(bc, vtu_dir)
-    names = ["kubc", "subc"] + (["periodic"] if error is None and "periodic" in bed.attrs else [])
-    return {name: one(name, vtu_dir and os.path.join(vtu_dir, name)) for name in names}
+    periodic_bed = error is None and "periodic" in bed.attrs
+    names = [n for n, c in CONDITIONS.items() if c.in_all and (periodic_bed or not c.periodic)]
+    results = {name: one(name, vtu_dir and os.path.join(vtu_dir, name)) for name in names}
+    if vtu_dir is not None:   # an older set beside the new one: `amfe view` must not find it
+        on_root(mpi, clear_stale_sets, vtu_dir, names)
+    return results
 
 
 def _voxel(bed, options, error, comm, spec):
@@ -201,9 +213,6 @@ def _voxel(bed, options, error, comm, spec):
 
 def _inputs(bed, material, given_source):
     """(Bed, Material, its source) of the arguments: the bed checked, the material resolved."""
-    from amfe.model.bed import Bed
-    from amfe.model.material import Material, resolve_material
-
     if isinstance(bed, (tuple, list)) and len(bed) == 2:
         bed = Bed(*bed)
     elif not isinstance(bed, Bed):

@@ -23,7 +23,7 @@ echo "Open $out/vtu/cases.pvd in ParaView to see the six deformed frames (docs/v
 mpirun -n 2 .venv/bin/amfe homogenize "$out/bed_periodic.h5" --bc all --quiet -o "$out/bounds.json"
 # The model level (docs/model.md, section 10): the paper's springs against the continuum of the
 # same spheres on this bed, one line from the stored measurement (no voxel solve here).
-.venv/bin/python run/voxel_model_error.py --headline
+.venv/bin/python -m run.report.voxel_model_error --headline
 # The CNN surrogate shipped in amfe/models/ on a bed of the scale it was trained on
 # (0.6 x 0.6 x 0.3 mm), printed beside the PETSc solve of the same bed (--check). The bed
 # is record 0 of the held-out test set of docs/surrogate.md (data-set seed 2), which no

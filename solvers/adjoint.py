@@ -1,4 +1,4 @@
-"""The adjoint solves of the Bagi strain: KUBC's strain to second order on beds with free hull vertices.
+"""The Bagi strain's adjoint solves: KUBC's strain to second order on beds with free hull vertices.
 
 The strain's six Voigt components are linear functionals g_m . x of a case's
 solution over its free hull vertices' translations

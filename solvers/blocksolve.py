@@ -17,6 +17,7 @@ stops (converged or not) is frozen while the others go on, with no hang.
 convergence contract (:func:`amfe.solvers.ksp.check_solution`) as the
 one-at-a-time path does, through a :class:`ColumnKSP` per case.
 """
+import logging
 import time
 from dataclasses import dataclass, field
 
@@ -86,7 +87,29 @@ def block_path_applies(ksp, n_cases, option, diagnose):
     Level smoothers other than Chebyshev + Jacobi are found later (BlockUnsupported).
     """
     return (_wanted(option, n_cases, diagnose) and ksp.getType() == "cg"
-            and ksp.getPC().getType() in ("gamg", "mg"))
+            and ksp.getPC().getType() in ("gamg", "mg") and not _watched(ksp))
+
+
+#: Options that watch a KSPSolve (its monitors, its view, its reason): the block CG makes no
+#: KSPSolve, so with one of them the group is solved one case at a time, with a warning.
+WATCH_OPTIONS = ("ksp_monitor", "ksp_view", "ksp_converged_reason")
+
+
+def _watched(ksp):
+    """The watching options given for the outer KSP ("-ksp_monitor", ...), warned about on rank 0
+    once per process; True if any."""
+    db = PETSc.Options()
+    given = sorted(n for n in db.getAll() if n.startswith(WATCH_OPTIONS))
+    if given and not _watch_warned and ksp.getComm().getRank() == 0:
+        _watch_warned.append(True)
+        logging.getLogger("amfe.solvers").warning(
+            f"{' '.join('-' + n for n in given)}: the six load cases are solved one at a time "
+            "(not in one block CG), so that PETSc can print them; the same iterations and "
+            "constants, a little slower")
+    return bool(given)
+
+
+_watch_warned = []
 
 
 def block_path_expected(n_cases, option, diagnose):

@@ -30,6 +30,7 @@ from scipy.sparse.csgraph import reverse_cuthill_mckee
 from amfe.errors import AmfeError
 from amfe.model.memory import direct_bytes
 from amfe.solvers.correction import CORRECTED_RTOL, FREE_SHARE_MAX
+from amfe.solvers.inputs import given_options
 from amfe.solvers.ksp import DEFAULT_RTOL
 from amfe.solvers.petsclib import PETSc
 
@@ -149,7 +150,8 @@ def _choose(features, nranks, requested, rtol, package, user_options, singular, 
     if requested == "cholesky":
         if nranks > 1:
             raise AmfeError(f"--solver cholesky runs on one rank; this bed is solved on {nranks} "
-                            "ranks: use --solver gamg or auto (or --ranks-per-bed 1)")
+                            "ranks: use --solver gamg or auto, or run it on one rank "
+                            "(amfe dataset: --ranks-per-bed 1)")
         if singular:
             raise AmfeError("--solver cholesky cannot factorise these boundary conditions: "
                             "they leave rigid modes free (a singular operator); use --solver gamg")
@@ -167,7 +169,8 @@ def _choose(features, nranks, requested, rtol, package, user_options, singular, 
     if singular:
         return "gamg", "auto: the operator has free rigid modes (singular)", auto_rtol, {}
     if nranks > 1:
-        return "gamg", f"auto: the matrix spans {nranks} ranks (Cholesky is one-rank)", auto_rtol, {}
+        return ("gamg", f"auto: the matrix spans {nranks} ranks (Cholesky is one-rank)",
+                auto_rtol, {})
     if package is None:
         return "gamg", "auto: this PETSc has no Cholesky package", auto_rtol, {}
     f = features() if callable(features) else features
@@ -189,3 +192,17 @@ def _choose(features, nranks, requested, rtol, package, user_options, singular, 
 def _check_factor(f, check_memory):
     check_memory(direct_bytes(f["n_particles"], f["n_bonds"], f["fill_ratio"]),
                  f"factorising {f['n_particles']} particles (predicted fill {f['fill_ratio']:.1f})")
+
+
+def shown_method(method, ksp_options=None):
+    """How the progress line names the method: ``method``, or "KSP + PC" where the PETSc
+    options (per solve, or of the call in the database) set the KSP or the PC ("-pc_type
+    hypre" printed "solver: gamg" before the summary said cg+hypre)."""
+    given = given_options(("ksp_type", "pc_type"), ksp_options)
+    if method == "cholesky" or not given:
+        return method
+    mine = {k.lstrip("-"): v for k, v in (ksp_options or {}).items()}
+    db = PETSc.Options()
+    pick = {k: str(mine[k]) if k in mine else db.getString(k) if db.hasName(k) else d
+            for k, d in (("ksp_type", "cg"), ("pc_type", "gamg"))}
+    return f"{pick['ksp_type']} + {pick['pc_type']} (the PETSc options given)"

@@ -2,9 +2,10 @@
 
 bed -> frame (largest component, non-dimensional) -> six load cases of a
 boundary condition -> its averages -> C, S -> Ex, Ey, Ez, nu_yz, nu_xz, nu_xy,
-G_yz, G_xz, G_xy. Each condition of :data:`BOUNDARY_CONDITIONS` names its
-load-case groups and its average (docs/model.md, sections 5 and 9): KUBC and
-mixed take C from the Bagi hull strain and the reaction stress, SUBC from
+G_yz, G_xz, G_xy. Each condition of the table (:mod:`amfe.model.conditions`)
+names its load-case groups and its average (docs/model.md, sections 5 and 9),
+which the driver looks up by the condition's name: KUBC and mixed take C from the
+Bagi hull strain and the reaction stress (:func:`bagi_average`, here), SUBC from
 S = (1/V) F . U, periodic from the energy's dot products.
 """
 import logging
@@ -13,33 +14,48 @@ from collections import namedtuple
 
 import numpy as np
 
+from amfe.errors import AmfeError
+from amfe.io.fields import frame_fields
+from amfe.io.mpi import on_root
+from amfe.io.result import Result
+from amfe.io.result_meta import homogenize_header
+from amfe.model.averages import (
+    asymmetry,
+    bagi_strain,
+    compliance_and_constants,
+    hull_of,
+    stiffness,
+    symmetric,
+    voigt,
+    voigt_strain,
+)
+from amfe.model.bed import Bed
 from amfe.model.carrying import frame_warnings
+from amfe.model.conditions import CONDITIONS, get_condition, solver_part
 from amfe.model.frame import build_frame
 from amfe.model.options import SolveOptions
-from amfe.model.averages import (asymmetry, bagi_strain, compliance_and_constants, hull_of,
-                             stiffness, symmetric, voigt, voigt_strain)
-from amfe.errors import AmfeError
-from amfe.io.mpi import on_root
-from amfe.io.fields import frame_fields
-from amfe.io.result_meta import homogenize_header
-from amfe.io.result import Result
 from amfe.solvers.adjoint import attach_strain_adjoint
-from amfe.solvers.correction import (STRAIN_ADJOINT_DEFAULT, free_strain_share,
-                                     moment_corrections, never, relative_size, second_order_kubc,
-                                     second_order_loads)
-from amfe.solvers.mgchoice import CHOSEN_OPTIONS, choose_multigrid, multigrid_features
-from amfe.solvers.choice import (USER_METHOD_OPTIONS, Problem, choose_solver, cholesky_package,
-                                 solve_features)
+from amfe.solvers.choice import (
+    USER_METHOD_OPTIONS,
+    Problem,
+    cholesky_package,
+    choose_solver,
+    shown_method,
+    solve_features,
+)
+from amfe.solvers.correction import (
+    STRAIN_ADJOINT_DEFAULT,
+    free_strain_share,
+    moment_corrections,
+    relative_size,
+)
 from amfe.solvers.inputs import checked_inputs, given_options
 from amfe.solvers.ksp import DEFAULT_RTOL, RESIDUAL_FACTOR
-from amfe.model.kubc import kubc_groups
 from amfe.solvers.loadcases import solve_load_cases
-from amfe.model.mixed import mixed_groups
-from amfe.model.periodic import periodic_average, periodic_groups
-from amfe.model.subc import subc_average, subc_groups
-from amfe.solvers.petsc import init_petsc, unused_options_warning
+from amfe.solvers.mgchoice import CHOSEN_OPTIONS, choose_multigrid, multigrid_features
+from amfe.solvers.options import call_options
+from amfe.solvers.petsc import unused_options_warning
 from amfe.solvers.petsclib import PETSc
-
 
 LOG = logging.getLogger("amfe.solvers")
 
@@ -76,17 +92,8 @@ def bagi_average(frame, groups, u, moments, diagnose=False, cross=None, strain_c
                             "C_asymmetry": float(c_asym), **stats}
 
 
-#: name -> (groups(frame), average(frame, groups, u, moments, diagnose, cross), needs a
-#: periodic bed, second_order(frame, groups): the corrected average is second order)
-Condition = namedtuple("Condition", "groups average periodic second_order")
-BOUNDARY_CONDITIONS = {"kubc": Condition(kubc_groups, bagi_average, False, second_order_kubc),
-                       "mixed": Condition(mixed_groups, bagi_average, False, never),
-                       "subc": Condition(subc_groups, subc_average, False, second_order_loads),
-                       "periodic": Condition(periodic_groups, periodic_average, True,
-                                             second_order_loads)}
-
-
-def homogenize_bed(bed, options=None, comm=None, *, input_error=None):
+def homogenize_bed(bed: Bed, options: SolveOptions | None = None, comm: object = None, *,
+                   input_error: AmfeError | None = None) -> Result:
     """Effective elastic constants of a bed of bonded spheres, as a :class:`Result`.
 
     bed: a checked :class:`~amfe.model.bed.Bed` (centres (N, 3) [m], radii (N,)
@@ -134,12 +141,17 @@ def homogenize_bed(bed, options=None, comm=None, *, input_error=None):
     """
     if options is None and input_error is None:
         options = SolveOptions()
-    # per-call PETSc options go into the database (PETSc itself was initialised on import)
-    init_petsc(options.petsc_args if isinstance(options, SolveOptions) else None)
+    # this call's PETSc options, in the database for this call alone (amfe.solvers.options)
+    with call_options(options.petsc_args if isinstance(options, SolveOptions) else ()) as scope:
+        return _homogenize(bed, options, comm, input_error, scope)
+
+
+def _homogenize(bed, options, comm, input_error, scope):
+    """:func:`homogenize_bed` inside its :func:`~amfe.solvers.options.call_options`."""
     comm = petsc_comm(comm)
     mpi = comm.tompi4py()
-    inp = checked_inputs(mpi, bed, options, BOUNDARY_CONDITIONS, input_error)
-    options, condition = inp.options, BOUNDARY_CONDITIONS[inp.options.bc]
+    inp = checked_inputs(mpi, bed, options, CONDITIONS, input_error)
+    options, condition = inp.options, get_condition(inp.options.bc)
     t0 = time.perf_counter()
     log = _progress(mpi.rank)
     frame = build_frame(bed.centers, bed.radii, inp.material, options.a_star_cap,
@@ -150,10 +162,10 @@ def homogenize_bed(bed, options=None, comm=None, *, input_error=None):
     groups = condition.groups(frame)
     # the same on every rank: rank 0 decides (qhull; docs/benchmarks.md, "Figures quoted ...")
     corrected = correction_wanted(options.ksp_options) and mpi.bcast(
-        condition.second_order(frame, groups) if mpi.rank == 0 else None)
+        solver_part(condition.second_order)(frame, groups) if mpi.rank == 0 else None)
     adjoint = False
-    if (correction_wanted(options.ksp_options) and not corrected and condition.second_order
-            is second_order_kubc and strain_adjoint_wanted(options.ksp_options)):
+    if (correction_wanted(options.ksp_options) and not corrected and condition.hull_strain
+            and strain_adjoint_wanted(options.ksp_options)):
         adjoint = corrected = attach_strain_adjoint(frame, groups, mpi)  # free hull vertices
     problem = Problem(singular=any(g.null_modes is not None for g in groups), corrected=corrected,
                       free_share=_free_share(frame, groups, condition, corrected, options, mpi))
@@ -164,7 +176,7 @@ def homogenize_bed(bed, options=None, comm=None, *, input_error=None):
         cholesky_package(),
         given_options(USER_METHOD_OPTIONS, options.ksp_options),
         problem, check_memory=inp.check_memory)
-    log(f"solver: {method} ({reason})")
+    log(f"solver: {shown_method(method, options.ksp_options)} ({reason})")
     multigrid = None
     if method == "gamg":  # aggregation per bed (:mod:`amfe.solvers.mgchoice`)
         mg_options, mg_reason = choose_multigrid(
@@ -190,9 +202,11 @@ def homogenize_bed(bed, options=None, comm=None, *, input_error=None):
     # of the per-solve options, only the caller's count (not those the solver choice adds)
     mine = {k.lstrip("-") for k in options.ksp_options}
     unused = unused_options_warning(mpi.rank,
-                                    [n for n in sol.unused_options if n.lstrip("-") in mine])
+                                    [n for n in sol.unused_options if n.lstrip("-") in mine],
+                                    names=scope.unused())
+    ignored = scope.ignored_warning(mpi.rank)
     solved = Solved(frame, groups, sol, t_frame, mpi.size, inp.record,
-                    warnings + ([unused] if unused else []), bed)
+                    warnings + [w for w in (unused, ignored) if w], bed)
     d = on_root(mpi, _average, solved, options)
     d["solver"].update(method=method, reason=reason, requested=options.solver)
     if multigrid is not None:
@@ -223,7 +237,7 @@ def _free_share(frame, groups, condition, corrected, options, mpi):
     """The free hull vertices' share of KUBC's strain on a first-order bed (rank 0's, on every
     rank), or None: another condition, a second-order bed, the user's own rtol, or the user's
     own aggregation (the share's rtol rule was measured with smoothed aggregation)."""
-    if (corrected or condition.second_order is not second_order_kubc
+    if (corrected or not condition.hull_strain
             or options.rtol is not None or not correction_wanted(options.ksp_options)
             or given_options(("pc_gamg_agg_nsmooths",), options.ksp_options)):
         return None
@@ -278,7 +292,7 @@ def _average(solved, options):
     frame, groups, sol = solved.frame, solved.groups, solved.sol
     t0 = time.perf_counter()
     G = sol.setups[0].strain_cross
-    C, volume, stats = BOUNDARY_CONDITIONS[options.bc].average(
+    C, volume, stats = solver_part(get_condition(options.bc).average)(
         frame, groups, sol.u, sol.moments, diagnose=options.diagnose, cross=sol.cross,
         **({} if G is None else {"strain_cross": G}))
     if G is not None:

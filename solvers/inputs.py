@@ -17,12 +17,11 @@ from amfe.errors import AmfeError
 from amfe.model.bed import Bed
 from amfe.model.bonds import check_a_star_cap
 from amfe.model.material import resolve_material
-from amfe.model.options import SolveOptions, check_rtol
 from amfe.model.memory import check_memory, default_limit, solve_bytes
+from amfe.model.options import SolveOptions, check_rtol
 from amfe.model.torus import NOT_PERIODIC
 from amfe.solvers.consistency import agree_across_ranks, digest
 from amfe.solvers.petsclib import PETSc
-
 
 #: What :func:`checked_inputs` hands on: the options, the material, its record for the
 #: result ({E, nu, psi, source}), the periodic box (or None) and check_memory(estimate, what).
@@ -124,7 +123,8 @@ def checked_inputs(mpi, bed, options, bcs, input_error=None):
     if isinstance(options, SolveOptions):
         given = dict(sorted(vars(options).items()), material=repr(options.material),
                      ksp_options=sorted(options.ksp_options.items()), box=digest(box))
-    hosts = agree_across_ranks(mpi, {**_arrays(bed), "material": repr(material), "options": repr(given),
+    hosts = agree_across_ranks(mpi, {**_arrays(bed), "material": repr(material),
+                                     "options": repr(given),
                                      "petsc": repr(sorted(PETSc.Options().getAll().items()))},
                                error)
     default = sum(default_limit(memory) for memory in dict(hosts).values())

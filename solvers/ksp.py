@@ -1,10 +1,11 @@
 """KSP/PC set-up and the convergence check every solve goes through."""
+import math
 from contextlib import contextmanager
 from dataclasses import dataclass
 
-import math
-
 from amfe.errors import AmfeError
+from amfe.model.tolerance import LOOSEST_RTOL
+from amfe.solvers.options import refuse_crashing
 from amfe.solvers.petsc import unused_options
 from amfe.solvers.petsclib import PETSc
 
@@ -91,6 +92,7 @@ def petsc_options(options=None):
     """
     db = PETSc.Options()
     options = {k.lstrip("-"): ("" if v is None else str(v)) for k, v in (options or {}).items()}
+    refuse_crashing(options)   # before PETSc sees them (issue 45)
     saved = {k: db.getString(k) if db.hasName(k) else None for k in options}
     for k, v in options.items():
         db.setValue(k, v)
@@ -136,11 +138,24 @@ def check_solution(ksp, label, residual, pc_residual, accept=False):
     """
     reason = ksp.getConvergedReason()
     rtol, atol, dtol, max_it = ksp.getTolerances()
-    its, how = ksp.getIterationNumber(), f"{ksp.getType().upper()} solve with {ksp.getPC().getType()}"
+    its = ksp.getIterationNumber()
+    how = f"{ksp.getType().upper()} solve with {ksp.getPC().getType()}"
     if reason == PETSc.KSP.ConvergedReason.DIVERGED_INDEFINITE_PC or not math.isfinite(residual):
         check_converged(ksp, label)
         raise AmfeError(f"{label}: the {how} gave a non-finite solution (true residual "
                         f"{residual}) after {its} iterations; check the bed and the options")
+    # converged on the initial guess, within the contract of a loose rtol (a residual above it
+    # is the contract's error below, which accept_unconverged may keep)
+    if (reason > 0 and its == 0 and RESIDUAL_FACTOR * LOOSEST_RTOL < residual
+            <= RESIDUAL_FACTOR * rtol):
+        floor = pc_residual()[2]
+        if residual > RESIDUAL_FACTOR * max(LOOSEST_RTOL, floor):
+            raise AmfeError(
+                f"{label}: the {how} stopped after 0 iterations ({reason_name(reason)} at rtol "
+                f"{rtol:g}, atol {atol:g}) with the initial guess's true relative residual at "
+                f"{residual:.2e}: nothing was solved, and the constants would be those of the "
+                f"guess. The tolerance is too loose: give rtol {LOOSEST_RTOL:g} or less "
+                f"(the loosest amfe homogenize accepts, docs/model.md section 5)")
     if reason <= 0:
         message = converged_message(ksp, label) + f"; true relative residual {residual:.2e}"
     elif residual <= RESIDUAL_FACTOR * rtol:

@@ -99,9 +99,9 @@ def solve_load_cases(frame, comm, groups, *, center=None, log=None, **settings):
     """Solve every group of load cases on ``frame``; returns :class:`LoadCaseSolutions`.
 
     ``settings``: the fields of :class:`~amfe.solvers.ksp.CaseSettings` (rtol, max_it,
-    ksp_options, diagnose, accept_unconverged). ``log``: called with a progress line per operator and per case (on every
-    rank; the caller decides who prints). Raises AmfeError on every rank,
-    also for a solve that misses the convergence contract
+    ksp_options, diagnose, accept_unconverged). ``log``: called with a progress line per
+    operator and per case (on every rank; the caller decides who prints). Raises AmfeError
+    on every rank, also for a solve that misses the convergence contract
     (:func:`amfe.solvers.ksp.check_solution`) unless ``accept_unconverged``.
     """
     settings = CaseSettings(**settings)
@@ -134,7 +134,8 @@ def solve_load_cases(frame, comm, groups, *, center=None, log=None, **settings):
                            | set(ksp_options or {}))
             raise AmfeError(f"PETSc stopped with {exc} while solving cases "
                             f"{', '.join(group.names)}; its message is above. "
-                            + (f"Check the PETSc options given ({', '.join('-' + g for g in given)})."
+                            + ("Check the PETSc options given "
+                               f"({', '.join('-' + g for g in given)})."
                                if given else "No PETSc option was given: the frame may be "
                                "singular or its stiffness out of range; check the bed.")) from None
         except IndefinitePreconditioner as exc:
@@ -170,7 +171,8 @@ def _solve_group(frame, comm, part, rows, group, center, settings, log):
     try:
         rec = op.record
         if log:
-            log(f"operator for {', '.join(group.names)}: assembled in {rec.assembly_seconds:.2f} s, "
+            log(f"operator for {', '.join(group.names)}: "
+                f"assembled in {rec.assembly_seconds:.2f} s, "
                 f"{rec.pc_type} set up in {rec.setup_seconds:.2f} s")
         cases = op.solve_all(center, group.guesses)
         if log:

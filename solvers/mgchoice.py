@@ -1,4 +1,4 @@
-"""Which multigrid a bed's CG + GAMG gets: unsmoothed aggregation on whole beds, smoothed on scanned ones.
+"""A bed's multigrid for CG + GAMG: unsmoothed aggregation on whole beds, smoothed on scanned ones.
 
 The block path's defaults (:data:`amfe.solvers.blocksolve.BLOCK_DEFAULTS`:
 unsmoothed aggregation, Chebyshev of degree 1) were chosen on the fully

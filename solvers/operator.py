@@ -26,13 +26,16 @@ from amfe.errors import AmfeError
 from amfe.model.averages import bagi_stress
 from amfe.solvers.adjoint import strain_cross
 from amfe.solvers.assembly import aij_from_blocks, sbaij_operator
-from amfe.solvers.blocksolve import (block_path_applies, block_path_expected, solve_block,
-                                     with_block_defaults)
+from amfe.solvers.blocksolve import (
+    block_path_applies,
+    block_path_expected,
+    solve_block,
+    with_block_defaults,
+)
 from amfe.solvers.correction import takes_correction
 from amfe.solvers.ksp import CaseSettings, check_solution, make_ksp, petsc_options
 from amfe.solvers.nullspace import near_nullspace, orthonormal_nullspace
 from amfe.solvers.petsclib import PETSc
-
 
 AMFE_OPTIONS = ("amfe_operator_type", "amfe_block", "amfe_correction", "amfe_strain_adjoint")
 """amfe's own PETSc options (docs/model.md, section 5)."""
@@ -121,10 +124,13 @@ class ConstrainedOperator:
             self.block_option = PETSc.Options().getString("amfe_block", "yes")
             self.correct_option = PETSc.Options().getString("amfe_correction", "yes")
             block = block_path_expected(len(group.values), self.block_option, diagnose)
+            # the block path's GAMG defaults also when diagnosing (one case at a time), so that
+            # --diagnose describes the preconditioner of the run without it (issue 45)
+            defaults = block or block_path_expected(len(group.values), self.block_option, False)
         if self.correct_option not in ("yes", "no"):  # refused before the set-up's cost
             raise AmfeError(f"-amfe_correction {self.correct_option!r}: give yes (the "
                             "second-order averages, the default) or no")
-        if block:  # the block path multiplies with AIJ only, and has its GAMG defaults
+        if defaults:  # the block path multiplies with AIJ only (block), and has its GAMG defaults
             smoothed = group.smoothed_aggregation and rtol <= group.smoothed_rtol_max
             ksp_options = with_block_defaults(ksp_options, smoothed,
                                               comm.getSize())
@@ -141,7 +147,8 @@ class ConstrainedOperator:
         self.A, self.A_op = A, A_op
         t_assembly = time.perf_counter() - t0
         with petsc_options(ksp_options) as unused:
-            for name in AMFE_OPTIONS:  # read above, in another setting of the options: mark them used
+            # read above, in another setting of the options: mark them used
+            for name in AMFE_OPTIONS:
                 PETSc.Options().getString(name, "")
             ksp = make_ksp(A_op, A, rtol=rtol, max_it=max_it)
             if diagnose:
@@ -311,8 +318,8 @@ class ConstrainedOperator:
     def _residual_in_ksp_norm(self, b, x=None):
         """(true relative residual in the norm the KSP tests, that norm's name, rounding floor).
 
-        self._r holds r = b - A x (x: the KSP's solution unless given). Preconditioned (and none: preonly):
-        ||B r|| / ||B b||; natural: sqrt(r.Br / b.Bb); unpreconditioned:
+        self._r holds r = b - A x (x: the KSP's solution unless given). Preconditioned (and
+        none: preonly): ||B r|| / ||B b||; natural: sqrt(r.Br / b.Bb); unpreconditioned:
         ||r|| / ||b||. The floor is the normwise backward-error bound
         eps ||A||_F ||x|| / ||b||: no solve in double precision can promise
         a smaller relative residual.

@@ -1,6 +1,8 @@
 """PETSc start-up: initialise petsc4py once, with command-line options if given."""
+import ctypes
 import logging
 import os
+import signal
 import sys
 
 from amfe.errors import AmfeError
@@ -9,27 +11,75 @@ from amfe.errors import AmfeError
 def init_petsc(argv=None):
     """Initialise petsc4py if needed and return the PETSc module.
 
-    ``argv``: PETSc options such as ["-ksp_monitor", "-log_view"]. On the first
-    call they go to PetscInitialize (which -log_view needs); if PETSc is already
-    initialised they are added to its options database instead.
+    ``argv``: the command line's PETSc options, such as ["-ksp_monitor",
+    "-log_view"]. On the first call they go to PetscInitialize (which -log_view
+    needs); if PETSc is already initialised they are added to its options
+    database instead (in place of an earlier command line's). Either way they
+    are recorded as the command line's (:func:`command_line_pairs`): every
+    solve of this process applies them (:mod:`amfe.solvers.options`). None (or
+    no argument): initialise if needed, change nothing.
     """
-    argv = list(argv or [])
-    check_startup_options(argv)
+    if argv is not None:
+        argv = list(argv)
+        check_startup_options(argv)
     if "petsc4py.PETSc" not in sys.modules:
-        import petsc4py
+        import petsc4py  # noqa: PLC0415 (heavy or optional: loaded when used)
+        # the program's name first; under `python -c` sys.argv[0] is "-c", which
+        # PETSc would take for an option ("PETSc options never used: -c")
+        prog = sys.argv[0] if sys.argv and sys.argv[0] and not sys.argv[0].startswith("-") \
+            else "amfe"
         try:
-            petsc4py.init([sys.argv[0] if sys.argv and sys.argv[0] else "amfe"] + argv)
+            petsc4py.init([prog] + (argv or []))
         except Exception as exc:   # petsc4py.PETSc.Error: PetscInitialize failed (every rank)
-            raise AmfeError(f"PETSc could not start with the options {' '.join(argv)} "
+            raise AmfeError(f"PETSc could not start with the options {' '.join(argv or [])} "
                             f"({exc}); check them against the PETSc manual") from None
         _keep_python_signals()
-        from petsc4py import PETSc
+        _command_line[:] = option_pairs(argv or [])
+        from petsc4py import PETSc  # noqa: PLC0415 (heavy or optional: loaded when used)
         return PETSc
-    from petsc4py import PETSc
-    opts = PETSc.Options()
-    for name, value in option_pairs(argv):
-        opts.setValue(name, value)
+    from petsc4py import PETSc  # noqa: PLC0415 (heavy or optional: loaded when used)
+    if argv is not None:
+        opts = PETSc.Options()
+        pairs = option_pairs(argv)
+        for name, _ in _command_line:
+            if name not in dict(pairs) and opts.hasName(name):
+                opts.delValue(name)
+        for name, value in pairs:
+            opts.setValue(name, value)
+        _command_line[:] = pairs
     return PETSc
+
+
+_command_line = []   # [(name, value)]: the command line's PETSc options (init_petsc)
+
+
+def command_line_pairs():
+    """[(name, value)] of the PETSc options of the command line (:func:`init_petsc`)."""
+    return list(_command_line)
+
+
+#: Option names (without the dash) that set up PETSc objects or amfe's solves: one call's.
+OBJECT_PREFIXES = ("ksp_", "pc_", "mg_", "mat", "vec_", "sub_", "redundant_", "fieldsplit_",
+                   "amfe_", "snes_", "ts_", "tao_", "dm_", "is_", "sf_", "gamg_", "esteig_")
+
+
+def is_object_option(name):
+    """True for an option of a solver object (``ksp_rtol``, ``-pc_type``), False for a
+    process-wide one (``log_view``, ``info``, ``malloc_debug``, ``help``)."""
+    return name.lstrip("-").startswith(OBJECT_PREFIXES)
+
+
+def forget_command_line():
+    """The end of a command (amfe.cli): its solver options out of the database and the record
+    (a later call in this process, a test's, is not that command's); process-wide ones such as
+    -log_view stay for PetscFinalize."""
+    if "petsc4py.PETSc" in sys.modules:
+        from petsc4py import PETSc  # noqa: PLC0415 (heavy or optional: loaded when used)
+        opts = PETSc.Options()
+        for name, _ in _command_line:
+            if is_object_option(name) and opts.hasName(name):
+                opts.delValue(name)
+    _command_line[:] = []
 
 
 # Options amfe refuses before PETSc starts, with why.
@@ -66,7 +116,6 @@ def _keep_python_signals():
     command line's handlers end the run with one line (amfe.cli.interrupt),
     and elsewhere the signal does what it did before PETSc started.
     """
-    import signal
     for sig in (signal.SIGPIPE, signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT):
         handler = signal.getsignal(sig)   # Python's own record, which PETSc did not change
         if handler is None:   # set outside Python: leave it
@@ -113,7 +162,6 @@ def _options_used_fn():
     petsc4py 3.18 has no binding for it; the library is the one mapped into
     this process (so the same options database), found in /proc/self/maps.
     """
-    import ctypes
     path = None
     try:
         with open("/proc/self/maps") as maps:
@@ -133,7 +181,6 @@ def _options_used_fn():
 
 def option_used(name):
     """True if PETSc has read option ``name`` (without the dash); None if that cannot be told."""
-    import ctypes
     if "fn" not in _used_fn:
         _used_fn["fn"] = _options_used_fn()
     fn = _used_fn["fn"]
@@ -156,13 +203,13 @@ def unused_options(names=None):
             if n.lstrip("-") not in READ_AT_FINALIZE and option_used(n.lstrip("-")) is False]
 
 
-def unused_options_warning(rank, extra=()):
-    """One line naming the options never used (with ``extra``, names already found unused
-    elsewhere), or None. Rank 0 logs it as a warning (logger "amfe.solvers") the first time
-    these names come up in this process (a data set's hundred solves warn once); every rank
-    returns it for the JSON.
+def unused_options_warning(rank, extra=(), names=None):
+    """One line naming the options never used (of ``names``, "-name", else of the whole
+    database; with ``extra``, names already found unused elsewhere), or None. Rank 0 logs it
+    as a warning (logger "amfe.solvers") the first time these names come up in this process
+    (a data set's hundred solves warn once); every rank returns it for the JSON.
     """
-    names = sorted(set(unused_options()) | set(extra))
+    names = sorted(set(unused_options() if names is None else names) | set(extra))
     if not names:
         return None
     line = (f"PETSc options never used: {' '.join(names)} (misspelt, or meant for a solver "

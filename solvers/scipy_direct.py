@@ -11,17 +11,27 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from amfe.model.averages import (
+    bagi_strain,
+    bagi_stress,
+    box_center,
+    hull_of,
+    stiffness,
+    unit_strains,
+    voigt,
+    voigt_strain,
+)
 from amfe.model.element import element_matrices
-from amfe.model.averages import (bagi_strain, bagi_stress, box_center, hull_of, stiffness,
-                                 unit_strains, voigt, voigt_strain)
 from amfe.model.kubc import boundary_particles, kubc_displacements
 
 
 def global_stiffness(frame):
     """The frame's (6n, 6n) stiffness as a scipy CSR matrix (non-dimensional)."""
     b = frame.bonds
-    K12 = element_matrices(b.normal, b.d_i, b.d_j, frame.k_n, frame.k_t, frame.kappa_n, frame.kappa_t)
-    dofs = np.concatenate([6 * b.i[:, None] + np.arange(6), 6 * b.j[:, None] + np.arange(6)], axis=1)
+    K12 = element_matrices(b.normal, b.d_i, b.d_j, frame.k_n, frame.k_t, frame.kappa_n,
+                           frame.kappa_t)
+    dofs = np.concatenate([6 * b.i[:, None] + np.arange(6), 6 * b.j[:, None] + np.arange(6)],
+                          axis=1)
     rows = np.repeat(dofs, 12, axis=1).ravel()
     cols = np.tile(dofs, (1, 12)).ravel()
     n = 6 * frame.n_particles

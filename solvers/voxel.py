@@ -23,23 +23,24 @@ import numpy as np
 import scipy.sparse as sp
 
 from amfe.errors import AmfeError
-from amfe.model.averages import (asymmetry, compliance_and_constants, dual_corrected,
-                                 unit_strains)
+from amfe.io.result import Result
+from amfe.io.result_meta import header
+from amfe.model.averages import asymmetry, compliance_and_constants, dual_corrected, unit_strains
 from amfe.model.hex8 import VERTICES, element_stiffness
 from amfe.model.material import STEEL
 from amfe.model.memory import check_memory
 from amfe.model.options import SolveOptions
 from amfe.model.voxel import voxel_bytes, voxel_solid
 from amfe.model.voxelmesh import block_rows, build_mesh, element_loads
-from amfe.io.result import Result
-from amfe.io.result_meta import header
 from amfe.solvers.consistency import agree_across_ranks
 from amfe.solvers.driver import petsc_comm
 from amfe.solvers.inputs import checked_inputs
 from amfe.solvers.ksp import RESIDUAL_FACTOR, check_solution, make_ksp, petsc_options
+from amfe.solvers.options import call_options
 from amfe.solvers.partition import row_ranges
-from amfe.solvers.petsc import init_petsc
+from amfe.solvers.petsc import unused_options_warning
 from amfe.solvers.petsclib import PETSc
+from amfe.solvers.voxelfree import ElementProduct, matrix_free_ksp, shell, two_grid
 
 LOG = logging.getLogger("amfe.solvers")
 EPS = float(np.finfo(float).eps)
@@ -89,7 +90,16 @@ def homogenize_voxel(bed, options=None, comm=None, *, voxel_size=None, input_err
     """
     if options is None and input_error is None:
         options = SolveOptions()
-    init_petsc(options.petsc_args if isinstance(options, SolveOptions) else None)
+    # this call's PETSc options, in the database for this call alone (amfe.solvers.options)
+    with call_options(options.petsc_args if isinstance(options, SolveOptions) else ()) as scope:
+        return _homogenize_voxel(bed, options, comm, input_error, scope,
+                                 (voxel_size, initial, operator))
+
+
+def _homogenize_voxel(bed, options, comm, input_error, scope, how):
+    """:func:`homogenize_voxel` inside its :func:`~amfe.solvers.options.call_options`;
+    how: (voxel_size, initial, operator)."""
+    voxel_size, initial, operator = how
     comm = petsc_comm(comm)
     mpi = comm.tompi4py()
     error = input_error
@@ -113,6 +123,8 @@ def homogenize_voxel(bed, options=None, comm=None, *, voxel_size=None, input_err
         LOG.warning(line)
     t_geo = time.perf_counter() - t0
     C, sol, mesh = voxel_stiffness(geo, options, comm, initial=initial, operator=operator)
+    sol["warnings"] += [w for w in (unused_options_warning(mpi.rank, names=scope.unused()),
+                                    scope.ignored_warning(mpi.rank)) if w]
     return Result.from_dict(_result(bed, geo, (C, sol, mesh), inp.record, mpi.size, t_geo))
 
 
@@ -203,7 +215,7 @@ def voxel_stiffness(geo, options, comm, *, initial="affine", operator="assembled
     sol["operator"] = operator
     W = cases["W0"] - sol["work"] if periodic else sol["work"]
     W, sol["stats"] = dual_corrected(W, [sol["cross"]], -1)
-    sol["assembly_seconds"], sol["rtol"] = t_asm, options.rtol
+    sol["assembly_seconds"] = t_asm   # sol["rtol"]: the KSP's, options included (issue 45)
     return W / volume * material.E, sol, mesh
 
 
@@ -278,7 +290,7 @@ def _assembled(A0, cases, x_local, options):
     t0 = time.perf_counter()
     with petsc_options(options.ksp_options) as unused:
         ksp = make_ksp(A, rtol=options.rtol, max_it=options.max_it)
-        ksp.setInitialGuessNonzero(True)
+        ksp.setInitialGuessNonzero(ksp.getType() != "preonly")   # preonly: no guess
         ksp.setUp()
     return Operators(A0, A, ksp, time.perf_counter() - t0, unused,
                      A0.norm(PETSc.NormType.FROBENIUS))
@@ -287,7 +299,6 @@ def _assembled(A0, cases, x_local, options):
 def _matrix_free(comm, mesh, Ke, h, rows, grip, cases, options):
     """:class:`Operators` of the element shell (:mod:`amfe.solvers.voxelfree`): CG + the
     two-grid PCMG; grip: KUBC's gripped grid nodes (None: the box's faces)."""
-    from amfe.solvers.voxelfree import ElementProduct, matrix_free_ksp, shell, two_grid
     r0, r1 = rows
     fixed = np.array([0]) if mesh.periodic else mesh.boundary_nodes(grip)
     free = ElementProduct(comm, mesh, Ke, r0, r1)
@@ -297,7 +308,7 @@ def _matrix_free(comm, mesh, Ke, h, rows, grip, cases, options):
     Ac, P, _ = two_grid(comm, mesh, Ke, h, r0, r1, fixed, grip)
     with petsc_options(options.ksp_options) as unused:
         ksp = matrix_free_ksp(A, Ac, P, options.rtol, options.max_it)
-        ksp.setInitialGuessNonzero(True)
+        ksp.setInitialGuessNonzero(ksp.getType() != "preonly")   # preonly: no guess
         ksp.setUp()
     return Operators(A0, A, ksp, time.perf_counter() - t0, unused, free.frobenius_bound())
 
@@ -362,6 +373,7 @@ def _solve(ops, cases, x_local, options, initial):
             "setup_seconds": setup, "solve_seconds": solve, "warnings": warnings + (
                 [f"PETSc options never used: {', '.join(unused)}"] if unused else []),
             "ksp_type": ksp.getType(), "pc_type": ksp.getPC().getType(),
+            "rtol": float(ksp.getTolerances()[0]),
             "stress_asymmetry": float(stress_asym)}
 
 

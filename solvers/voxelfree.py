@@ -21,6 +21,7 @@ import copy
 import numpy as np
 import scipy.sparse as sp
 
+from amfe.model.voxelmesh import block_rows
 from amfe.model.voxelmg import coarse_grip, coarse_mesh, element_lists, prolongation
 from amfe.solvers.partition import row_ranges
 from amfe.solvers.petsclib import PETSc
@@ -128,7 +129,6 @@ def two_grid(comm, mesh, Ke, h, r0, r1, fixed_nodes, grip):
     prescribed active nodes (global, sorted; periodic: [0], node 0 pinned on both grids);
     grip: KUBC's gripped grid nodes, or None (the box's faces).
     """
-    from amfe.model.voxelmesh import block_rows
     coarse = coarse_mesh(mesh)
     size, rank = comm.getSize(), comm.getRank()
     cb = row_ranges(coarse.n_nodes, size)

@@ -6,7 +6,6 @@ import io
 import os
 
 import torch
-
 from test_training import TINY_ATTRS, _tiny_bed, write_synthetic
 
 from amfe.cli import main

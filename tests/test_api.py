@@ -6,12 +6,12 @@ import sys
 
 import numpy as np
 import pytest
+from helpers import MPI_ENV, ROOT, run_cli
 
 import amfe
 from amfe.io.result import SCHEMA_VERSION, Result
 from amfe.io.vtu import read_case
 from amfe.vocab import CASE_NAMES, CONSTANT_NAMES
-from helpers import MPI_ENV, ROOT, run_cli
 
 SIZE = (0.1e-3, 0.1e-3, 0.06e-3)
 

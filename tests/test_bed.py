@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
+from amfe.errors import AmfeError
 from amfe.model.bed import Bed, generate_bed, hcp_lattice, limit_a_star, pair_a_star, shrink_factor
 from amfe.model.bonds import find_bonds
-from amfe.errors import AmfeError
 from amfe.model.material import STEEL, Material
 from amfe.model.scanpath import ScanPath, scanned_mask
 from amfe.model.springs import critical_a_star

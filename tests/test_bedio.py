@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 
 import amfe.io.bedfile as bedio
-from amfe.model.bed import Bed, generate_bed
-from amfe.io.bedfile import read_bed, write_bed
 from amfe.errors import AmfeError
+from amfe.io.bedfile import read_bed, write_bed
+from amfe.model.bed import Bed, generate_bed
 
 
 @pytest.fixture(scope="module")

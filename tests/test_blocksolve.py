@@ -10,7 +10,14 @@ import sys
 
 import numpy as np
 import pytest
+from helpers import MPI_ENV, ROOT, cubic_lattice
 from scipy.sparse.linalg import spsolve
+from test_hard_cases import (
+    CRIT,
+    NEAR_MECHANISMS,
+    near_critical_boundary_bed,
+    near_critical_interior_bed,
+)
 
 from amfe.errors import AmfeError
 from amfe.model.averages import box_center
@@ -27,10 +34,6 @@ from amfe.solvers.loadcases import ROBUST_ESTEIG, solve_load_cases
 from amfe.solvers.operator import ConstrainedOperator
 from amfe.solvers.petsc import init_petsc
 from amfe.solvers.scipy_direct import global_stiffness
-
-from helpers import MPI_ENV, ROOT, cubic_lattice
-from test_hard_cases import CRIT, NEAR_MECHANISMS, near_critical_boundary_bed, \
-    near_critical_interior_bed
 
 PETSc = init_petsc()
 COMM = PETSc.COMM_WORLD

@@ -4,9 +4,9 @@ import math
 import numpy as np
 import pytest
 
+from amfe.errors import AmfeError
 from amfe.model.bed import Bed
 from amfe.model.bonds import bond_springs, contact_geometry, find_bonds, find_pairs
-from amfe.errors import AmfeError
 from amfe.model.material import Material
 from amfe.model.springs import critical_a_star
 
@@ -44,7 +44,8 @@ def test_shallow_overlap_is_accurate():
     # equal spheres, overlap delta: a^2 = (delta/2)(2R - delta/2) exactly, no cancellation
     for delta in [1e-4, 1e-8, 1e-11]:
         L = 2.0 - delta
-        b = contact_geometry(np.array([[0.0, 0, 0], [L, 0, 0]]), np.ones(2), np.array([0]), np.array([1]))
+        b = contact_geometry(np.array([[0.0, 0, 0], [L, 0, 0]]), np.ones(2), np.array([0]),
+                             np.array([1]))
         exact = math.sqrt((delta / 2) * (2 - delta / 2))
         # the true L is the float L; recompute delta from it to compare like with like
         d = 2.0 - L
@@ -80,7 +81,8 @@ def test_bad_particles(centers, radii, match):
 def _pair_with_a_star(s):
     # equal spheres R = 1: a* = 2 a, a^2 = 1 - (L/2)^2 -> L = 2 sqrt(1 - s^2 / 4)
     L = 2 * math.sqrt(1 - s**2 / 4)
-    return find_bonds(np.array([[0.0, 0, 0], [L, 0, 0], [2 * L, 0, 0], [2 * L, 1.9, 0]]), np.ones(4))
+    return find_bonds(np.array([[0.0, 0, 0], [L, 0, 0], [2 * L, 0, 0], [2 * L, 1.9, 0]]),
+                      np.ones(4))
 
 
 def test_a_star_past_critical_is_refused_with_names():

@@ -4,24 +4,29 @@ import json
 
 import numpy as np
 import pytest
+from helpers import cubic_lattice, homogenize_arrays, run_cli
+from test_hard_cases import NEAR_MECHANISMS, near_critical_interior_bed
 
 from amfe.errors import AmfeError
 from amfe.io.bedfile import write_bed
 from amfe.model.averages import box_center, hull_of, symmetric
-from amfe.model.carrying import bed_box
 from amfe.model.bed import Bed, generate_bed
+from amfe.model.carrying import bed_box
 from amfe.model.frame import build_frame
 from amfe.model.kubc import boundary_particles
 from amfe.model.periodic import love_weber_stiffness
 from amfe.model.scales import sample_bed_params
 from amfe.model.scanpath import ScanPath
-from amfe.model.subc import (check_boundary_spans_volume, energy_gap, kubc_admissible_strain,
-                             subc_average, subc_groups, subc_strain, subc_weights)
-from helpers import homogenize_arrays
+from amfe.model.subc import (
+    check_boundary_spans_volume,
+    energy_gap,
+    kubc_admissible_strain,
+    subc_average,
+    subc_groups,
+    subc_strain,
+    subc_weights,
+)
 from amfe.solvers.scipy_direct import group_solve_scipy, kubc_stiffness_scipy
-
-from helpers import cubic_lattice, run_cli
-from test_hard_cases import NEAR_MECHANISMS, near_critical_interior_bed
 
 SPACING, RADIUS = 1.8e-6, 1e-6          # simple cubic lattice: sqrt(2) r < s < 2 r
 STRAINS = np.vstack([np.eye(6), np.random.default_rng(7).normal(size=(30, 6))])
@@ -90,7 +95,7 @@ def test_subc_galerkin_algorithm_is_chosen_per_rank_count_and_changes_nothing():
     (parallel), unless the user names one; PETSc's default gives the same C."""
     from amfe.solvers.blocksolve import with_block_defaults
     from amfe.solvers.petsc import init_petsc
-    PETSc = init_petsc()
+    init_petsc()
     assert with_block_defaults({}, True, 1) == {"matptap_via": "rap"}
     assert with_block_defaults({}, True, 3) == {"matptap_via": "nonscalable"}
     assert with_block_defaults({"matptap_via": "scalable"}, True, 2) == {
@@ -214,8 +219,9 @@ def test_cli_bc_all_prints_both_side_by_side_with_the_gap(bed_file, tmp_path):
     assert "need NOT bracket the periodic value" in flat and "(holds)" in flat
     d = json.loads(out.read_text())
     # with V the bed's box this 90-particle bed reads below E = 210 GPa: no note
-    assert ("not a unit error" in flat) == any(d["conditions"][c]["properties"][k] > 210e9
-                                               for c in ("kubc", "subc") for k in ("Ex", "Ey", "Ez"))
+    assert ("not a unit error" in flat) == any(
+        d["conditions"][c]["properties"][k] > 210e9
+        for c in ("kubc", "subc") for k in ("Ex", "Ey", "Ez"))
     assert d["bc"] == "all" and set(d["conditions"]) == {"kubc", "subc"}
     assert d["conditions"]["subc"]["bc"] == "subc" and d["energy_gap"] > 0
     Ck, Cs = (np.array(d["conditions"][c]["C"]) for c in ("kubc", "subc"))

@@ -2,18 +2,15 @@
 hand-made beds of simple cubic blocks (spacing 1.8 r: bonds along the axes only)."""
 import numpy as np
 import pytest
+from helpers import cubic_lattice, homogenize_arrays
 
 from amfe.errors import AmfeError
-from amfe.model.averages import box_center
+from amfe.model.averages import box_center, unit_strains
 from amfe.model.carrying import bed_box, removed_warning
 from amfe.model.frame import build_frame
 from amfe.model.kubc import boundary_particles, kubc_displacements
-from amfe.model.averages import unit_strains
 from amfe.model.subc import energy_gap, subc_weights
-
 from amfe.solvers.scipy_direct import global_stiffness, kubc_stiffness_scipy
-
-from helpers import cubic_lattice, homogenize_arrays
 
 S, R = 1.8e-6, 1e-6
 
@@ -248,8 +245,8 @@ def test_periodic_pieces_winding_in_too_few_directions_are_refused():
 def test_rule1_factor_converts_a_rule1_modulus_exactly():
     """V_hull / V_box of the largest piece: a rule-1 (hull volume) KUBC modulus times it is
     the rule-2 one where the kept piece is the same (the surrogate's conversion)."""
-    from amfe.model.carrying import rule1_factor
     from amfe.dataset.parts import label_rule
+    from amfe.model.carrying import rule1_factor
     n = 4
     x, r = bed(block(n), [[9 * S, S, S], [9.9 * S, S, S]])     # plus a removed pair
     hull = ((n - 1) * S) ** 3
@@ -267,9 +264,11 @@ def test_rule1_factor_converts_a_rule1_modulus_exactly():
 
 def test_cli_prints_the_removed_share_and_writes_the_pieces(tmp_path):
     import json
+
+    from helpers import run_cli
+
     from amfe.io.bedfile import write_bed
     from amfe.model.bed import Bed
-    from helpers import run_cli
     x, r = bed(block(4), [[9 * S, S, S], [9.9 * S, S, S]])
     path = tmp_path / "bed.h5"
     write_bed(path, Bed(x, r, {}))
@@ -304,7 +303,8 @@ def test_energy_ordering_holds_where_kubc_keeps_a_piece_subc_does_not():
     e C_subc e <= e C_kubc e still (KUBC's extra piece only adds energy)."""
     x = block(6)
     idx = np.rint(x / S).astype(int)
-    pit = (idx[:, 0] >= 1) & (idx[:, 0] <= 4) & (idx[:, 1] >= 1) & (idx[:, 1] <= 4) & (idx[:, 2] <= 1)
+    pit = ((idx[:, 0] >= 1) & (idx[:, 0] <= 4) & (idx[:, 1] >= 1) & (idx[:, 1] <= 4)
+           & (idx[:, 2] <= 1))
     tri = np.array([[2, 2.1, 0], [3, 2.1, 0], [2.5, 2.966, 0]]) * S     # sides S, as the lattice
     x, r = bed(x[~pit], tri)
     kubc = homogenize_arrays(x, r, rtol=1e-12)
@@ -322,9 +322,11 @@ def test_several_pieces_on_two_ranks_match_one(tmp_path, bc):
     """Two separate blocks under KUBC (two pieces), two joined by a track under SUBC:
     1 and 2 ranks agree to 1e-9 at rtol 1e-12."""
     import json
+
+    from helpers import run_cli
+
     from amfe.io.bedfile import write_bed
     from amfe.model.bed import Bed
-    from helpers import run_cli
     if bc == "kubc":
         x, r = bed(block(4), block(4, (7 * S, 0, 0)))
     else:

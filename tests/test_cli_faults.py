@@ -14,9 +14,14 @@ import sys
 
 import numpy as np
 import pytest
-
-from cli_fixtures import (assert_one_error, mutated_checkpoint, run_main, sha256, tiny_dataset,
-                          tiny_model)
+from cli_fixtures import (
+    assert_one_error,
+    mutated_checkpoint,
+    run_main,
+    sha256,
+    tiny_dataset,
+    tiny_model,
+)
 from helpers import MPI_ENV, ROOT
 
 from amfe.cli import parse, split_petsc_args
@@ -50,7 +55,7 @@ def test_nan_weights_are_flagged_never_in_distribution(model, tmp_path):
     assert "not finite" in line and "--fallback" in line
     assert not out.exists()
     # the ensemble summary itself flags it, whatever the threshold
-    from amfe.training.predict import summarize_members
+    from amfe.training.ensemble import summarize_members
     members = np.ones((2, 3, 6))
     members[1, 1, 4] = np.nan
     res = summarize_members(members, threshold=None)
@@ -70,8 +75,9 @@ def test_fallback_solves_a_non_finite_prediction(model, tmp_path):
     assert "in distribution" not in stdout and "not finite" in stdout
     assert all(v is None for v in res["surrogate"]["properties"].values())
     # the constants are the solver's: an independent homogenize_bed of the same bed
-    from amfe.io.bedfile import read_bed
     from helpers import homogenize_arrays
+
+    from amfe.io.bedfile import read_bed
     b = read_bed(bed)
     ref = homogenize_arrays(b.centers, b.radii, b.material(), size=b.attrs["size"])["properties"]
     for k in SIX:

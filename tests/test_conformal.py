@@ -1,12 +1,11 @@
-"""Split conformal intervals: the nominal coverage on synthetic data, none at an uncalibrated size."""
+"""Split conformal intervals: nominal coverage on synthetic data, none at an uncalibrated size."""
 import math
 
 import numpy as np
 import pytest
 
 from amfe.errors import AmfeError
-from amfe.training.conformal import (calibrate, calibration, interval_block, intervals,
-                                     size_key)
+from amfe.training.conformal import calibrate, calibration, interval_block, intervals, size_key
 
 NAMES = ("Ex", "Ey", "nu_xy")
 
@@ -87,12 +86,11 @@ def test_wide_intervals_flag_the_bed():
 
 
 def test_calibrate_script_stores_the_sizes_calibration(tmp_path):
-    """run/calibrate_intervals.py on a held-out tiny data set: the checkpoint's quantiles are
+    """run/train/calibrate_intervals.py on a held-out tiny data set: the checkpoint's quantiles are
     calibrate()'s on the model's own predictions, and predict then gives intervals."""
-    import importlib.util
-    import os
 
     from cli_fixtures import tiny_dataset, tiny_model
+
     from amfe.training.checkpoint import load_checkpoint
     from amfe.training.data import dataset_info, read_rows
     from amfe.training.predict import Surrogate
@@ -100,11 +98,7 @@ def test_calibrate_script_stores_the_sizes_calibration(tmp_path):
 
     model, bed = tiny_model(str(tmp_path))
     held = tiny_dataset(str(tmp_path / "held.h5"), n=30, failed=())
-    spec = importlib.util.spec_from_file_location(
-        "calibrate_intervals", os.path.join(os.path.dirname(__file__), "..", "run",
-                                            "calibrate_intervals.py"))
-    script = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(script)
+    from run.train import calibrate_intervals as script
     assert script.main([str(model), str(held), "-o", str(model)]) == 2   # never in place
     out = tmp_path / "cal.pt"
     assert script.main([str(model), str(held), "-o", str(out), "--coverage", "0.8"]) == 0
@@ -125,11 +119,10 @@ def test_calibrate_script_stores_the_sizes_calibration(tmp_path):
 def test_two_data_sets_of_one_size_calibrate_together(tmp_path):
     """Held-out sets of the same bed size are pooled (not the last one kept): the quantiles
     are calibrate()'s on both sets' predictions together, n their sum."""
-    import importlib.util
-    import os
 
     from cli_fixtures import TINY_ATTRS, tiny_model
     from test_training import write_synthetic
+
     from amfe.training.checkpoint import load_checkpoint
     from amfe.training.data import dataset_info, read_rows
     from amfe.training.predict import Surrogate
@@ -140,11 +133,7 @@ def test_two_data_sets_of_one_size_calibrate_together(tmp_path):
                         failed=(), seed=1)
     b = write_synthetic(str(tmp_path / "b.h5"), n=15, shape=(1, 5, 5), attrs=TINY_ATTRS,
                         failed=(), seed=2)
-    spec = importlib.util.spec_from_file_location(
-        "calibrate_intervals", os.path.join(os.path.dirname(__file__), "..", "run",
-                                            "calibrate_intervals.py"))
-    script = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(script)
+    from run.train import calibrate_intervals as script
     out = tmp_path / "cal.pt"
     assert script.main([str(model), str(a), str(b), "-o", str(out)]) == 0
     have = load_checkpoint(out)["conformal"]["sizes"]["0.15x0.15"]

@@ -9,6 +9,7 @@ import sys
 
 import numpy as np
 import pytest
+from helpers import MPI_ENV, ROOT, homogenize_arrays
 
 from amfe.errors import AmfeError
 from amfe.model.averages import strain_from_voigt, unit_strains
@@ -17,11 +18,12 @@ from amfe.model.frame import build_frame
 from amfe.model.kubc import kubc_groups
 from amfe.model.subc import subc_groups
 from amfe.model.torus import periodic_box
-from amfe.solvers.correction import (CORRECTED_RTOL, moment_corrections, second_order_kubc,
-                                     second_order_loads)
-from helpers import homogenize_arrays
-
-from helpers import MPI_ENV, ROOT
+from amfe.solvers.correction import (
+    CORRECTED_RTOL,
+    moment_corrections,
+    second_order_kubc,
+    second_order_loads,
+)
 
 
 def box_bed():

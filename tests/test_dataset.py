@@ -17,18 +17,23 @@ import time
 import h5py
 import numpy as np
 import pytest
+from helpers import MPI_ENV, ROOT, run_cli
 
-from amfe.model.bed import generate_bed
-from amfe.io.bedfile import read_bed
 from amfe.cli import main
 from amfe.dataset.lock import DatasetLock
-from amfe.errors import AmfeError
 from amfe.dataset.parts import PARAMS_JSON, parts_dir
+from amfe.errors import AmfeError
+from amfe.io.bedfile import read_bed
+from amfe.model.bed import generate_bed
+from amfe.model.scales import (
+    PARAM_NAMES,
+    SCALES,
+    bed_for,
+    param_record,
+    record_seed,
+    sample_bed_params,
+)
 from amfe.vocab import LABEL_NAMES
-from amfe.model.scales import (PARAM_NAMES, SCALES, bed_for, param_record, record_seed,
-                         sample_bed_params)
-
-from helpers import MPI_ENV, ROOT, run_cli
 
 pytestmark = pytest.mark.mpi
 

@@ -20,20 +20,26 @@ import time
 import h5py
 import numpy as np
 import pytest
+from helpers import MPI_ENV, ROOT, run_cli
+from test_dataset import ROW_KEYS, _session_pids, dataset_cmd, read_rows
 
 import amfe.dataset.parts as datasetparts
 from amfe.cli import main
+from amfe.dataset.datafile import merge_parts
 from amfe.dataset.lock import DatasetLock, lock_path, read_lock
+from amfe.dataset.parts import (
+    part_path,
+    parts_dir,
+    read_part,
+    rejected_dir,
+    run_params,
+    write_params_json,
+    write_part,
+)
 from amfe.errors import AmfeError
 from amfe.io.atomic import atomic_write, atomic_write_h5, host_name, write_json
-from amfe.dataset.datafile import merge_parts
-from amfe.dataset.parts import (PARAMS_JSON, part_path, parts_dir, read_part, rejected_dir,
-                                run_params, write_params_json, write_part)
 from amfe.model.scales import PARAM_NAMES, record_seed
 from amfe.solvers.choice import GAMG_RTOL_AUTO  # the default run: --solver auto
-
-from helpers import MPI_ENV, ROOT, run_cli
-from test_dataset import ROW_KEYS, _session_pids, dataset_cmd, read_rows
 
 pytestmark = pytest.mark.mpi
 
@@ -284,7 +290,8 @@ def test_merge_checks_before_it_destroys(tmp_path, monkeypatch, reference):
     recs = _parts_of(reference[0], out)
     parts = parts_dir(out)
     for k, rec in recs.items():
-        write_part(parts, rec, params if k != 7 else run_params("tiny", 9, N, GAMG_RTOL_AUTO, "auto"))
+        write_part(parts, rec,
+                   params if k != 7 else run_params("tiny", 9, N, GAMG_RTOL_AUTO, "auto"))
     # one part of another seed: refused and kept aside, no file under the final name
     with pytest.raises(AmfeError, match="record file .*rec_00000007.npz was refused"):
         merge_parts(out, parts, params)
@@ -354,7 +361,8 @@ def test_stale_temp_file_of_a_killed_writer_is_cleaned(tmp_path, capsys):
     assert fresh_legacy.exists() and other_host.exists() and live.exists() and other_target.exists()
     assert f"removed the stale temporary file {killed} (its writer, pid " in err
     assert "has ended" in err
-    assert re.search(re.escape(f"{stale_legacy} (unchanged for ") + r"12\d s, writer unknown\)", err)
+    assert re.search(re.escape(f"{stale_legacy} (unchanged for ")
+                     + r"12\d s, writer unknown\)", err)
     assert err.count("removed the stale temporary file") == 2
 
 

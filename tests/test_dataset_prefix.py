@@ -8,17 +8,16 @@ import os
 
 import numpy as np
 import pytest
+from test_dataset import ROW_KEYS, read_rows
+from test_dataset_faults import tree
 
 from amfe.cli import main
+from amfe.dataset.parts import part_path, parts_dir, run_params, write_params_json, write_part
 from amfe.dataset.plan import prepare
 from amfe.dataset.prefix import write_prefix
 from amfe.errors import AmfeError
-from amfe.dataset.parts import part_path, parts_dir, run_params, write_params_json, write_part
 from amfe.model.scales import PARAM_NAMES
 from amfe.solvers.choice import GAMG_RTOL_AUTO
-
-from test_dataset import ROW_KEYS, read_rows
-from test_dataset_faults import tree
 
 SEED, BIG, FIRST = 11, 7, 3
 ARGS = ["--seed", str(SEED), "--scale", "tiny", "--no-progress", "--max-failed-share", "1"]

@@ -1,14 +1,9 @@
-"""run/eval_surrogate.py's pure parts: the size-curve fit and the verdicts."""
-import os
-import sys
+"""run/train/eval_surrogate.py's pure parts: the size-curve fit and the verdicts."""
 
 import numpy as np
 import pytest
 
-from helpers import ROOT
-
-sys.path.insert(0, os.path.join(ROOT, "run"))
-import eval_surrogate as ev  # noqa: E402
+from run.train import eval_surrogate as ev
 
 
 def test_size_curve_recovers_a_power_law():

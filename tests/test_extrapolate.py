@@ -5,8 +5,14 @@ import numpy as np
 import pytest
 
 from amfe.errors import AmfeError
-from amfe.model.extrapolate import (FS_ASSUMED, FS_VERIFIED, P_FALLBACK, extrapolate,
-                                    fit_order, observed_order)
+from amfe.model.extrapolate import (
+    FS_ASSUMED,
+    FS_VERIFIED,
+    P_FALLBACK,
+    extrapolate,
+    fit_order,
+    observed_order,
+)
 
 # voxel sizes R/4, R/6, R/8, R/12 in units of R: ratios 1.5, 1.33, 1.5 (not constant)
 H = 1.0 / np.array([4.0, 6.0, 8.0, 12.0])

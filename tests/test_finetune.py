@@ -5,6 +5,7 @@ import h5py
 import numpy as np
 import pytest
 import torch
+from test_training import write_synthetic
 
 from amfe.errors import AmfeError
 from amfe.training.checkpoint import load_checkpoint, save_checkpoint
@@ -12,8 +13,6 @@ from amfe.training.data import Normalizer, read_rows
 from amfe.training.merge import merge_members
 from amfe.training.predict import Surrogate
 from amfe.training.train import TrainConfig, train_model
-
-from test_training import write_synthetic
 
 torch.set_num_threads(1)
 QUIET = {"progress": False, "log": lambda line: None}
@@ -90,7 +89,8 @@ def test_bad_starting_points_are_refused(base, tmp_path):
     with pytest.raises(AmfeError, match="other.h5"):
         train_model(other, TrainConfig(epochs=1, init=base["path"]), **QUIET)
     tiny = str(write_synthetic(tmp_path / "tiny.h5", attrs={
-        "scale": "small", "bed_size": [0.3e-3, 0.6e-3, 0.3e-3], "image_cell": [30e-6, 30e-6, 0.1e-3],
+        "scale": "small", "bed_size": [0.3e-3, 0.6e-3, 0.3e-3],
+        "image_cell": [30e-6, 30e-6, 0.1e-3],
         "layer_thickness": 0.1e-3, "image_spacing": 2.5e-6}))
     with pytest.raises(AmfeError, match="bed_size"):
         train_model(tiny, TrainConfig(epochs=1, init=base["path"]), **QUIET)

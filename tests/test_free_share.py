@@ -6,6 +6,8 @@ invariants (additive over vertex sets, 0 and 1 at the ends, unit and rotation in
 the bound it gives on the strain's error, and a factorisation of the same frame."""
 import numpy as np
 import pytest
+from helpers import homogenize_arrays
+from test_correction import box_bed, error, round_bed
 
 from amfe.dataset.record import record_seed
 from amfe.model.averages import bagi_strain, hull_of
@@ -14,12 +16,15 @@ from amfe.model.frame import build_frame
 from amfe.model.kubc import kubc_groups
 from amfe.model.scales import get_scale, sample_bed_params
 from amfe.solvers.choice import GAMG_RTOL_AUTO, Problem, choose_solver
-from amfe.solvers.correction import (CORRECTED_RTOL, FREE_SHARE_MAX, free_strain_share,
-                                     strain_share, strain_weights)
+from amfe.solvers.correction import (
+    CORRECTED_RTOL,
+    FREE_SHARE_MAX,
+    free_strain_share,
+    strain_share,
+    strain_weights,
+)
 from amfe.solvers.ksp import DEFAULT_RTOL
 from amfe.solvers.mgchoice import LOW_SHARE_MIN, choose_multigrid
-from helpers import homogenize_arrays
-from test_correction import box_bed, error, round_bed
 
 DENSE = {"n_particles": 9000, "n_bonds": 40000, "fill_ratio": 1e3}
 

@@ -28,10 +28,9 @@ import tempfile
 import h5py
 import numpy as np
 import pytest
+from cli_fixtures import assert_one_error, mutated_checkpoint, run_main, sha256, tiny_model
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-
-from cli_fixtures import assert_one_error, mutated_checkpoint, run_main, sha256, tiny_model
 
 ALL = os.environ.get("AMFE_FUZZ_ALL", "1") == "1"
 FUZZ = settings(max_examples=25, deadline=None, derandomize=True, database=None,
@@ -64,9 +63,11 @@ MUTATIONS = ["none", "subset", "value", "radius", "radius_huge", "shape_centers"
 PREDICT_MUTATIONS = ["value_huge", "scale_1e-300", "scale_1e300", "material_text",
                      "material_partial"]
 
-# Cases the solve side of issue 18 fixed, drawn by default (AMFE_FUZZ_ALL=0 leaves them out): coordinates at 1e-300 / 1e300 and material attributes of the wrong type
+# Cases the solve side of issue 18 fixed, drawn by default (AMFE_FUZZ_ALL=0 leaves them out):
+# coordinates at 1e-300 / 1e300 and material attributes of the wrong type
 # or incomplete (items 3, 12) in homogenize (predict handles them: drawn for it); a bed
-# declaring 2e9 particles (11: refused from the dataset shapes before reading); absurd pack sizes and radii, seeds >= 2^64 (10, 11); homogenize -o
+# declaring 2e9 particles (11: refused from the dataset shapes before reading); absurd pack sizes
+# and radii, seeds >= 2^64 (10, 11); homogenize -o
 # checked before the solve (6, 7). Pack's: PACK_PENDING.
 PENDING = {
     "homogenize_bed": PREDICT_MUTATIONS,
@@ -411,7 +412,9 @@ def test_fuzz_option_conflicts(tiny, data):
             r = amfe.homogenize(tiny[1], rtol=rtol, max_it=max_it, solver=solver,
                                 petsc_options=options)
         except amfe.AmfeError as exc:
-            assert conflict and "give only one of them" in str(exc), exc
+            # issue 45: rtol 0.5 may stop CG at its initial guess, which is refused
+            assert (conflict and "give only one of them" in str(exc)) or (
+                ksp_rtol == "0.5" and "after 0 iterations" in str(exc)), exc
             return
         assert not conflict
         if r.solver["method"] == "gamg":
@@ -419,7 +422,8 @@ def test_fuzz_option_conflicts(tiny, data):
         return
     opts = init_petsc().Options()
     before = set(opts.getAll())
-    argv = [*(["--rtol", str(rtol)] if rtol else []), *(["-ksp_rtol", ksp_rtol] if ksp_rtol else [])]
+    argv = [*(["--rtol", str(rtol)] if rtol else []),
+            *(["-ksp_rtol", ksp_rtol] if ksp_rtol else [])]
 
     def ok(out, output):
         s = _strict_json(open(output).read())["solver"]
@@ -433,7 +437,8 @@ def test_fuzz_option_conflicts(tiny, data):
     finally:   # the command line's PETSc options stay in the database: take them out again
         for name in set(opts.getAll()) - before:
             opts.delValue(name)
-    assert (code == 2) == conflict, (argv, code)
+    # issue 45: -ksp_rtol 0.5 is looser than amfe homogenize accepts (1e-4)
+    assert (code == 2) == (conflict or ksp_rtol == "0.5"), (argv, code)
 
 
 # ---------------------------------------------------------------- issue 31: training data faults
@@ -454,8 +459,9 @@ def test_fuzz_training_data_faults(data):
     """A tiny data set with none or one drawn fault in a drawn ok record, and training options
     (a learning rate that diverges, no validation, --max-train 0): a model with finite
     metrics only for good data and options, else one line and no file."""
-    from amfe.training.checkpoint import load_checkpoint
     from cli_fixtures import tiny_dataset
+
+    from amfe.training.checkpoint import load_checkpoint
     fault = data.draw(st.sampled_from(["none"] + sorted(TRAIN_DATA_FAULTS)), label="fault")
     row = data.draw(st.sampled_from([0, 10, 21, 39]), label="row")   # ok rows of tiny_dataset
     lr = data.draw(st.sampled_from(["1e-3", "1e6"]), label="--lr")

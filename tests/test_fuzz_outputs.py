@@ -15,9 +15,15 @@ import threading
 
 from hypothesis import given
 from hypothesis import strategies as st
-
-from test_fuzz import (FUZZ, _base, _copy_writer, _homogenize_ok, _predict_ok, _strict_json,
-                       check_run, tiny)  # noqa: F401 - tiny is a fixture
+from test_fuzz import (
+    FUZZ,
+    _base,
+    _copy_writer,
+    _homogenize_ok,
+    _predict_ok,
+    _strict_json,
+    check_run,  # noqa: F401 - tiny is a fixture
+    )
 
 SPECIAL = ["FIFO", "LINK", "DANGLING", "LINK_TO_FIFO", "LINK_TO_DIR", "LOOP", "EMPTY",
            "LINK_INTO_MISSING_DIR"]

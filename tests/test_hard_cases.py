@@ -17,17 +17,15 @@ import json
 
 import numpy as np
 import pytest
+from helpers import homogenize_arrays, run_cli
 from scipy.spatial.transform import Rotation
 
-from amfe.model.bed import Bed, generate_bed
-from amfe.io.bedfile import write_bed
 from amfe.errors import AmfeError
+from amfe.io.bedfile import write_bed
+from amfe.model.bed import Bed, generate_bed
 from amfe.model.frame import build_frame
 from amfe.model.springs import critical_a_star
-from helpers import homogenize_arrays
 from amfe.solvers.scipy_direct import kubc_stiffness_scipy
-
-from helpers import run_cli
 
 R = 1e-6
 S = 1.8 * R
@@ -362,7 +360,8 @@ def test_floating_particles_inside_the_bounding_box_are_removed():
     loners = [[1.5 * S, 1.5 * S, 1.5 * S], [0.5 * S, 3.5 * S, 2.5 * S], [0.5 * S, 0.5 * S, 0.5 * S]]
     xf = np.vstack([xb[:40], cluster, loners, xb[40:]])
     rf = np.r_[rb[:40], [small] * 3, [0.5 * R] * 3, rb[40:]]
-    assert np.all((xf.min(axis=0) <= np.array(cluster + loners)) & (np.array(cluster + loners) <= xf.max(axis=0)))
+    inside = np.array(cluster + loners)
+    assert np.all((xf.min(axis=0) <= inside) & (inside <= xf.max(axis=0)))
     ref = homogenize_arrays(xb, rb, rtol=1e-12)
     res = homogenize_arrays(xf, rf, rtol=1e-12)
     assert res["n_removed"] == 6 and res["n_particles"] == len(xb) + 6
@@ -496,8 +495,8 @@ def scaling_study():
         for name, opts in PRECONDITIONERS.items():
             try:
                 # rtol 1e-8 as measured (the KUBC default is 1e-5 with the second-order stress)
-                res = homogenize_arrays(bed.centers, bed.radii, ksp_options=opts, nondimensional=nondim,
-                                     rtol=1e-8)
+                res = homogenize_arrays(bed.centers, bed.radii, ksp_options=opts,
+                                        nondimensional=nondim, rtol=1e-8)
                 rows[name, nondim] = (res["solver"]["iterations"], rel_err(res["C"], C_ref), None)
             except AmfeError as exc:
                 rows[name, nondim] = (None, None, str(exc))

@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 
 import amfe.dataset.images as images
-from amfe.model.bed import Bed, generate_bed
-from amfe.errors import AmfeError
 from amfe.dataset.images import image_box, pixelate, pixelate_spheres
+from amfe.errors import AmfeError
+from amfe.model.bed import Bed, generate_bed
 
 UM = 1e-6
 CELL = (30 * UM, 30 * UM)

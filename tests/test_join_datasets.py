@@ -1,16 +1,11 @@
-"""run/join_datasets.py and run/split_dataset.py: held-out sets of one kind joined record after
+"""run/train/join_datasets.py and split_dataset.py: held-out sets of one kind joined record after
 record, others refused; a split joined again gives the records back."""
-import os
-import sys
 
 import h5py
 import numpy as np
-
 from test_training import TINY_ATTRS, write_synthetic
 
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(__file__)), "run"))
-import join_datasets  # noqa: E402
-import split_dataset  # noqa: E402
+from run.train import join_datasets, split_dataset
 
 
 def _set(path, n, seed, **attrs):

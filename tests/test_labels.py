@@ -11,15 +11,14 @@ import shutil
 import h5py
 import numpy as np
 import pytest
+from helpers import run_cli
 
-from amfe.dataset.parts import LABEL_RULE_VERSION
 from amfe.dataset.labels import IDENTITY, MAX_TABLE_BYTES, bed_digest, kept_solver
+from amfe.dataset.parts import LABEL_RULE_VERSION
 from amfe.io.bedfile import read_bed
 from amfe.model.averages import compliance_and_constants
 from amfe.model.scales import SCALES, record_seed
 from amfe.vocab import CONSTANT_NAMES
-
-from helpers import run_cli
 
 pytestmark = pytest.mark.mpi
 

@@ -6,6 +6,7 @@ imports from a layer above its own, indented (lazy) imports included.
 """
 import ast
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -105,7 +106,8 @@ def test_the_checker_sees_an_upward_import(tmp_path):
     path.write_text("def f():\n    from amfe.solvers.driver import homogenize_bed\n")
     found = [name for _, name in imports_of(path, "amfe.model.bonds")]
     assert "amfe.solvers.driver" in found
-    assert LAYERS.index(layer_of("amfe.solvers.driver")) > LAYERS.index(layer_of("amfe.model.bonds"))
+    assert (LAYERS.index(layer_of("amfe.solvers.driver"))
+            > LAYERS.index(layer_of("amfe.model.bonds")))
 
 
 def test_no_file_over_400_lines():
@@ -159,3 +161,64 @@ def test_version_and_python_m_amfe():
                          text=True)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == f"amfe {amfe.__version__}"
+
+
+RUN = ROOT / "run"
+
+
+def run_scripts():
+    """The scripts of run/'s folders (not the package markers or common.py)."""
+    return sorted(p for p in RUN.glob("*/*") if p.suffix in (".py", ".sh")
+                  and p.name != "__init__.py")
+
+
+def test_run_is_ordered_short_and_plain():
+    """run/ by purpose: no file over 400 lines, no sys.path edits, every script listed in
+    run/README.md under its folder and every listed one there (issue 44)."""
+    index = (RUN / "README.md").read_text()
+    listed = set(re.findall(r"^## run/(\w+)/.*?(?=^## |\Z)", index, flags=re.S | re.M))
+    assert listed == {"bench", "report", "train", "probes"}
+    long = [f"{p.relative_to(ROOT)}: {n}" for p in RUN.rglob("*.py")
+            if (n := len(p.read_text().splitlines())) > 400]
+    assert not long, "run/ files over 400 lines: " + ", ".join(long)
+    edits = [str(p.relative_to(ROOT)) for p in RUN.rglob("*.py")
+             if "sys.path.insert" in p.read_text() and p.name != "common.py"]
+    assert not edits, "sys.path edited in " + ", ".join(edits)
+    sections = {m.group(1): m.group(2) for m in
+                re.finditer(r"^## run/(\w+)/[^\n]*\n(.*?)(?=^## |\Z)", index, flags=re.S | re.M)}
+    for p in run_scripts():
+        assert f"`{p.name}`" in sections.get(p.parent.name, ""), f"{p.relative_to(ROOT)} unlisted"
+    for folder, text in sections.items():
+        for name in re.findall(r"^- `([\w.]+)`", text, flags=re.M):
+            assert (RUN / folder / name).is_file(), f"run/README.md lists run/{folder}/{name}"
+
+
+def test_every_run_path_the_docs_name_exists():
+    """Every run/... file that README.md and docs/*.md name exists (after the move to folders)."""
+    missing = []
+    for doc in [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]:
+        for path in set(re.findall(r"\brun/[\w/]+\.(?:py|sh)\b", doc.read_text())):
+            if not (ROOT / path).is_file():
+                missing.append(f"{doc.relative_to(ROOT)}: {path}")
+        for module in set(re.findall(r"-m (run(?:\.\w+)+)", doc.read_text())):
+            if not (ROOT / (module.replace(".", "/") + ".py")).is_file():
+                missing.append(f"{doc.relative_to(ROOT)}: {module}")
+    assert not missing, "named but absent: " + ", ".join(sorted(missing))
+
+
+def test_no_import_circles_in_run():
+    """run/'s scripts import each other without circles (issue 44), lazy imports included."""
+    from test_structure import cycles
+    graph = {}
+    for p in RUN.rglob("*.py"):
+        name = ".".join(p.relative_to(ROOT).with_suffix("").parts).removesuffix(".__init__")
+        deps = set()
+        for node in ast.walk(ast.parse(p.read_text())):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("run"):
+                deps |= {node.module} | {f"{node.module}.{a.name}" for a in node.names}
+            elif isinstance(node, ast.Import):
+                deps |= {a.name for a in node.names if a.name.startswith("run")}
+        graph[name] = deps
+    known = set(graph)
+    graph = {k: {d for d in v if d in known and d != k} for k, v in graph.items()}
+    assert cycles(graph) == []

@@ -7,7 +7,6 @@ import time
 import h5py
 import numpy as np
 import pytest
-
 from cli_fixtures import assert_one_error, run_main
 from helpers import cubic_lattice
 

@@ -3,14 +3,13 @@ aggregation, beds with free hull vertices and many weakly held particles get smo
 aggregation, the user's -pc_gamg_agg_nsmooths wins, and the constants keep the label
 contract (within 1e-5 of a factorisation) at the new default."""
 import pytest
+from helpers import homogenize_arrays
+from test_correction import box_bed, error, round_bed
 
 from amfe.model.frame import build_frame
 from amfe.model.kubc import kubc_groups
 from amfe.solvers.correction import second_order_kubc
 from amfe.solvers.mgchoice import LOW_SHARE_MIN, choose_multigrid, multigrid_features
-
-from helpers import homogenize_arrays
-from test_correction import box_bed, error, round_bed
 
 
 def features_and_order(centers, radii):

@@ -3,13 +3,11 @@ import json
 
 import numpy as np
 import pytest
+from helpers import cubic_lattice, homogenize_arrays, run_cli
 
-from amfe.model.bed import generate_bed
 from amfe.io.bedfile import write_bed
+from amfe.model.bed import generate_bed
 from amfe.model.frame import build_frame
-from helpers import homogenize_arrays
-
-from helpers import cubic_lattice, run_cli
 
 
 @pytest.mark.parametrize("n", [3, 4])

@@ -1,15 +1,13 @@
 """The model-error table and the main job's line, from stored ladders (docs/model.md sec. 10)."""
 import json
 import os
-import sys
 
 import pytest
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-sys.path.insert(0, os.path.join(ROOT, "run"))
+from run.report import voxel_model_error as V
+from run.report.voxel_write import section_voxel
 
-import voxel_model_error as V  # noqa: E402
-from report_voxel_write import section_voxel  # noqa: E402
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 R = 12.5e-6
 C0 = {"Ex": 160e9, "Ey": 150e9, "Ez": 140e9, "G_yz": 60e9, "G_xz": 61e9, "G_xy": 62e9}
@@ -17,7 +15,7 @@ FRAME = {k: 2.5 * v for k, v in C0.items()}
 
 
 def ladder():
-    """A run/voxel_ladder.py record whose constants follow C0 (1 + 2 (H/R)^1.5) exactly."""
+    """A run/report/voxel_ladder.py record whose constants follow C0 (1 + 2 (H/R)^1.5) exactly."""
     levels = []
     for n in (4, 6, 8, 12):
         h = R / n

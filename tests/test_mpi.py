@@ -4,18 +4,18 @@ import os
 
 import numpy as np
 import pytest
+from helpers import run_cli
 
-from amfe.model.bed import generate_bed
 from amfe.io.bedfile import write_bed
 from amfe.io.result_meta import HEADER_KEYS
 from amfe.io.vtu import read_case
-
-from helpers import run_cli
+from amfe.model.bed import generate_bed
 
 pytestmark = pytest.mark.mpi
 
 RESULT_KEYS = {"properties", "C", "S", "volume", "n_particles", "n_removed", "n_bonds", "bc",
-               "ranks", "solver", "schema_version", "material", "warnings", "removed"} | set(HEADER_KEYS)
+               "ranks", "solver", "schema_version", "material", "warnings",
+               "removed"} | set(HEADER_KEYS)
 PROPERTY_KEYS = {"Ex", "Ey", "Ez", "nu_yz", "nu_xz", "nu_xy", "G_yz", "G_xz", "G_xy"}
 
 
@@ -95,7 +95,8 @@ def test_vtu_written_once_and_complete_under_two_ranks(bed_file, tmp_path):
 
 def test_divergence_stops_every_rank_with_one_clear_error(bed_file, tmp_path):
     out = tmp_path / "never.json"
-    proc = run_cli(["homogenize", bed_file, "-o", str(out), "-ksp_max_it", "1"], ranks=2, timeout=120)
+    proc = run_cli(["homogenize", bed_file, "-o", str(out), "-ksp_max_it", "1"], ranks=2,
+                   timeout=120)
     assert proc.returncode != 0
     assert proc.stderr.count("did not converge") == 1, proc.stderr
     assert "DIVERGED_MAX_IT" in proc.stderr and "Traceback" not in proc.stderr
@@ -127,6 +128,7 @@ def test_groups_of_a_split_communicator_solve_their_own_beds(tmp_path):
         "if w.rank == 0: print(json.dumps(out))\n")
     import subprocess
     import sys
+
     from helpers import MPI_ENV, ROOT
     proc = subprocess.run(["mpirun", "-n", "2", sys.executable, str(script)], capture_output=True,
                           text=True, cwd=ROOT, env=MPI_ENV, timeout=120)

@@ -12,10 +12,10 @@ import time
 
 import numpy as np
 import pytest
-
-from amfe.solvers.consistency import agree_across_ranks, digest
-from amfe.errors import AmfeError
 from helpers import MPI_ENV, ROOT, cubic_lattice, run_cli
+
+from amfe.errors import AmfeError
+from amfe.solvers.consistency import agree_across_ranks, digest
 
 SCRIPT = r'''
 import json, sys

@@ -9,13 +9,12 @@ import dataclasses
 
 import numpy as np
 import pytest
+from helpers import cubic_lattice
 
 import amfe
 from amfe.errors import AmfeError
 from amfe.model.bed import Bed
 from amfe.model.options import SolveOptions
-
-from helpers import cubic_lattice
 
 
 @pytest.fixture(scope="module")

@@ -5,13 +5,12 @@ import sys
 from pathlib import Path
 
 import numpy as np
-
-from amfe.dataset.density import solid_fraction
 import pytest
 
-from amfe.model.bed import generate_bed
-from amfe.io.bedfile import read_bed
 from amfe.cli import main
+from amfe.dataset.density import solid_fraction
+from amfe.io.bedfile import read_bed
+from amfe.model.bed import generate_bed
 from amfe.model.scanpath import ScanPath
 
 ROOT = Path(__file__).resolve().parents[1]

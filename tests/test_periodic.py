@@ -5,21 +5,19 @@ import json
 
 import numpy as np
 import pytest
+from helpers import cubic_lattice, homogenize_arrays, run_cli
 
 from amfe.errors import AmfeError
 from amfe.io.bedfile import write_bed
 from amfe.io.vtu import read_case
+from amfe.model import periodic
 from amfe.model.bed import generate_bed
 from amfe.model.frame import build_frame
-from amfe.model import periodic
 from amfe.model.periodic import love_weber_stiffness, periodic_average, periodic_groups
 from amfe.model.scales import sample_bed_params
 from amfe.model.scanpath import ScanPath
 from amfe.model.torus import find_periodic_bonds, hcp_periods, periodic_box
-from helpers import homogenize_arrays
 from amfe.solvers.scipy_direct import group_solve_scipy
-
-from helpers import cubic_lattice, run_cli
 
 SPACING, RADIUS = 1.8e-6, 1e-6
 SIZE = (150e-6, 150e-6, 100e-6)

@@ -9,7 +9,6 @@ initialise it with them before anything imports the solver layer (issue 29).
 import os
 
 import pytest
-
 from helpers import ROOT, run_cli
 from test_golden import write_bed_file
 

@@ -3,7 +3,6 @@ import json
 
 import numpy as np
 import pytest
-
 from cli_fixtures import run_main, tiny_model
 
 from amfe.io.result_meta import validate
@@ -12,14 +11,14 @@ from amfe.io.result_meta import validate
 @pytest.fixture(scope="module")
 def model_and_beds(tmp_path_factory):
     from amfe.io.bedfile import read_bed, write_bed
+    from amfe.model.bed import Bed
     d = tmp_path_factory.mktemp("batch")
     model, bed = tiny_model(str(d))
     base = read_bed(bed)
     beds = [bed]
     # Two more beds: the first one's particles shifted and shrunk (different images).
     for k, (shift, shrink) in enumerate([(10e-6, 0.97), (-15e-6, 0.93)]):
-        base.centers[:, 0] += shift
-        base.radii *= shrink
+        base = Bed(base.centers + [shift, 0.0, 0.0], base.radii * shrink, base.attrs)
         path = d / f"bed{k}.h5"
         write_bed(path, base)
         beds.append(path)
@@ -64,8 +63,9 @@ def test_batch_schema_refuses_a_bed_without_its_path(model_and_beds):
 
 def _with_conformal(src, dst, sizes, q=0.05, flag_half_width=0.1):
     from cli_fixtures import mutated_checkpoint
-    from amfe.vocab import LABEL_NAMES
+
     from amfe.training.conformal import calibration
+    from amfe.vocab import LABEL_NAMES
 
     def change(ckpt):
         cal = {"n": 99, "quantile": {k: q for k in LABEL_NAMES},

@@ -4,7 +4,6 @@ import os
 import shutil
 
 import pytest
-
 from cli_fixtures import run_main, tiny_model
 from helpers import ROOT
 
@@ -89,7 +88,8 @@ def test_what_is_not_a_result_is_one_error(tmp_path, text, match):
 def test_a_bed_prints_what_it_is_not_its_arrays():
     bed = amfe.generate_bed(size=(0.1e-3, 0.1e-3, 0.06e-3), seed=1)
     text = repr(bed)
-    assert text.startswith(f"Bed({bed.n} particles") and "0.1 x 0.1 x 0.06 mm (recorded size)" in text
+    assert text.startswith(f"Bed({bed.n} particles")
+    assert "0.1 x 0.1 x 0.06 mm (recorded size)" in text
     assert "[" not in text and len(text) < 200
     loose = repr(amfe.Bed(bed.centers, bed.radii))
     assert "spheres' bounding box" in loose

@@ -14,6 +14,7 @@ import sys
 import h5py
 import numpy as np
 import pytest
+from helpers import MPI_ENV, ROOT, run_cli
 
 import amfe
 from amfe.cli import main
@@ -22,7 +23,6 @@ from amfe.io.bedfile import read_bed, write_bed
 from amfe.model.bed import Bed, generate_bed
 from amfe.model.material import resolve_material
 from amfe.model.memory import direct_bytes, generation_bytes, parse_size, solve_bytes
-from helpers import MPI_ENV, ROOT, run_cli
 
 ISSUE_SIZE = (0.15e-3, 0.15e-3, 0.08e-3)   # the issue's bed (168 particles, seed 0)
 

@@ -1,21 +1,19 @@
-"""The speed-against-error report (run/report.py) on a tiny case: invariants of its numbers."""
+"""The speed-against-error report (run/report/report.py) on a tiny case: its numbers' invariants."""
 import json
 import os
 import subprocess
 import sys
 
 import pytest
-
 from helpers import MPI_ENV, ROOT
 
-sys.path.insert(0, os.path.join(ROOT, "run"))
-import report_measure as M  # noqa: E402
+from run.report import measure as M
 
 
 @pytest.fixture(scope="module")
 def report(tmp_path_factory):
     out = tmp_path_factory.mktemp("report")
-    p = subprocess.run([sys.executable, os.path.join(ROOT, "run", "report.py"), "--tiny",
+    p = subprocess.run([sys.executable, "-m", "run.report.report", "--tiny",
                         "--sections", "1,2,3,5", "--out", str(out)], cwd=ROOT, env=MPI_ENV,
                        capture_output=True, text=True, timeout=600)
     assert p.returncode == 0, p.stdout[-2000:] + p.stderr[-2000:]
@@ -89,8 +87,8 @@ def test_rve_three_conditions_side_by_side(report):
 
 
 def _rerun_section_5(out):
-    """`run/report.py --tiny --sections 5 --out OUT`; its report.json."""
-    p = subprocess.run([sys.executable, os.path.join(ROOT, "run", "report.py"), "--tiny",
+    """`run/report/report.py --tiny --sections 5 --out OUT`; its report.json."""
+    p = subprocess.run([sys.executable, "-m", "run.report.report", "--tiny",
                         "--sections", "5", "--out", str(out)], cwd=ROOT, env=MPI_ENV,
                        capture_output=True, text=True, timeout=300)
     assert p.returncode == 0, p.stdout[-2000:] + p.stderr[-2000:]
@@ -125,17 +123,15 @@ def test_pareto_front_and_fit():
 
 @pytest.mark.parametrize("args", [["--sections", "1,9"], ["--out", os.devnull]])
 def test_bad_arguments_exit_2(args):
-    p = subprocess.run([sys.executable, os.path.join(ROOT, "run", "report.py"), *args],
+    p = subprocess.run([sys.executable, "-m", "run.report.report", *args],
                        cwd=ROOT, env=MPI_ENV, capture_output=True, text=True, timeout=120)
     assert p.returncode == 2 and "report.py:" in p.stderr and "Traceback" not in p.stderr
 
 
 def test_by_size_section_lists_each_size_and_its_coverage_band():
-    """run/report_sizes.section_sizes: one row per size; the band of the six coverages and how
+    """run/report/sizes.py's section_sizes: one row per size; the band of the six coverages and how
     many of the six have the nominal inside their binomial interval (counted, not copied)."""
-    import sys
-    sys.path.insert(0, os.path.join(ROOT, "run"))
-    from report_sizes import parse_size_tests, section_sizes
+    from run.report.sizes import parse_size_tests, section_sizes
     cov = {"nominal": 0.9, "covered": [0.96, 0.89, 0.9, 0.873, 0.913, 0.893],
            "binomial": [[0.915, 0.985]] + [[0.83, 0.94]] * 5}
     rows = [{"size_mm": 1.2, "model": "m.pt", "n": 150, "mre": [0.02] * 6, "se": [0.002] * 6,

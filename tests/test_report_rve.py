@@ -1,19 +1,16 @@
-"""Section 3 of the report (run/report_rve.py): the analysis of its rows, on synthetic rows
+"""Section 3 of the report (run/report/rve.py): the analysis of its rows, on synthetic rows
 whose limits, offsets and orderings are known."""
 import os
-import sys
 
 import pytest
 
-from helpers import ROOT
-
-sys.path.insert(0, os.path.join(ROOT, "run"))
-import report_rve as R  # noqa: E402
+from run.report import rve as R
 
 
 def curve(c_inf, a, side):
     """Constants c_inf + a / side for every constant (c_inf, a: numbers or {constant: number})."""
-    get = (lambda v, k: v[k] if isinstance(v, dict) else v)
+    def get(v, k):
+        return v[k] if isinstance(v, dict) else v
     return {k: get(c_inf, k) + get(a, k) / side for k in R.CONSTANTS}
 
 
@@ -49,7 +46,8 @@ def test_plan_seeds_and_budget():
 
 
 def test_table_means_spread_and_snap():
-    law = (lambda kind, bc, b, s: curve(1.0 + 0.02 * s, 0.0, b))   # seeds 0, 1: 1.00 and 1.02
+    def law(kind, bc, b, s):   # seeds 0, 1: 1.00 and 1.02
+        return curve(1.0 + 0.02 * s, 0.0, b)
     t = entries(rows_from(law, sides=(0.6,), seeds=(0, 1)))[0]
     assert t["seeds"] == 2 and t["mean"]["subc"]["Ex"] == pytest.approx(1.01)
     assert t["spread"]["kubc"] == pytest.approx(0.01 / 1.01)     # population std / mean
@@ -136,7 +134,8 @@ def test_convergence_of_periodic_beds():
 def test_section_markdown_and_plot(tmp_path):
     """The writer's tables carry the rows' numbers; one PNG; JSON-ready analysis."""
     import json
-    from report_rve_write import section_rve
+
+    from run.report.rve_write import section_rve
     c = {"kubc": 2.14e11, "subc": 2.0e11, "periodic": 2.0e11}
     rows = rows_from(lambda kind, bc, b, s: curve(c[bc], 1e9 * (bc == "kubc"), b),
                      seeds=(0, 1), kinds=("full", "scan"))

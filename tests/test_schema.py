@@ -6,13 +6,13 @@ import json
 import h5py
 import numpy as np
 import pytest
+from helpers import run_cli
 
 import amfe
 from amfe.errors import AmfeError
 from amfe.io.result_meta import HEADER_KEYS, SCHEMA_VERSION, load_schema, validate
 from amfe.model.bonds import find_pairs
 from amfe.model.material import Material
-from helpers import run_cli
 
 jsonschema = pytest.importorskip("jsonschema", reason="jsonschema is a test extra: "
                                  "pip install -e .[test]")

@@ -8,10 +8,9 @@ import torch
 from amfe.model.scales import bed_for, get_scale, record_seed
 from amfe.training.checkpoint import load_checkpoint
 from amfe.training.predict import Surrogate, default_model_path
+from amfe.vocab import LABEL_NAMES as LABELS
 
 torch.set_num_threads(1)
-
-from amfe.vocab import LABEL_NAMES as LABELS
 
 
 @pytest.fixture(scope="module")

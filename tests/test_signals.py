@@ -14,11 +14,10 @@ import time
 
 import numpy as np
 import pytest
-
 from helpers import MPI_ENV, ROOT
 
-from amfe.io.bedfile import write_bed
 from amfe.dataset.parts import parts_dir
+from amfe.io.bedfile import write_bed
 from amfe.model.bed import generate_bed
 
 LINE = "amfe {command}: interrupted ({name})"
@@ -276,6 +275,7 @@ def test_a_signal_during_the_hull_waits_for_qhull(monkeypatch):
     exception cut scipy's ConvexHull in the middle (scipy issue 19383), which crashed at exit.
     hull_of now lets qhull finish first; the interrupt comes after it."""
     from scipy.spatial import ConvexHull
+
     from amfe.cli.interrupt import Interrupted, signals_raise
     from amfe.model import averages
     finished = []

@@ -2,6 +2,7 @@
 import numpy as np
 import pytest
 import torch
+from test_training import SMALL_ATTRS, write_synthetic
 
 from amfe.errors import AmfeError
 from amfe.model.bed import Bed
@@ -10,8 +11,6 @@ from amfe.training.checkpoint import save_checkpoint
 from amfe.training.predict import Surrogate
 from amfe.training.shipped import SHIPPED, models_dir, shipped_model_for
 from amfe.training.train import TrainConfig, train_model
-
-from test_training import SMALL_ATTRS, write_synthetic
 
 torch.set_num_threads(1)
 QUIET = {"progress": False, "log": lambda line: None}
@@ -78,8 +77,9 @@ def test_the_shipped_medium_model_predicts_its_beds():
     """amfe/models/multiscale_medium.pt: the 1.2 mm beds' own network and intervals; three
     beds of the held-out seed against the PETSc solve (its test beds' mean errors are
     1.5-2.9 %, docs/model_card_medium.md)."""
-    from amfe.training.checkpoint import load_checkpoint
     from helpers import homogenize_arrays
+
+    from amfe.training.checkpoint import load_checkpoint
     from amfe.vocab import LABEL_NAMES
     path = models_dir() / SHIPPED["medium"]
     ck = load_checkpoint(path)
@@ -102,6 +102,7 @@ def committed_labels(scale, seed, first=2):
     checking that its records 0..first-1 are the beds bed_for regenerates from the seed."""
     import glob
     import os
+
     from amfe.dataset.labels import read_tables
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     table = read_tables(sorted(glob.glob(os.path.join(root, "labels",

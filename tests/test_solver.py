@@ -1,19 +1,17 @@
 """The PETSc KUBC solve against analytic values, an independent direct solve and invariants."""
 import numpy as np
 import pytest
+from helpers import cubic_lattice, homogenize_arrays, scipy_kubc_stiffness
 
+from amfe.model.averages import bagi_strain, hull_of, voigt_strain
 from amfe.model.bed import generate_bed
 from amfe.model.frame import build_frame
-from amfe.model.averages import bagi_strain, hull_of, voigt_strain
+from amfe.model.kubc import kubc_groups
+from amfe.model.loadcase import rigid_body_modes
 from amfe.model.material import Material
 from amfe.solvers.assembly import assemble_stiffness
-from helpers import homogenize_arrays
-from amfe.model.kubc import kubc_groups
 from amfe.solvers.loadcases import solve_load_cases
-from amfe.model.loadcase import rigid_body_modes
 from amfe.solvers.petsc import init_petsc
-
-from helpers import cubic_lattice, scipy_kubc_stiffness
 
 PETSc = init_petsc()
 
@@ -110,8 +108,8 @@ def test_floating_particles_removed_and_counted():
 
 
 def test_sbaij_operator_equals_constrained_aij(hcp_bed):
-    from amfe.solvers.assembly import aij_from_blocks, local_block_rows, sbaij_operator
     from amfe.model.kubc import boundary_particles
+    from amfe.solvers.assembly import aij_from_blocks, local_block_rows, sbaij_operator
     frame = build_frame(hcp_bed.centers, hcp_bed.radii)
     n = frame.n_particles
     blocks = local_block_rows(frame, 0, n)
@@ -142,6 +140,7 @@ def test_block_rows_equal_dense_stiffness_bond_by_bond(hcp_bed, parts):
     dense global stiffness summed bond by bond from element_blocks (an independent
     assembly), with sorted columns in every row."""
     import scipy.sparse as sp
+
     from amfe.model.element import element_blocks
     from amfe.solvers.assembly import local_block_rows
     frame = build_frame(hcp_bed.centers, hcp_bed.radii)

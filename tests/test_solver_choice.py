@@ -3,16 +3,21 @@ import json
 
 import numpy as np
 import pytest
+from helpers import cubic_lattice, homogenize_arrays, run_cli
 
 from amfe.errors import AmfeError
 from amfe.model.frame import build_frame
 from amfe.model.scales import bed_for
-from amfe.solvers.choice import (FILL_RATIO_MAX, GAMG_RTOL_AUTO, MAX_DIRECT_PARTICLES, Problem,
-                                 choose_solver, solve_features)
+from amfe.solvers.choice import (
+    FILL_RATIO_MAX,
+    GAMG_RTOL_AUTO,
+    MAX_DIRECT_PARTICLES,
+    Problem,
+    choose_solver,
+    solve_features,
+)
 from amfe.solvers.correction import CORRECTED_RTOL
-from helpers import homogenize_arrays
 from amfe.vocab import CONSTANT_NAMES
-from helpers import cubic_lattice, run_cli
 
 SPARSE = {"n_particles": 3000, "n_bonds": 9000, "fill_ratio": FILL_RATIO_MAX - 1}
 DENSE = {"n_particles": 9000, "n_bonds": 40000, "fill_ratio": FILL_RATIO_MAX + 1}
@@ -26,7 +31,8 @@ def test_the_rule_picks_each_method_where_it_should():
     assert choose_solver(huge, 1)[0] == "gamg"
     assert choose_solver(SPARSE, 1, package=None)[0] == "gamg"         # no factorisation package
     assert choose_solver(SPARSE, 1, user_options=["pc_type"])[0] == "gamg"  # the user's choice
-    assert choose_solver(SPARSE, 1, problem=Problem(singular=True))[0] == "gamg"        # free rigid modes
+    # free rigid modes
+    assert choose_solver(SPARSE, 1, problem=Problem(singular=True))[0] == "gamg"
     assert choose_solver(SPARSE, 1, rtol=1e-9)[0] == "cholesky"
     assert choose_solver(DENSE, 1, rtol=1e-9)[2] == 1e-9
     # a second-order answer (KUBC on a box) takes the corrected default, auto and gamg alike

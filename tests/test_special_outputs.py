@@ -14,7 +14,6 @@ import sys
 import threading
 
 import pytest
-
 from helpers import MPI_ENV, ROOT, cubic_lattice
 
 import amfe.io.atomic as atomic

@@ -40,10 +40,11 @@ def test_fit_beats_the_mean_stiffness_at_two_sizes():
 
 
 def test_stiffness_model_round_trip_and_predict_refuses_it(tmp_path):
-    from amfe.training.checkpoint import save_checkpoint
-    from amfe.training.stiffness_fit import load_stiffness_model, stiffness_checkpoint
     from cli_fixtures import run_main
     from test_training import _tiny_bed
+
+    from amfe.training.checkpoint import save_checkpoint
+    from amfe.training.stiffness_fit import load_stiffness_model, stiffness_checkpoint
     torch.manual_seed(2)
     args = {"layers_in": 1, "channels": (4, 8), "hidden": (16,)}
     net = AnySizeNet(**args)

@@ -6,9 +6,16 @@ import numpy as np
 import pytest
 import torch
 
-from amfe.training.stiffness import (EIG_FLOOR, NINE, augment_stiffness, constants_from_stiffness,
-                                     predict_stiffness, stiffness_from_raw, transform_stiffness,
-                                     voigt_map)
+from amfe.training.stiffness import (
+    EIG_FLOOR,
+    NINE,
+    augment_stiffness,
+    constants_from_stiffness,
+    predict_stiffness,
+    stiffness_from_raw,
+    transform_stiffness,
+    voigt_map,
+)
 
 VOIGT = [(0, 0), (1, 1), (2, 2), (1, 2), (0, 2), (0, 1)]
 

@@ -12,7 +12,6 @@ import h5py
 import numpy as np
 import pytest
 import torch
-
 from cli_fixtures import TINY_ATTRS, _tiny_bed, run_main
 from test_training import write_synthetic
 
@@ -124,7 +123,8 @@ def test_members_mean_stiffness(models):
 
 def test_six_constant_path_is_unchanged(models):
     """A six-constant model: the members' TTA-averaged decoded outputs, no stiffness keys."""
-    from amfe.training.predict import Surrogate, predict_raw
+    from amfe.training.ensemble import predict_raw
+    from amfe.training.predict import Surrogate
     sur = Surrogate.load(models[0])
     x = images_of(models[2])
     res = sur.predict(x)
@@ -158,15 +158,10 @@ def test_amfe_predict_writes_stiffness_and_shear(models):
 
 
 def test_intervals_for_all_nine(models):
-    """run/calibrate_intervals.py calibrates a stiffness model's nine constants (the shear
+    """run/train/calibrate_intervals.py calibrates a stiffness model's nine constants (the shear
     moduli's labels from /C); amfe predict then gives each of the nine its interval."""
-    import importlib.util
-    from pathlib import Path
+    from run.train import calibrate_intervals as mod
     six, stiff, data, d = models
-    spec = importlib.util.spec_from_file_location(
-        "calibrate_intervals", Path(__file__).resolve().parents[1] / "run" / "calibrate_intervals.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
     assert mod.main([stiff, data, "-o", str(d / "cal.pt"), "--coverage", "0.8"]) == 0
     ckpt = torch.load(d / "cal.pt", weights_only=True)
     cal = next(iter(ckpt["conformal"]["sizes"].values()))

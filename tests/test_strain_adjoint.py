@@ -10,14 +10,19 @@ import subprocess
 import sys
 
 import numpy as np
+from helpers import MPI_ENV, ROOT, homogenize_arrays
+from test_correction import box_bed, error, errors_over_rtol, rnd, round_bed  # noqa: F401 (rnd: a fixture)
 
 from amfe.model.averages import bagi_strain, hull_of, voigt_strain
 from amfe.model.frame import build_frame
 from amfe.model.kubc import kubc_groups
-from amfe.solvers.correction import (CORRECTED_RTOL, STRAIN_ADJOINT_DEFAULT, free_hull_vertices,
-                                     strain_loads, strain_weights)
-from helpers import MPI_ENV, ROOT, homogenize_arrays
-from test_correction import box_bed, error, errors_over_rtol, rnd, round_bed  # noqa: F401 (rnd: a fixture)
+from amfe.solvers.correction import (
+    CORRECTED_RTOL,
+    STRAIN_ADJOINT_DEFAULT,
+    free_hull_vertices,
+    strain_loads,
+    strain_weights,
+)
 
 FIRST_ORDER_RTOL = 1e-8  # the uncorrected default (--solver gamg)
 
@@ -59,7 +64,8 @@ def test_the_default_follows_the_option(rnd):
     x, r, ref = rnd
     res = homogenize_arrays(x, r, solver="gamg")
     plain = homogenize_arrays(x, r, solver="gamg", ksp_options={"-amfe_strain_adjoint": "no"})
-    assert plain["solver"]["rtol"] == FIRST_ORDER_RTOL and "strain_correction" not in plain["solver"]
+    assert plain["solver"]["rtol"] == FIRST_ORDER_RTOL
+    assert "strain_correction" not in plain["solver"]
     assert error(plain, ref) < 1e-6
     if STRAIN_ADJOINT_DEFAULT == "yes":
         s = res["solver"]

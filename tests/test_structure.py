@@ -81,3 +81,79 @@ def test_the_checks_can_fail(tmp_path):
     assert parameters(node) == 9 and body_lines(node) == 81
     method = ast.parse("class A:\n    def m(self, *a, **k): pass\n").body[0].body[0]
     assert parameters(method) == 2
+
+
+def module_imports():
+    """{module: set of amfe modules it imports}, imports inside functions included, for every
+    module of amfe/, solvers/ and training/ (a package's __init__ is the package's name)."""
+    names = {}
+    for top, package in (("amfe", "amfe"), ("solvers", "amfe.solvers"),
+                         ("training", "amfe.training")):
+        for path in sorted((ROOT / top).rglob("*.py")):
+            rel = path.relative_to(ROOT / top).with_suffix("")
+            names[".".join([package, *[p for p in rel.parts if p != "__init__"]])] = path
+    graph = {}
+    for module, path in names.items():
+        pkg = module if path.name == "__init__.py" else module.rsplit(".", 1)[0]
+        out = set()
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import):
+                targets = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom):
+                base = node.module or ""
+                if node.level:
+                    base = ".".join(pkg.split(".")[:len(pkg.split(".")) - node.level + 1]
+                                    + ([node.module] if node.module else []))
+                targets = [f"{base}.{a.name}" for a in node.names] + [base]
+            else:
+                continue
+            for t in targets:   # the longest known module the name lies in
+                while t and t not in names:
+                    t = t.rpartition(".")[0]
+                if t and t != module:
+                    out.add(t)
+        graph[module] = out
+    return graph
+
+
+def cycles(graph):
+    """The strongly connected components of more than one module (Tarjan), sorted."""
+    index, low, stack, on, found, counter = {}, {}, [], set(), [], [0]
+
+    def visit(v):
+        index[v] = low[v] = counter[0]
+        counter[0] += 1
+        stack.append(v)
+        on.add(v)
+        for w in graph.get(v, ()):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                found.append(sorted(comp))
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return sorted(found)
+
+
+def test_no_import_circles():
+    """No two modules import each other, directly or round a longer circle, not even inside a
+    function (issue 44): a shared part lives in a module both import."""
+    assert cycles(module_imports()) == []
+
+
+def test_the_circle_check_sees_a_circle():
+    graph = {"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}, "e": set()}
+    assert cycles(graph) == [["a", "b", "c"]]
+    assert cycles({"a": {"b"}, "b": set()}) == []

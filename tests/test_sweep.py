@@ -9,7 +9,6 @@ import time
 
 import numpy as np
 import pytest
-
 from cli_fixtures import run_main
 from helpers import MPI_ENV, ROOT, run_cli
 

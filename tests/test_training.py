@@ -1,22 +1,30 @@
 """The CNN surrogate: data set, networks, training, checkpoints, amfe train / predict."""
 import json
-import time
-import os
 import re
+import time
 
 import h5py
 import numpy as np
 import pytest
 import torch
+from helpers import run_cli
 
 from amfe.errors import AmfeError
-from helpers import run_cli
 from amfe.training import ARCH_NAMES
 from amfe.training.checkpoint import load_checkpoint, save_checkpoint
-from amfe.training.data import (BedDataset, Normalizer, augment_batch, dataset_hash, dataset_info,
-                           read_rows, split_indices, transpose_labels)
+from amfe.training.data import (
+    BedDataset,
+    Normalizer,
+    augment_batch,
+    dataset_hash,
+    dataset_info,
+    read_rows,
+    split_indices,
+    transpose_labels,
+)
+from amfe.training.ensemble import summarize_members
 from amfe.training.nets import build_net, count_parameters
-from amfe.training.predict import Surrogate, summarize_members
+from amfe.training.predict import Surrogate
 from amfe.training.train import Report, TrainConfig, train_member, train_model
 
 torch.set_num_threads(1)
@@ -40,7 +48,8 @@ def write_synthetic(path, n=60, shape=SMALL, attrs=SMALL_ATTRS, seed=0, failed=(
     L, H, W = shape
     base = rng.uniform(0.2, 0.8, (n, 1, 1, 1))
     ramp = rng.uniform(-0.2, 0.2, (n, 1, 1, 1)) * np.linspace(-1, 1, W)[None, None, None, :]
-    images = np.clip(base + ramp + 0.05 * rng.standard_normal((n, L, H, W)), 0, 1).astype(np.float32)
+    noise = 0.05 * rng.standard_normal((n, L, H, W))
+    images = np.clip(base + ramp + noise, 0, 1).astype(np.float32)
     d = images.mean(axis=(1, 2, 3))
     aniso = images[..., : W // 2].mean(axis=(1, 2, 3)) - images[..., W // 2:].mean(axis=(1, 2, 3))
     labels = np.stack([1e11 * np.exp(2 * d) * (1 + aniso), 1e11 * np.exp(2 * d),
@@ -94,7 +103,8 @@ def _custom_count(layers, flat_hw):
 
 def test_custom_net_parameter_counts():
     # valid padding on 100 x 100: 100 -> 98/49 -> 47/23 -> 21/10 -> 8/4: 128 x 4 x 4 features.
-    assert _custom_count(1, 4 * 4) == 1_311_238          # the paper's "1.31 million" (1 x 100 x 100)
+    # the paper's "1.31 million" (1 x 100 x 100)
+    assert _custom_count(1, 4 * 4) == 1_311_238
     assert count_parameters(build_net("custom", (1, 100, 100))) == 1_311_238
     assert count_parameters(build_net("custom", (3, 100, 100))) == _custom_count(3, 16) == 1_311_526
     # same padding on 20 x 20 (valid would reach 0): 20 -> 10 -> 5 -> 2 -> 1: 128 features.
@@ -276,8 +286,8 @@ def test_cli_defaults_match_train_config():
 # ---------------------------------------------------------------- command line
 
 def _tiny_bed(path):
-    from amfe.model.bed import generate_bed
     from amfe.io.bedfile import write_bed
+    from amfe.model.bed import generate_bed
     from amfe.model.scales import record_seed, sample_bed_params
     for k in range(20):
         params = sample_bed_params("tiny", record_seed(0, k))
@@ -315,7 +325,8 @@ def test_train_and_predict_check_cli(tmp_path):
         assert sur == pytest.approx(res["properties"][key] / scale, rel=1e-5)
         assert sol == pytest.approx(res["check"]["solver"][key] / scale, rel=1e-5)
         assert diff == pytest.approx(100 * res["check"]["relative_difference"][key], abs=0.006)
-        rel = (res["properties"][key] - res["check"]["solver"][key]) / abs(res["check"]["solver"][key])
+        solved = res["check"]["solver"][key]
+        rel = (res["properties"][key] - solved) / abs(solved)
         assert rel == pytest.approx(res["check"]["relative_difference"][key])
     # --fallback: a bed over the threshold is solved by PETSc, one under it is not
     proc = run_cli(["predict", str(bed), "--model", str(model), "--fallback", "--threshold", "0",
@@ -329,8 +340,8 @@ def test_train_and_predict_check_cli(tmp_path):
     res = json.loads(out.read_text())
     assert not res["flagged"] and res["source"] == "surrogate" and "solve" not in res["timings"]
     # the same model refuses a bed whose image has another shape
-    from amfe.model.bed import generate_bed
     from amfe.io.bedfile import write_bed
+    from amfe.model.bed import generate_bed
     big = tmp_path / "big.h5"
     write_bed(big, generate_bed(size=(0.3e-3, 0.15e-3, 0.1e-3), seed=0))
     proc = run_cli(["predict", str(big), "--model", str(model)])
@@ -419,13 +430,14 @@ def test_predict_cli_images_the_bonds_of_the_bed(tmp_path):
     # the call's time split: start-up (from the process's own start) + in-process work fit
     # inside the wall time seen from outside, and start-up includes importing torch
     t = res["timings"]
-    parts = sum(t[k] for k in ("start_up", "load_model", "read_bed", "pixelate", "bonds", "predict"))
+    stages = ("start_up", "load_model", "read_bed", "pixelate", "bonds", "predict")
+    parts = sum(t[k] for k in stages)
     assert 0.05 < t["start_up"] and parts <= wall + 0.05, (t, wall)
     assert "start-up" in proc.stderr + proc.stdout
     # the same prediction from the two images made independently here
-    from amfe.io.bedfile import read_bed
     from amfe.dataset.bondimage import bond_image
     from amfe.dataset.images import pixelate
+    from amfe.io.bedfile import read_bed
     bed = read_bed(bed_path)
     a = TINY_ATTRS
     box = ((0.0, 0.0, 0.0), tuple(a["bed_size"]))

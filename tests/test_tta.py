@@ -1,21 +1,16 @@
 """Inference: test-time averaging in stacked passes, and the multi-scale net's fast maxima."""
-import os
-import sys
 
 import numpy as np
 import pytest
 import torch
+from test_training import write_synthetic
 
 from amfe.training.checkpoint import load_checkpoint, save_checkpoint
 from amfe.training.data import Normalizer, flip_images, transpose_labels
+from amfe.training.ensemble import predict_raw, symmetries
 from amfe.training.nets import build_net
-from amfe.training.predict import predict_raw, symmetries
 from amfe.training.train import TrainConfig, train_model
-from helpers import ROOT
-from test_training import write_synthetic
-
-sys.path.insert(0, os.path.join(ROOT, "run"))
-import merge_members  # noqa: E402  (run/merge_members.py)
+from run.train import merge_members
 
 torch.set_num_threads(1)
 SHAPE = (6, 20, 20)

@@ -3,11 +3,10 @@ import argparse
 
 import numpy as np
 import pytest
-
 from cli_fixtures import run_main
 
-from amfe.io.units import length, parse_length
 from amfe.io.bedfile import read_bed
+from amfe.io.units import length, parse_length
 
 
 @pytest.mark.parametrize("text,unit,value", [
@@ -32,5 +31,6 @@ def test_pack_reads_sizes_with_units_as_bare_millimetres(tmp_path):
                      "0.0125mm", "--seed", "3"])[0] == 0
     bed_a, bed_b = read_bed(a), read_bed(b)
     assert np.array_equal(bed_a.centers, bed_b.centers) and np.array_equal(bed_a.radii, bed_b.radii)
-    code, out, err = run_main(["pack", "-o", tmp_path / "c.h5", "--size", "0.1", "0.1", "6 furlong"])
+    code, out, err = run_main(["pack", "-o", tmp_path / "c.h5", "--size", "0.1", "0.1",
+                               "6 furlong"])
     assert code == 2 and "is not a length" in err

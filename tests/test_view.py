@@ -9,13 +9,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import MPI_ENV, ROOT, run_cli
 
 import amfe
 from amfe.io.pvd import case_fields
 from amfe.io.vtu import read_case
 from amfe.model.element import particle_resultants
 from amfe.viz.pvrun import paraview_command, run_pvpython
-from helpers import MPI_ENV, ROOT, run_cli
 
 CASES = ("xx", "yy", "zz", "yz", "xz", "xy")
 POINT = {"particle_id", "radius_m", "boundary", "displacement_m", "rotation_rad"}

@@ -4,19 +4,31 @@ import json
 import numpy as np
 import pytest
 import scipy.sparse as sp
+from helpers import brute_grip, run_cli, run_mpi_script
 
 from amfe.errors import AmfeError
 from amfe.model.bed import Bed, generate_bed
 from amfe.model.bonds import find_bonds
-from amfe.model.hex8 import (VERTICES, element_stiffness, isotropic_D, mean_strain_matrix,
-                             strain_matrix)
+from amfe.model.hex8 import (
+    VERTICES,
+    element_stiffness,
+    isotropic_D,
+    mean_strain_matrix,
+    strain_matrix,
+)
 from amfe.model.material import Material
 from amfe.model.options import SolveOptions
-from amfe.model.voxel import (NECK_ERROR_SHARE, NECK_WARN_SHARE, Grid, VoxelSolid, grid_over,
-                              load_carrying, voxel_solid, voxelize)
+from amfe.model.voxel import (
+    NECK_ERROR_SHARE,
+    NECK_WARN_SHARE,
+    Grid,
+    VoxelSolid,
+    grid_over,
+    load_carrying,
+    voxel_solid,
+    voxelize,
+)
 from amfe.model.voxelmesh import block_rows, build_mesh
-
-from helpers import brute_grip, run_cli, run_mpi_script
 
 STEEL_E, STEEL_NU = 210e9, 0.28
 SIDES = [np.ones(3), np.array([1.0, 0.8, 1.3])]
@@ -230,8 +242,9 @@ def scipy_voxel_C(geo, periodic, E=STEEL_E, nu=STEEL_NU, bed=None):
     """C [Pa] of a VoxelSolid by scipy's sparse LU on the element-by-element matrix, twice:
     from the work (KUBC: the reactions'; periodic: W0 - F . w) and from the volume
     average of the element stresses over the box (docs/model.md, section 10)."""
-    from amfe.model.averages import unit_strains
     from scipy.sparse.linalg import splu
+
+    from amfe.model.averages import unit_strains
     h = geo.grid.h / geo.grid.h[0]
     Ke = element_stiffness(h, 1.0, nu)
     K, mesh = direct_assembly(geo.solid, Ke, periodic)

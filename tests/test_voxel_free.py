@@ -9,15 +9,14 @@ import json
 
 import numpy as np
 import pytest
+from helpers import run_cli, run_mpi_script
+from test_voxel import direct_assembly
 
 from amfe.errors import AmfeError
 from amfe.model.hex8 import element_stiffness
 from amfe.model.voxel import grid_over
 from amfe.model.voxelmesh import build_mesh
 from amfe.model.voxelmg import coarse_grip, coarse_mesh, element_lists, prolongation
-
-from helpers import run_cli, run_mpi_script
-from test_voxel import direct_assembly
 
 KE = element_stiffness(np.array([1.0, 0.9, 1.2]), 1.0, 0.3)
 

@@ -3,7 +3,8 @@
 from dataclasses import replace
 
 import numpy as np
-import pytest
+from helpers import brute_grip
+from test_voxel import solid_lattice
 
 from amfe.model.bed import generate_bed
 from amfe.model.hex8 import isotropic_D
@@ -11,9 +12,6 @@ from amfe.model.material import Material
 from amfe.model.options import SolveOptions
 from amfe.model.voxel import grip_nodes, load_carrying, voxel_solid, voxelize
 from amfe.model.voxelmesh import build_mesh
-
-from helpers import brute_grip
-from test_voxel import solid_lattice
 
 
 def small_bed():

@@ -114,11 +114,14 @@ def test_write_and_read_back(tmp_path):
 
 
 def test_a_new_set_removes_the_old_one_and_bad_input_touches_nothing(tmp_path):
-    (tmp_path / "case_0_xx.vtu").write_text("amfe 0.1's file")
-    (tmp_path / "case_old.vtp").write_text("amfe 0.2's file")
+    vtu.write_fields_vtu(tmp_path, tiny_fields(k=2))      # the earlier set: xx and yy
+    (tmp_path / "case_0_xx.vtu").write_text("a user's file, named like amfe 0.1's")
+    (tmp_path / "case_old.vtp").write_text("a user's file, named like amfe 0.2's")
     (tmp_path / "mine.txt").write_text("not amfe's")
     vtu.write_fields_vtu(tmp_path, tiny_fields(k=1))
-    assert sorted(os.listdir(tmp_path)) == ["case_xx.vtu", "cases.json", "cases.pvd", "mine.txt"]
+    # only what the earlier set listed (case_yy.vtu) goes: the set owns its files, no others
+    assert sorted(os.listdir(tmp_path)) == ["case_0_xx.vtu", "case_old.vtp", "case_xx.vtu",
+                                            "cases.json", "cases.pvd", "mine.txt"]
     before = {p: (tmp_path / p).read_bytes() for p in os.listdir(tmp_path)}
     bad = [(tiny_fields(nan=True), "non-finite"),
            (tiny_fields(names=["xx", "x/y"]), "case names"),
@@ -191,7 +194,7 @@ def test_vtk_reads_exactly_what_meshio_reads(tmp_path):
 
 
 def documented_arrays():
-    """{array: unit} from the tables (| array | unit | meaning |) of docs/viewing.md's "The files"."""
+    """{array: unit} from the tables (| array | unit | meaning |) in docs/viewing.md's files."""
     text = (Path(__file__).resolve().parents[1] / "docs" / "viewing.md").read_text()
     section = text.split("## The files", 1)[1].split("\n## ", 1)[0]
     out = {}

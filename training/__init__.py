@@ -1,4 +1,4 @@
-"""The CNN surrogate (paper sections 6-8, docs/model.md, section 8): data, networks, training, inference.
+"""The CNN surrogate (paper sections 6-8, docs/model.md section 8): data, networks, training, use.
 
 - :mod:`amfe.training.data`: a lazy torch Dataset over an amfe data set, seeded
   splits, label normalisation, label-preserving symmetries.

@@ -23,10 +23,13 @@ then the same cropping.
 """
 import math
 
+import numpy as np
 import torch
 from torch import nn
 
+from amfe.dataset.images import pixelate
 from amfe.errors import AmfeError
+from amfe.training.stiffness import constants_from_stiffness, predict_stiffness
 
 # A length this close (in cells) to a whole number of cells is that whole number:
 # 0.6e-3 / 30e-6 is 19.999999999999996 in floating point.
@@ -40,7 +43,6 @@ HEIGHT_TOL = 0.05
 def bed_size(bed, layers, layer_thickness):
     """The size (x, y, z) [m] a bed is imaged at: its recorded size, else the origin to its
     spheres' far faces; AmfeError if its height is not ``layers`` layers (within HEIGHT_TOL)."""
-    import numpy as np
     size = bed.attrs.get("size") if hasattr(bed, "attrs") else None
     if size is None:
         size = np.max(np.asarray(bed.centers) + np.asarray(bed.radii)[:, None], axis=0)
@@ -67,10 +69,8 @@ def cropped_box(size, cell):
 
 
 def image_any_size(bed, size, cell, layer_thickness, spacing):
-    """(image (layers, H, W) float32, cropped size (x, y, z) [m]) of ``bed`` by the whole-cell rule."""
-    import numpy as np
+    """(image (layers, H, W) float32, cropped size (x, y, z) [m]) of ``bed``, by whole cells."""
 
-    from amfe.dataset.images import pixelate
     box = cropped_box(size, cell)
     image = pixelate(bed, cell=tuple(cell[:2]), layer_thickness=float(layer_thickness),
                      box=((0.0, 0.0, 0.0), box), spacing=float(spacing))
@@ -89,9 +89,7 @@ def predict_any_size(net, beds, pixelation, layers, scale=1.0, tta="none"):
     each bed is imaged by :func:`image_any_size` and predicted with its cropped
     size (amfe.training.stiffness.predict_stiffness, tensor TTA).
     """
-    import numpy as np
 
-    from amfe.training.stiffness import constants_from_stiffness, predict_stiffness
     cell, t = pixelation["image_cell"], float(pixelation["layer_thickness"])
     dtype = next(net.parameters()).dtype
     out = []

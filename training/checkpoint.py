@@ -32,12 +32,11 @@ from collections import OrderedDict
 import numpy as np
 import torch
 
-from amfe.version import __version__
-from amfe.io.atomic import atomic_write
 from amfe.errors import AmfeError
-
+from amfe.io.atomic import atomic_write
 from amfe.training.nets import ARCHITECTURES, build_net
 from amfe.training.validate import check_fields, check_members
+from amfe.version import __version__
 
 FORMAT = "amfe.surrogate"
 FORMAT_VERSION = 1

@@ -35,11 +35,18 @@ import os
 import numpy as np
 import torch
 
+from amfe.dataset.datafile import DATA_SET_FIX
 from amfe.dataset.parts import STATUS_OK
-from amfe.vocab import LABEL_NAMES
 from amfe.errors import AmfeError
-
+from amfe.io.h5damage import damaged
 from amfe.training import AUGMENTATIONS
+from amfe.training.checkpoint import check_image_shape
+from amfe.vocab import LABEL_NAMES
+
+
+def _damaged(path):
+    """A damaged chunk of the data set ``path`` read below: one AmfeError line (issue 45)."""
+    return damaged(path, "data set", DATA_SET_FIX)
 
 INPUT_KINDS = {"fill": "images", "bonds": "bond_images"}   # kind: data-set array
 DEFAULT_INPUTS = ("fill",)
@@ -73,17 +80,19 @@ def _require_inputs(f, path, inputs):
 
 
 def _open(path):
-    import h5py
+    import h5py  # noqa: PLC0415 (heavy or optional: loaded when used)
     path = os.fspath(path)
     if not os.path.isfile(path):
         raise AmfeError(f"data set {path} does not exist")
     if not h5py.is_hdf5(path):
         raise AmfeError(f"{path} is not an HDF5 file")
-    f = h5py.File(path, "r")
+    with _damaged(path):
+        f = h5py.File(path, "r")
     for name in ("images", "labels", "status"):
         if name not in f:
             f.close()
-            raise AmfeError(f"{path} is not an amfe data set: no /{name} (see amfe.dataset.datafile)")
+            raise AmfeError(f"{path} is not an amfe data set: no /{name} "
+                            "(see amfe.dataset.datafile)")
     if f["images"].ndim != 4 or f["labels"].shape[1:] != (6,):
         shape_i, shape_l = f["images"].shape, f["labels"].shape
         f.close()
@@ -115,7 +124,7 @@ def dataset_info(path, inputs=DEFAULT_INPUTS):
     AmfeError if the file lacks an image kind of ``inputs``.
     """
     inputs = check_inputs(inputs)
-    with _open(path) as f:
+    with _open(path) as f, _damaged(path):
         _require_inputs(f, path, inputs)
         status = f["status"][()]
         labels = f["labels"][()]
@@ -140,7 +149,7 @@ def read_rows(path, rows=None, inputs=DEFAULT_INPUTS):
     if rows is None:
         rows = dataset_info(path, inputs)["ok"]
     rows = np.asarray(rows, np.int64)
-    with _open(path) as f:
+    with _open(path) as f, _damaged(path):
         _require_inputs(f, path, inputs)
         # h5py wants increasing indices; read sorted, then restore the order asked for.
         order = np.argsort(rows, kind="stable")
@@ -157,7 +166,7 @@ def read_rows(path, rows=None, inputs=DEFAULT_INPUTS):
 
 
 def dataset_hash(path, rows=None, inputs=DEFAULT_INPUTS):
-    """sha256 (hex) of the input images (float32) and labels (float64) of ``rows`` (default: all ok)."""
+    """sha256 (hex) of the input images (float32) and labels (float64) of ``rows`` (default ok)."""
     images, labels = read_rows(path, rows, inputs)
     h = hashlib.sha256()
     h.update(np.ascontiguousarray(images, np.float32).tobytes())
@@ -227,10 +236,11 @@ class BedDataset(torch.utils.data.Dataset):
             return torch.from_numpy(images[k]), torch.from_numpy(labels[k])
         f = self._handle()
         row = int(self.rows[k])
-        image = np.concatenate([np.asarray(f[INPUT_KINDS[kind]][row], np.float32)
-                                for kind in self.inputs], axis=0)
-        return (torch.from_numpy(image),
-                torch.from_numpy(np.asarray(f["labels"][row], np.float64)))
+        with _damaged(self.path):
+            image = np.concatenate([np.asarray(f[INPUT_KINDS[kind]][row], np.float32)
+                                    for kind in self.inputs], axis=0)
+            label = np.asarray(f["labels"][row], np.float64)
+        return torch.from_numpy(image), torch.from_numpy(label)
 
     def __getstate__(self):
         state = dict(self.__dict__)
@@ -296,7 +306,6 @@ class Normalizer:
 def image_batch(images, ckpt, path="the model"):
     """``images`` (n, channels, H, W) or one (channels, H, W) as a float32 tensor (n, channels,
     H, W); AmfeError unless it is an array of numbers of the checkpoint's image shape."""
-    from amfe.training.checkpoint import check_image_shape
     try:
         x = torch.as_tensor(np.asarray(images, np.float32))
     except (TypeError, ValueError) as exc:

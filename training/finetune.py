@@ -16,7 +16,6 @@ import hashlib
 import numpy as np
 
 from amfe.errors import AmfeError
-
 from amfe.training.checkpoint import check_image_shape, load_checkpoint
 from amfe.training.data import Normalizer
 

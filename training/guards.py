@@ -126,7 +126,7 @@ def check_epoch(label, epoch, train_loss, val_loss, lr):
 def check_train_loss(label, loss, labels, norm, cfg):
     """Without validation beds: AmfeError when the last epoch's training ``loss`` exceeds
     :data:`DIVERGED_FACTOR` times that of predicting the mean of ``labels`` (n, 6)."""
-    import torch
+    import torch  # noqa: PLC0415 (heavy or optional: loaded when used)
 
     z = norm.encode(labels)
     fn = {"mse": torch.nn.functional.mse_loss, "l1": torch.nn.functional.l1_loss}[cfg.loss]

@@ -13,10 +13,10 @@ model again).
 import numpy as np
 
 from amfe.errors import AmfeError
-
 from amfe.training.data import Normalizer, dataset_hash, dataset_info, read_rows
-from amfe.training.train import calibrate_spread
 from amfe.training.metrics import validation_metrics
+from amfe.training.predict import Surrogate
+from amfe.training.train import calibrate_spread
 
 # Checkpoint entries that must be equal in every part (training: all but the seed and timing).
 SAME = ("arch", "arch_args", "normalizer", "image_shape", "inputs", "pixelation", "material",
@@ -79,7 +79,6 @@ def merge_members(ckpts, data_path, flag_percentile=95.0, names=None):
                         "(its sha256 differs from the checkpoints')")
     rows = np.asarray(first["dataset"]["validation_rows"], dtype=np.int64)
     if rows.size:
-        from amfe.training.predict import Surrogate
         images, labels = read_rows(data_path, rows, inputs)
         out["spread"] = None
         sur = Surrogate(out, "the merged model")

@@ -1,6 +1,7 @@
 """Error measures of predicted labels, per property (the paper's "average difference", and R^2)."""
 import numpy as np
 
+from amfe.training.guards import check_fit
 from amfe.vocab import LABEL_NAMES
 
 
@@ -11,7 +12,7 @@ def relative_errors(pred, true):
 
 
 def property_metrics(pred, true):
-    """{property: {mre, median_re, p95_re, max_re, r2, n}} over the beds (relative errors as fractions).
+    """{property: {mre, median_re, p95_re, max_re, r2, n}} over the beds (relative errors, not %).
 
     mre: mean of |pred - true| / |true|; R^2 = 1 - sum (pred - true)^2 /
     sum (true - mean(true))^2.
@@ -23,7 +24,8 @@ def property_metrics(pred, true):
         ss_res = float(np.sum((pred[:, j] - true[:, j]) ** 2))
         ss_tot = float(np.sum((true[:, j] - true[:, j].mean()) ** 2))
         out[name] = {"mre": float(rel[:, j].mean()), "median_re": float(np.median(rel[:, j])),
-                     "p95_re": float(np.percentile(rel[:, j], 95)), "max_re": float(rel[:, j].max()),
+                     "p95_re": float(np.percentile(rel[:, j], 95)),
+                     "max_re": float(rel[:, j].max()),
                      "r2": 1.0 - ss_res / ss_tot if ss_tot > 0 else float("nan"),
                      "n": int(true.shape[0])}
     return out
@@ -35,7 +37,6 @@ def validation_metrics(res, labels, norm, lr, log=None):
     fraction, and error_vs_mean, the six ratios of the error to that of predicting the
     training mean; AmfeError when training diverged (:func:`amfe.training.guards.check_fit`).
     """
-    from amfe.training.guards import check_fit
 
     vs_mean = check_fit(res["mean"], labels, norm, lr, log)
     out = property_metrics(res["mean"], labels)

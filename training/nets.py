@@ -44,7 +44,6 @@ import torch
 from torch import nn
 
 from amfe.errors import AmfeError
-
 from amfe.training import ARCH_NAMES
 from amfe.training.multiscale import MultiScaleNet
 

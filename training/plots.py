@@ -2,7 +2,7 @@
 
 The helpers make a figure read at a glance: plain percentages on a log axis
 (``20 %``, not ``2 x 10^1``), whole-number epoch ticks, and rtol labels that
-do not sit on top of one another. run/report_write.py uses them too.
+do not sit on top of one another. run/report/write.py uses them too.
 """
 import math
 import os
@@ -20,7 +20,7 @@ def plain_log_axis(axis, suffix="", max_ticks=8):
     densest that gives at most ``max_ticks``; call after the data are drawn.
     axis: a matplotlib Axis (``ax.yaxis``); suffix: appended to each label (a unit).
     """
-    from matplotlib.ticker import FixedLocator, FuncFormatter, NullFormatter
+    from matplotlib.ticker import FixedLocator, FuncFormatter, NullFormatter  # noqa: PLC0415 (heavy or optional: loaded when used)
 
     lo, hi = sorted(axis.get_view_interval())
     lo = max(lo, 1e-300)
@@ -82,7 +82,7 @@ _OFFSETS = ((4, 3), (4, -9), (-26, 3), (-26, -9), (7, -3), (-30, -3), (-10, 7), 
 
 def integer_epochs(ax):
     """Epoch axis: whole-number ticks only (a short run must not show epoch 2.5)."""
-    from matplotlib.ticker import MaxNLocator
+    from matplotlib.ticker import MaxNLocator  # noqa: PLC0415 (heavy or optional: loaded when used)
 
     ax.xaxis.set_major_locator(MaxNLocator(integer=True, steps=[1, 2, 2.5, 5, 10]))
     ax.set_xlabel("epoch")
@@ -94,10 +94,10 @@ def plot_learning_curves(runs, path, title=""):
     runs: {name: history} or {name: [histories]} (an ensemble: every member
     drawn, the first labelled); a history is amfe.training.train's dict.
     """
-    import matplotlib
+    import matplotlib  # noqa: PLC0415 (heavy or optional: loaded when used)
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.lines import Line2D
+    import matplotlib.pyplot as plt  # noqa: PLC0415 (heavy or optional: loaded when used)
+    from matplotlib.lines import Line2D  # noqa: PLC0415 (heavy or optional: loaded when used)
 
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.2))
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]

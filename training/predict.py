@@ -28,22 +28,25 @@ from pathlib import Path
 import numpy as np
 import torch
 
+import amfe.version
+from amfe.dataset.bondimage import bond_image
+from amfe.dataset.images import pixelate
 from amfe.errors import AmfeError
+from amfe.io.bedfile import read_bed
+from amfe.model.carrying import rule1_factor
 from amfe.training.checkpoint import build_members, check_image_shape, describe, load_checkpoint
-from amfe.training.device import device_of
-from amfe.training.data import (DEFAULT_INPUTS, Normalizer, check_inputs, flip_images,
-                                 image_batch, transpose_labels)
+from amfe.training.data import DEFAULT_INPUTS, Normalizer, check_inputs, image_batch
+from amfe.training.ensemble import predict_raw, tta_mode
 from amfe.training.stiffness_predict import is_stiffness, member_constants, summarize
 from amfe.vocab import LABEL_NAMES
 
 DEFAULT_MODEL_NAME = "multiscale_small.pt"
 TRAIN_HINT = ("train it with the commands of docs/model_card.md (`amfe train` per member, "
-              "then `run/merge_members.py`) or pass --model MODEL.pt from `amfe train`")
+              "then `run/train/merge_members.py`) or pass --model MODEL.pt from `amfe train`")
 
 
 def default_model_path():
     """The model shipped in the package: amfe/models/multiscale_small.pt (docs/model_card.md)."""
-    import amfe.version
     return Path(amfe.version.__file__).resolve().parent / "models" / DEFAULT_MODEL_NAME
 
 
@@ -62,7 +65,7 @@ def fill_statistic(images):
 
 
 def calibrate_fill(images, lo=0.5, hi=99.5):
-    """The accepted range of :func:`fill_statistic`: its lo-th and hi-th percentiles over ``images``."""
+    """The accepted range of :func:`fill_statistic`: its lo-th and hi-th percentiles, ``images``."""
     f = fill_statistic(images)
     return {"lo": float(np.percentile(f, lo)), "hi": float(np.percentile(f, hi)),
             "percentiles": [float(lo), float(hi)],
@@ -74,7 +77,7 @@ def calibrate_fill(images, lo=0.5, hi=99.5):
 class Surrogate:
     """The networks, normalisation and flag threshold of one checkpoint."""
 
-    def __init__(self, ckpt, path="model"):
+    def __init__(self, ckpt: dict, path: str = "model") -> None:
         self.ckpt = ckpt
         self.path = os.fspath(path)
         self.nets = build_members(ckpt, self.path)
@@ -99,7 +102,7 @@ class Surrogate:
                        "trained on label rule 1, converted to rule 2 (moduli x V_hull / V_box)")
 
     @classmethod
-    def load(cls, path=None):
+    def load(cls, path: str | os.PathLike | None = None) -> "Surrogate":
         if path is None:
             path = default_model_path()
             if not path.is_file():
@@ -107,13 +110,13 @@ class Surrogate:
         return cls(load_checkpoint(path), path)
 
     @property
-    def n_members(self):
+    def n_members(self) -> int:
         return len(self.nets)
 
     def __repr__(self) -> str:
         return describe(self.ckpt, self.path, self.n_members, self.inputs)
 
-    def member_outputs(self, images, batch_size=None):
+    def member_outputs(self, images: np.ndarray, batch_size: int | None = None) -> np.ndarray:
         """Raw predictions of every member, float64 array (members, n, 6)."""
         x = image_batch(images, self.ckpt, self.path)
         if is_stiffness(self.ckpt):   # the six constants of each member's C
@@ -123,7 +126,8 @@ class Surrogate:
             out[k] = predict_raw(net, x, self.norm, self.tta, batch_size).numpy()
         return out
 
-    def predict(self, images, batch_size=None):
+    def predict(self, images: "np.ndarray | str | os.PathLike | object | list",
+                batch_size: int | None = None) -> dict:
         """Predict the six constants of beds or of their images.
 
         ``images``: a :class:`~amfe.model.bed.Bed`, a bed file's path, a list of
@@ -152,7 +156,7 @@ class Surrogate:
         res["flagged"] = res["flagged"] | res["fill_out"]
         return res
 
-    def inputs_of(self, bed):
+    def inputs_of(self, bed: object) -> tuple:
         """The network input of ``bed``, imaged as the training data was.
 
         Returns (inputs (channels, H, W) float32: the image kinds of
@@ -169,7 +173,7 @@ class Surrogate:
             times["bonds"] = time.perf_counter() - t1
         return np.concatenate([parts[k] for k in self.inputs], axis=0), image, times
 
-    def predict_beds(self, beds):
+    def predict_beds(self, beds: list) -> list:
         """:meth:`predict_bed` of several beds with their images in one batch.
 
         Returns a list of (result dict with rows of length 1, image, seconds) per
@@ -183,14 +187,13 @@ class Surrogate:
         t = time.perf_counter()
         res = self.predict(np.stack([x for x, _, _ in made]))
         if self.label_rule < 2:
-            from amfe.model.carrying import rule1_factor
             for k, bed in enumerate(beds):
                 res["mean"][k, :3] *= rule1_factor(bed.centers, bed.radii, bed.attrs.get("size"))
         share = (time.perf_counter() - t) / len(beds)
         return [({key: v[k:k + 1] for key, v in res.items()}, image, {**times, "predict": share})
                 for k, (_, image, times) in enumerate(made)]
 
-    def predict_bed(self, bed):
+    def predict_bed(self, bed: object) -> tuple:
         """Image ``bed`` as the training data was and predict (label rule 2: the moduli
         of a rule-1 checkpoint are converted with the bed's own volumes).
 
@@ -201,7 +204,6 @@ class Surrogate:
         t2 = time.perf_counter()
         res = self.predict(x[None])
         if self.label_rule < 2:   # rule-1 moduli -> rule 2; spread is relative, unchanged
-            from amfe.model.carrying import rule1_factor
             res["mean"][:, :3] *= rule1_factor(bed.centers, bed.radii, bed.attrs.get("size"))
         times["predict"] = time.perf_counter() - t2
         return res, image, times
@@ -214,94 +216,8 @@ def _is_bed(item):
 
 def _read(item):
     if isinstance(item, (str, os.PathLike)):
-        from amfe.io.bedfile import read_bed
         return read_bed(item)
     return item
-
-
-TTA_MODES = ("none", "flips", "d4")
-
-
-def tta_mode(value):
-    """A checkpoint's test-time augmentation: "none", "flips" (4 mirrors) or "d4" (8 symmetries)."""
-    if value is True:
-        return "flips"
-    if value in (False, None):
-        return "none"
-    if value not in TTA_MODES:
-        raise AmfeError(f"unknown test-time augmentation {value!r}; choose one of "
-                        f"{', '.join(TTA_MODES)}")
-    return value
-
-
-def symmetries(mode, square=True):
-    """(flip_x, flip_y, transpose) of the label-preserving symmetries a TTA mode averages over."""
-    if mode == "none":
-        return [(False, False, False)]
-    mirrors = [(False, False), (True, False), (False, True), (True, True)]
-    out = [(fx, fy, False) for fx, fy in mirrors]
-    if mode == "d4" and square:
-        out += [(fx, fy, True) for fx, fy in mirrors]
-    return out
-
-
-# Images per forward pass on a CPU: the fastest measured on this project's machine
-# (the shipped model, 8 passes over 1 000 beds, one thread: 0.84-0.87 s at 128 images
-# a pass, 0.90-0.94 s at 64, 1.02 s at 32, 0.86-0.91 s at 192-256; larger passes'
-# activations leave the cache;
-# docs/surrogate_scaling.md, "Speed of the eight passes").
-CPU_PASS_IMAGES = 128
-GPU_PASS_IMAGES = 1024
-
-
-def predict_raw(net, images, norm, tta="none", batch_size=None):
-    """Raw predictions (n, 6) float64 of one network, averaged over the TTA symmetries.
-
-    A mirrored image has the same six labels; an x<->y transposed one has
-    them permuted (amfe.training.data.transpose_labels, an involution), so its
-    prediction is mapped back before averaging (in raw units). The symmetric
-    images of a chunk of beds go through the network in one pass of about
-    ``batch_size`` images (default: CPU_PASS_IMAGES on a CPU, GPU_PASS_IMAGES
-    on a GPU).
-    """
-    net.eval()
-    dev = device_of(net)
-    syms = symmetries(tta_mode(tta), images.shape[-1] == images.shape[-2])
-    if batch_size is None:
-        batch_size = CPU_PASS_IMAGES if dev.type == "cpu" else GPU_PASS_IMAGES
-    chunk = max(1, int(batch_size) // len(syms))
-    out = []
-    with torch.inference_mode():
-        for s in range(0, images.shape[0], chunk):
-            xb = images[s:s + chunk]
-            views = torch.cat([flip_images(xb, fx, fy, tr) for fx, fy, tr in syms])
-            y = norm.decode(net(views.to(dev)).cpu()).view(len(syms), xb.shape[0], 6)
-            acc = 0.0
-            for k, (_, _, tr) in enumerate(syms):
-                acc = acc + (transpose_labels(y[k]) if tr else y[k])
-            out.append(acc / len(syms))
-    return torch.cat(out) if out else torch.zeros(0, 6, dtype=torch.float64)
-
-
-def relative_spread(members):
-    """The members' standard deviation over |mean|, (n, k) of (members, n, k) predictions."""
-    members = np.asarray(members, np.float64)
-    std = (members - members[:1]).std(axis=0)   # shift-invariant; exactly 0 for equal members
-    return std / np.maximum(np.abs(members.mean(axis=0)), np.finfo(float).tiny)
-
-
-def summarize_members(members, spread_scale=None, threshold=None):
-    """Ensemble mean, relative spread, flag score and flag from (members, n, 6) predictions."""
-    members = np.asarray(members, np.float64)
-    mean = members.mean(axis=0)
-    rel = relative_spread(members)
-    scale = np.ones(6) if spread_scale is None else np.asarray(spread_scale, np.float64)
-    score = np.max(rel / scale, axis=1)
-    # NaN > threshold is False: a non-finite prediction is flagged on its own.
-    nonfinite = ~np.isfinite(members).all(axis=(0, 2))
-    flagged = (score > threshold) if threshold is not None else np.zeros(mean.shape[0], bool)
-    return {"mean": mean, "spread": rel, "score": score, "nonfinite": nonfinite,
-            "flagged": flagged | nonfinite}
 
 
 def pixelate_like_training(bed, ckpt, path="the model"):
@@ -311,7 +227,6 @@ def pixelate_like_training(bed, ckpt, path="the model"):
     beds), else [0, the training beds' size]. AmfeError if the image's shape
     is not the model's.
     """
-    from amfe.dataset.images import pixelate
 
     px = ckpt["pixelation"]
     size = _image_size(bed, ckpt)
@@ -331,7 +246,6 @@ def pixelate_like_training(bed, ckpt, path="the model"):
 
 def bond_image_like_training(bed, ckpt):
     """The bond-stiffness image of ``bed`` (amfe.dataset.bondimage) on the training data's grid."""
-    from amfe.dataset.bondimage import bond_image
 
     px = ckpt["pixelation"]
     return bond_image(bed, cell=tuple(px["image_cell"][:2]),

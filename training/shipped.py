@@ -11,7 +11,10 @@ file without a recorded size is imaged in the small box, as before.
 """
 from pathlib import Path
 
+import amfe.version
 from amfe.errors import AmfeError
+from amfe.model.scales import get_scale
+from amfe.training.anysize import whole_cells
 
 #: scale name -> checkpoint file in amfe/models/ (docs/model_card.md, docs/surrogate.md)
 SHIPPED = {"small": "multiscale_small.pt", "medium": "multiscale_medium.pt",
@@ -23,15 +26,12 @@ STIFFNESS = {"small": "stiffness_small.pt", "medium": "stiffness_medium.pt",
 
 
 def models_dir():
-    import amfe.version
     return Path(amfe.version.__file__).resolve().parent / "models"
 
 
 def shipped_sizes(stiffness=False):
     """{(Lx, Ly) in whole cells: (scale name, path)} of the shipped checkpoints present
     (the full-stiffness ones with ``stiffness``)."""
-    from amfe.model.scales import get_scale
-    from amfe.training.anysize import whole_cells
     out = {}
     for name, file in (STIFFNESS if stiffness else SHIPPED).items():
         path = models_dir() / file
@@ -46,8 +46,6 @@ def shipped_model_for(bed, stiffness=False):
     """The path of the shipped checkpoint for ``bed``'s imaged size (a full-stiffness one with
     ``stiffness``); AmfeError naming the sizes there are when none fits (give --model, or
     solve the bed)."""
-    from amfe.model.scales import get_scale
-    from amfe.training.anysize import whole_cells
     table = STIFFNESS if stiffness else SHIPPED
     sizes = shipped_sizes(stiffness)
     size = bed.attrs.get("size") if hasattr(bed, "attrs") else None

@@ -21,12 +21,17 @@ on C as a tensor, C' = M C M^T with M (6, 6) orthogonal (:func:`voigt_map`):
 - the x <-> y swap (the image's transpose) permutes xx <-> yy and yz <-> xz.
 
 The six-constant models keep their own path (a mirror leaves the six
-constants unchanged, amfe.training.predict.predict_raw); these maps are
+constants unchanged, amfe.training.ensemble.predict_raw); these maps are
 for models that predict C.
 """
 import numpy as np
 import torch
 from torch.nn import functional as F
+
+from amfe.model.averages import compliance_and_constants
+from amfe.training.data import flip_images
+from amfe.training.device import device_of
+from amfe.training.ensemble import symmetries, tta_mode
 
 N_CHOLESKY = 21
 NINE = ("Ex", "Ey", "Ez", "nu_yz", "nu_xz", "nu_xy", "G_yz", "G_xz", "G_xy")
@@ -84,7 +89,6 @@ def augment_stiffness(images, C, generator=None, square=True):
 
     images (n, layers, H, W), C (n, 6, 6) torch; returns both transformed.
     """
-    from amfe.training.data import flip_images
     n = images.shape[0]
     draws = torch.randint(0, 2, (n, 3), generator=generator).bool()
     if not square:
@@ -118,7 +122,6 @@ def constants_from_stiffness(C):
     Exactly amfe.model.averages.compliance_and_constants per bed (which checks
     C is finite and positive definite).
     """
-    from amfe.model.averages import compliance_and_constants
     C = np.asarray(C, np.float64).reshape(-1, 6, 6)
     out = np.empty((C.shape[0], 9))
     for k, c in enumerate(C):
@@ -128,16 +131,14 @@ def constants_from_stiffness(C):
 
 
 def predict_stiffness(net, images, extra=None, tta="none", scale=1.0):
-    """C (n, 6, 6) float64 [Pa] of a stiffness network, averaged over the TTA symmetries as a tensor.
+    """C (n, 6, 6) float64 [Pa] of a stiffness network, averaged over the TTA symmetries as a
+    tensor.
 
     ``net(images)`` (or ``net(images, extra)``, ``extra`` (n, ...) per image) returns raw
     (n, 21) outputs; the symmetric images go through the network as one batch on its
     device, and each image's C is mapped back (M^T C' M) before the average, so the
     result of a mirrored image is exactly the mirrored result (to rounding).
     """
-    from amfe.training.data import flip_images
-    from amfe.training.device import device_of
-    from amfe.training.predict import symmetries, tta_mode
     net.eval()
     syms = symmetries(tta_mode(tta), images.shape[-1] == images.shape[-2])
     dev = device_of(net)

@@ -13,6 +13,7 @@ import numpy as np
 import torch
 
 from amfe.errors import AmfeError
+from amfe.training.anysize import AnySizeNet
 from amfe.training.stiffness import augment_stiffness, stiffness_from_raw
 
 _UPPER = np.triu_indices(6)
@@ -20,7 +21,7 @@ _UPPER = np.triu_indices(6)
 
 def read_stiffness(path, rows):
     """C (n, 6, 6) float64 [Pa] of data-set ``rows`` (the file's /C)."""
-    import h5py
+    import h5py  # noqa: PLC0415 (heavy or optional: loaded when used)
     rows = np.asarray(rows, np.int64)
     with h5py.File(path, "r") as f:
         if "C" not in f:
@@ -32,7 +33,7 @@ def read_stiffness(path, rows):
 
 
 def stiffness_loss(raw, C_norm):
-    """Mean squared difference of the 21 independent entries of predicted and given C (normalised)."""
+    """Mean squared difference of the 21 independent entries of predicted and given C (normed)."""
     diff = stiffness_from_raw(raw) - C_norm
     return (diff[:, _UPPER[0], _UPPER[1]] ** 2).mean()
 
@@ -97,7 +98,6 @@ def stiffness_checkpoint(net, arch_args, scale, pixelation, layers, **extra):
 
 def load_stiffness_model(path):
     """(net in eval mode, checkpoint dict) of a file written from :func:`stiffness_checkpoint`."""
-    from amfe.training.anysize import AnySizeNet
     try:
         ckpt = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # noqa: BLE001 - any unreadable file is reported the same way

@@ -13,13 +13,24 @@ members whose 21 outputs are the Cholesky factor of C in the unit
   (:func:`nine_constants`, the formulas of
   amfe.model.averages.compliance_and_constants, batched);
 - the spread and flag are those of the members' own six constants
-  (amfe.training.predict.summarize_members), as for a six-constant ensemble.
+  (amfe.training.ensemble.summarize_members), as for a six-constant ensemble.
 
 :func:`summarize` is what ``Surrogate.predict`` calls: a six-constant
 checkpoint goes through exactly the path it always took.
 """
 import numpy as np
 import torch
+
+from amfe.training.data import image_batch
+from amfe.training.device import device_of
+from amfe.training.ensemble import (
+    CPU_PASS_IMAGES,
+    GPU_PASS_IMAGES,
+    relative_spread,
+    summarize_members,
+    symmetries,
+)
+from amfe.training.stiffness import nine_from_stiffness, predict_stiffness
 
 HEAD = "stiffness"
 
@@ -32,7 +43,6 @@ def is_stiffness(ckpt):
 def nine_constants(C):
     """The nine constants (..., 9) float64 [Pa, -] of C (..., 6, 6) [Pa], in NINE order
     (amfe.training.stiffness.nine_from_stiffness); NaN for a C that is not finite."""
-    from amfe.training.stiffness import nine_from_stiffness
     C = np.asarray(C, np.float64)
     out = np.full(C.shape[:-2] + (9,), np.nan)
     ok = np.isfinite(C).all(axis=(-1, -2))
@@ -46,9 +56,6 @@ def member_stiffness(sur, x, batch_size=None):
 
     x: the validated image tensor (n, channels, H, W) float32.
     """
-    from amfe.training.device import device_of
-    from amfe.training.predict import CPU_PASS_IMAGES, GPU_PASS_IMAGES, symmetries
-    from amfe.training.stiffness import predict_stiffness
     n_syms = len(symmetries(sur.tta, x.shape[-1] == x.shape[-2]))
     scale = float(sur.ckpt["stiffness_scale"])
     out = np.empty((sur.n_members, x.shape[0], 6, 6))
@@ -69,8 +76,6 @@ def summarize(sur, images, batch_size=None):
     """Surrogate.predict's ensemble part: {mean, spread, score, nonfinite, flagged}, and for a
     stiffness head also stiffness (n, 6, 6) [Pa], constants9 (n, 9) (NINE order) and spread9
     (n, 9), the members' relative spread of the nine."""
-    from amfe.training.data import image_batch
-    from amfe.training.predict import relative_spread, summarize_members
     if not is_stiffness(sur.ckpt):
         return summarize_members(sur.member_outputs(images, batch_size), sur.spread_scale,
                                  sur.threshold)

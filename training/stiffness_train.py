@@ -24,7 +24,7 @@ Mirror / x <-> y augmentation moves C as a tensor (:func:`augment_tensor`,
 the batched form of amfe.training.stiffness.augment_stiffness). The
 checkpoint is an ordinary amfe surrogate checkpoint (arch ``multiscale``
 with ``outputs`` 21) plus ``head`` "stiffness", ``outputs`` "cholesky21"
-and ``stiffness_scale`` [Pa], so ``amfe predict`` and run/merge_members.py
+and ``stiffness_scale`` [Pa], so ``amfe predict`` and run/train/merge_members.py
 take it as they take a six-constant model (amfe.training.stiffness_predict).
 """
 import math
@@ -34,13 +34,22 @@ from dataclasses import asdict, dataclass
 import numpy as np
 import torch
 
+from amfe.dataset.parts import label_rule
 from amfe.errors import AmfeError
-
 from amfe.training.data import dataset_hash, dataset_info, flip_images, read_rows, split_indices
-from amfe.training.stiffness import (EIG_FLOOR, N_CHOLESKY, nine_from_stiffness,
-                                     stiffness_from_raw, transform_stiffness)
+from amfe.training.finetune import check_grid, load_init, widened_fill_range
+from amfe.training.nets import build_net, count_parameters
+from amfe.training.predict import calibrate_fill
+from amfe.training.stiffness import (
+    EIG_FLOOR,
+    N_CHOLESKY,
+    nine_from_stiffness,
+    stiffness_from_raw,
+    transform_stiffness,
+)
 from amfe.training.stiffness_fit import read_stiffness, stiffness_loss
 from amfe.training.stiffness_predict import HEAD, is_stiffness
+from amfe.training.train import pixelation_of
 
 STIFFNESS_LOSSES = ("constants", "mse")
 
@@ -76,7 +85,7 @@ class StiffnessConfig:
 
 
 def raw_of_stiffness(C_norm):
-    """The 21 raw outputs (n, 21) float64 whose stiffness_from_raw is C_norm (n, 6, 6), normalised."""
+    """The 21 raw outputs (n, 21) float64 whose stiffness_from_raw is C_norm (n, 6, 6), normed."""
     C = torch.as_tensor(np.asarray(C_norm), dtype=torch.float64)
     L = torch.linalg.cholesky(C - EIG_FLOOR * torch.eye(6, dtype=C.dtype))
     d = torch.diagonal(L, dim1=-2, dim2=-1).clamp_min(1e-9)
@@ -156,7 +165,6 @@ def augment_tensor(images, C, mode, generator):
 def stiffness_members(start, n, image_shape):
     """``n`` stiffness nets from the initial members reading images (layers, H, W): every
     weight but a six-constant model's last layer (a stiffness model's is kept)."""
-    from amfe.training.nets import build_net
     args = dict(start["arch_args"], outputs=N_CHOLESKY)
     nets = []
     for state in start["states"][:n]:
@@ -228,9 +236,6 @@ def _val_mre(net, val):
 
 def train_stiffness(data_path, cfg, log=print):
     """Fine-tune ``cfg.members`` stiffness nets on the data set: the checkpoint dict."""
-    from amfe.training.finetune import check_grid, load_init, widened_fill_range
-    from amfe.training.predict import calibrate_fill
-    from amfe.training.train import pixelation_of
     cfg.check()
     start = load_init(cfg.init, cfg.init_member, cfg.members)
     if start["arch"] != "multiscale":
@@ -243,7 +248,6 @@ def train_stiffness(data_path, cfg, log=print):
         train_rows = train_rows[:cfg.max_train]
     check_grid(start, data_path, info, pixelation_of(info))   # another bed size is fine
     keep_head = is_stiffness(start["ckpt"])
-    from amfe.dataset.parts import label_rule
     if label_rule(info) < 2:   # predict converts rule-1 moduli per bed, which C would not follow
         raise AmfeError(f"{data_path} has label rule 1 labels; a stiffness head is trained on "
                         "label rule 2 data sets (docs/model.md, section 5)")
@@ -273,7 +277,6 @@ def train_stiffness(data_path, cfg, log=print):
     n_fill = x_train.shape[1] // len(inputs)
     training = asdict(cfg)
     training["seconds"] = float(sum(h["seconds"] for h in hists))
-    from amfe.training.nets import count_parameters
     ckpt.update({
         "image_shape": [int(s) for s in info["image_shape"]],
         "arch_args": arch_args, "n_parameters": count_parameters(nets[0]),

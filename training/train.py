@@ -20,20 +20,29 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 import torch
 
-from amfe.vocab import LABEL_NAMES
+from amfe.dataset.parts import label_rule
 from amfe.errors import AmfeError
 from amfe.model.material import STEEL
-
-from amfe.training import AUGMENTATIONS, LOSSES, SCHEDULES
+from amfe.training import AUGMENTATIONS, LOSSES, SCHEDULES, guards
 from amfe.training.checkpoint import check_image_shape
+from amfe.training.data import (
+    DEFAULT_INPUTS,
+    BedDataset,
+    Normalizer,
+    augment_batch,
+    check_inputs,
+    dataset_hash,
+    dataset_info,
+    read_rows,
+    split_indices,
+)
 from amfe.training.device import device_of, resolve_device
+from amfe.training.ensemble import predict_raw, summarize_members, tta_mode
 from amfe.training.finetune import check_data, load_init, widened_fill_range
-from amfe.training import guards
-from amfe.training.data import (DEFAULT_INPUTS, BedDataset, Normalizer, augment_batch, check_inputs,
-                   dataset_hash, dataset_info, read_rows, split_indices)
 from amfe.training.metrics import metrics_line, property_metrics, validation_metrics
 from amfe.training.nets import build_net, count_parameters, resolved_args
-from amfe.training.predict import calibrate_fill, predict_raw, tta_mode
+from amfe.training.predict import Surrogate, calibrate_fill
+from amfe.vocab import LABEL_NAMES
 
 MEMORY_LIMIT = 1 << 30   # train from memory when the selected images take less (bytes)
 
@@ -161,7 +170,7 @@ def train_member(train_ds, val, norm, cfg, image_shape, seed, report=Report(), i
             "epoch_seconds": []}
     bar = None
     if progress:
-        from tqdm import tqdm
+        from tqdm import tqdm  # noqa: PLC0415 (heavy or optional: loaded when used)
         bar = tqdm(total=cfg.epochs, desc=label or cfg.arch, unit="epoch", leave=False,
                    dynamic_ncols=True, file=sys.stderr)
     t_start = time.perf_counter()
@@ -259,7 +268,8 @@ def train_model(data_path, cfg, progress=True, log=print):
         norm = Normalizer.fit(train_labels, log=log_flags)
     log(f"{data_path}: {info['n_rows']} records, {ok.size} ok; train {len(train_rows)}, "
         f"validation {len(val_rows)} (split seed {cfg.split_seed}); inputs "
-        f"{','.join(cfg.inputs)} {'x'.join(map(str, image_shape))}; {cfg.arch}, {cfg.members} member(s), "
+        f"{','.join(cfg.inputs)} {'x'.join(map(str, image_shape))}; {cfg.arch}, "
+        f"{cfg.members} member(s), "
         f"{cfg.epochs} epochs, batch {cfg.batch_size}, lr {cfg.lr:g} ({cfg.schedule}), "
         f"augment {cfg.augment}, tta {cfg.tta}, log moduli {cfg.log_moduli}"
         + (f", log {','.join(cfg.log_poisson)}" if cfg.log_poisson else "")
@@ -282,7 +292,6 @@ def train_model(data_path, cfg, progress=True, log=print):
                                               for n, e in zip(LABEL_NAMES, hist["val_mre"][-1]))
         log(msg)
 
-    from amfe.dataset.parts import label_rule
     ckpt = {
         "arch": cfg.arch,
         "arch_args": resolved_args(cfg.arch, nets[0], cfg.arch_args),
@@ -313,7 +322,6 @@ def train_model(data_path, cfg, progress=True, log=print):
     if start is not None:
         ckpt["fill_range"] = widened_fill_range(start["fill_range"], ckpt["fill_range"])
     if len(val_rows):
-        from amfe.training.predict import Surrogate
         sur = Surrogate(ckpt, "the new model")
         members = sur.member_outputs(val_images)
         if cfg.members > 1:
@@ -347,7 +355,6 @@ def calibrate_spread(members, percentile=95.0):
     scale: the median relative spread per property; threshold: the
     ``percentile`` of the score max_p(spread_p / scale_p) over the beds.
     """
-    from amfe.training.predict import summarize_members
     rel = summarize_members(members)["spread"]
     scale = np.median(rel, axis=0)
     scale = np.where(scale > 0, scale, 1.0)

@@ -18,6 +18,7 @@ from collections.abc import Mapping
 import torch
 
 from amfe.errors import AmfeError
+from amfe.training.nets import build_net
 
 MAX_SAMPLES_PER_CELL_SIDE = 64   # pixelation sample lines per cell side (data sets use 12)
 
@@ -102,7 +103,6 @@ def check_members(ckpt, path):
     The network is built on the meta device (no memory); each member must be
     a dict with its parameter names, floating-point tensors of its shapes.
     """
-    from amfe.training.nets import build_net
 
     try:
         with torch.device("meta"):

@@ -27,12 +27,18 @@ import sys
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-from amfe.solvers.petsc import init_petsc, is_option
-
-from amfe.cli.interrupt import (Interrupted, end_broken_pipe, end_interrupted, flush_stdout,
-                                launcher_rank, signals_raise, world)
+from amfe.cli.interrupt import (
+    Interrupted,
+    end_broken_pipe,
+    end_interrupted,
+    flush_stdout,
+    launcher_rank,
+    signals_raise,
+    world,
+)
 from amfe.errors import AmfeError
 from amfe.io.console import print_warnings
+from amfe.solvers.petsc import forget_command_line, init_petsc, is_option
 from amfe.version import __version__
 
 COMMANDS = ["pack", "homogenize", "dataset", "train", "predict", "view", "sweep"]
@@ -165,6 +171,8 @@ def _run(args):
     except BaseException:
         _abort_others()
         raise
+    finally:
+        forget_command_line()   # its PETSc options were this command's (solvers/options.py)
 
 
 def _abort_others(code=1):

@@ -41,7 +41,8 @@ def above_e_note(properties, E, model=None):
     """
     if model and model.get("name") == "voxel":
         phi = float(model["solid_fraction"])
-        names = [k for k in CONSTANT_NAMES if k.startswith("E") and properties[k] > phi * E * (1 + 1e-9)]
+        names = [k for k in CONSTANT_NAMES
+                 if k.startswith("E") and properties[k] > phi * E * (1 + 1e-9)]
         return ABOVE_VOIGT.format(names=", ".join(names), verb=_verb(names), bound=phi * E / 1e9,
                                   phi=phi, E=E / 1e9) if names else None
     names = [k for k in CONSTANT_NAMES if k.startswith("E") and properties[k] > E]

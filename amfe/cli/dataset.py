@@ -2,6 +2,8 @@
 
     mpirun -n N amfe dataset -o DATA.h5 --count M [--seed S] [--scale small|paper]
                              [--ranks-per-bed k] [--max-failed-share F]
+    amfe dataset -o DATA.h5 --count M --size X Y Z [--materials steel|draw|316L|Ti64|IN718|AlSi10Mg]
+                             [--nu LO HI --psi LO HI]
     amfe dataset --check DATA.h5
     amfe dataset --add-bond-images DATA.h5
     amfe dataset --prefix-of DATA.h5 -o FIRST.h5 [--count N]
@@ -24,6 +26,7 @@ import sys
 from amfe.cli.interrupt import launcher_rank
 from amfe.cli.options import add_solver_args
 from amfe.errors import AmfeError
+from amfe.model.conditions import condition_names
 from amfe.model.scales import SCALES
 
 
@@ -33,21 +36,33 @@ def register(sub):
         description=__doc__.split("\n\n")[0] + " Run it as `mpirun -n N amfe dataset ...` or "
                     "alone; rerun the same command to resume after a kill.",
         epilog="Any -option (single dash) goes to PETSc. Scales: small (0.6 x 0.6 x 0.3 mm, "
-               "images 3x20x20), paper (3 x 3 x 0.3 mm, images 3x100x100); tiny is for tests.")
+               "images 3x20x20), paper (3 x 3 x 0.3 mm, images 3x100x100); tiny is for tests; "
+               "--size X Y Z: small's distribution at any box (docs/datasets.md, Box scales).")
     p.add_argument("-o", "--output", metavar="DATA.h5", help="data-set file to make (HDF5)")
     p.add_argument("--count", type=int, metavar="M",
-                   help="number of records; a larger M grows an unfinished run, keeping its records")
+                   help="number of records; a larger M grows an unfinished run, keeping its "
+                        "records")
     p.add_argument("--seed", type=int, default=0, metavar="S",
                    help="data-set seed, integer, 0 <= S < 2**64 (default 0)")
     p.add_argument("--scale", default="small", choices=list(SCALES),
                    help="bed distribution (default small; see amfe.model.scales)")
+    p.add_argument("--size", nargs=3, type=float, metavar=("X", "Y", "Z"),
+                   help="a box scale instead of --scale: small's scan paths in an X x Y x Z mm "
+                        "box (Z a whole number of 0.1 mm layers; amfe.model.boxscale)")
+    p.add_argument("--materials", default=None, metavar="M",
+                   help="particle material of every bed: steel (default), draw (nu, psi drawn "
+                        "per bed), or an alloy: 316L, Ti64, IN718, AlSi10Mg (amfe.model.material)")
+    p.add_argument("--nu", nargs=2, type=float, metavar=("LO", "HI"),
+                   help="draw nu ~ U(LO, HI) per bed (default with --materials draw: 0.25 0.40)")
+    p.add_argument("--psi", nargs=2, type=float, metavar=("LO", "HI"),
+                   help="draw psi ~ U(LO, HI) per bed (default with --materials draw: 0.04 0.12)")
     p.add_argument("--ranks-per-bed", type=int, default=1, metavar="K",
                    help="MPI ranks that solve one bed together (default 1)")
     add_solver_args(p)
     p.add_argument("--max-failed-share", type=float, default=None, metavar="F",
                    help="exit with an error (status 2, the file is still written) when more than "
                         "this share of the records failed (default 0.05)")
-    p.add_argument("--bc", choices=["kubc", "subc", "mixed"], default="kubc",
+    p.add_argument("--bc", choices=condition_names(datasets=True), default="kubc",
                    help="boundary conditions of the labels (default kubc; see amfe homogenize "
                         "--bc; data-set beds are not periodic)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -94,10 +109,12 @@ def run(args):
         raise AmfeError("--solve-rest continues the run of label tables: give --from-labels too")
     if not args.output or args.count is None:
         raise AmfeError("give -o DATA.h5 and --count M (or --check DATA.h5)")
+    args.scale = _scale_name(args)
     from amfe.dataset.driver import run_dataset
     from amfe.dataset.plan import DEFAULT_MAX_FAILED_SHARE
+    from amfe.model.tolerance import check_command_rtol
     from amfe.solvers.petsc import init_petsc
-
+    check_command_rtol("dataset", args.rtol, "--rtol")   # the loosest rtol (issue 45)
     if init_petsc(args.petsc_args).Options().hasName("ksp_rtol"):   # every rank alike
         raise AmfeError("-ksp_rtol would silently override the tolerance the data set records "
                         "(--rtol, or its default); give the tolerance as --rtol")
@@ -109,9 +126,25 @@ def run(args):
     return 0
 
 
+def _scale_name(args):
+    """The scale of the run: --scale's, or the box scale of --size and the material options."""
+    from amfe.model.boxscale import box_name
+    from amfe.model.scales import MM, get_scale
+
+    if args.size is None and args.materials in (None, "steel") and not (args.nu or args.psi):
+        return args.scale
+    if args.size is not None and args.scale != "small":
+        raise AmfeError("give --size X Y Z or --scale, not both (--size is small's distribution "
+                        "at another box)")
+    if args.scale == "tiny" and args.size is None:
+        raise AmfeError("the tiny scale takes no material options; use --size for a test box")
+    size = args.size if args.size is not None else [s / MM for s in get_scale(args.scale).size]
+    return box_name(size, args.materials or "steel", args.nu, args.psi)
+
+
 def _check(path):
-    from amfe.dataset.summary import summary_text
     from amfe.dataset.datafile import check_dataset
+    from amfe.dataset.summary import summary_text
 
     rank = _world_rank()
     if rank != 0:
@@ -170,7 +203,9 @@ def _from_labels(args):
     given = [name for name, value, default in (
         ("--seed", args.seed, 0), ("--scale", args.scale, "small"), ("--rtol", args.rtol, None),
         ("--solver", args.solver, "auto"), ("--bc", args.bc, "kubc"),
-        ("--ranks-per-bed", args.ranks_per_bed, 1)) if value != default]
+        ("--ranks-per-bed", args.ranks_per_bed, 1), ("--size", args.size, None),
+        ("--materials", args.materials, None), ("--nu", args.nu, None),
+        ("--psi", args.psi, None)) if value != default]
     if given:
         raise AmfeError(f"--from-labels takes the data set's {', '.join(given)} from its tables; "
                         "give none")

@@ -10,8 +10,9 @@ import os
 import sys
 
 from amfe.cli.options import add_solver_args
-from amfe.io.units import length
 from amfe.errors import AmfeError
+from amfe.io.units import length
+from amfe.model.conditions import CONDITIONS
 
 PROPERTY_UNITS = [("Ex", "GPa"), ("Ey", "GPa"), ("Ez", "GPa"), ("nu_yz", ""), ("nu_xz", ""),
                   ("nu_xy", ""), ("G_yz", "GPa"), ("G_xz", "GPa"), ("G_xy", "GPa")]
@@ -23,20 +24,19 @@ def register(sub):
                        epilog="Any -option (single dash) goes to PETSc, e.g. -ksp_monitor, "
                               "-log_view, -pc_type hypre.")
     p.add_argument("bed", help="bed HDF5 file (/particles/centers, /particles/radii)")
-    p.add_argument("-o", "--output", help="write the result as JSON here (- : to stdout, the table to stderr)")
+    p.add_argument("-o", "--output",
+                   help="write the result as JSON here (- : to stdout, the table to stderr)")
     p.add_argument("--vtu", metavar="DIR", help="write the ParaView files here: case_<name>.vtu "
                    "per load case, cases.json and cases.pvd (view them: amfe view DIR)")
     add_solver_args(p)
     p.add_argument("--cap-a-star", type=float, default=None, metavar="A",
                    help="evaluate bonds with a* > A at a* = A (A below the critical a*) "
                         "instead of refusing them; the JSON reports n_capped")
-    p.add_argument("--bc", choices=["kubc", "mixed", "subc", "periodic", "all"], default="kubc",
-                   help="kubc: six unit macro-strains on the boundary, one operator (default); "
-                        "mixed: the paper's figure-2 experiments, prescribed displacements on "
-                        "one pair of faces, traction-free elsewhere, six operators; subc: six "
-                        "unit macro-stresses as loads on the boundary layer; periodic: a "
-                        "periodic bed (amfe pack --periodic) on its torus; all: kubc and subc "
-                        "(and periodic on a periodic bed) side by side with their gap")
+    p.add_argument("--bc", choices=[*CONDITIONS, "all"], default="kubc",
+                   help="; ".join(f"{n}: {c.help}" for n, c in CONDITIONS.items())
+                   + "; all: " + " and ".join(n for n, c in CONDITIONS.items()
+                                               if c.in_all and not c.periodic)
+                   + " (and the periodic ones on a periodic bed) side by side with their gap")
     p.add_argument("--diagnose", action="store_true",
                    help="report per load case the iterations, true residual, eigenvalue "
                         "estimates of the preconditioned operator and GAMG complexities "
@@ -94,7 +94,8 @@ def run(args):
     from amfe.io.paths import check_output, check_output_dir, is_stdout
     from amfe.model.memory import parse_size
     from amfe.model.options import check_rtol
-    from amfe.solvers.petsc import init_petsc
+    from amfe.model.tolerance import check_command_rtol, given_rtol
+    from amfe.solvers.petsc import init_petsc, option_pairs
 
     init_petsc(args.petsc_args)
     comm = MPI.COMM_WORLD
@@ -104,10 +105,15 @@ def run(args):
             raise AmfeError("--voxel-operator is an option of --model voxel")
         if args.rtol is not None:
             check_rtol(args.rtol, "--rtol")
+        given = given_rtol(args.rtol, option_pairs(args.petsc_args))
+        if len(given) == 1:   # the loosest rtol (issue 45); both given: the conflict's error
+            check_command_rtol("homogenize", given[0][1], given[0][0])
         if args.output is not None:   # -o '' is an error, not "no output"
             check_output(args.output, inputs=[args.bed], allow_stdout=True)
         if args.vtu is not None:   # --vtu '' is an error too
             check_output_dir(args.vtu)
+            from amfe.io.vtuset import check_outside_set
+            check_outside_set(args.output, args.vtu, args.bc)   # -o must not overwrite the set
         return None if args.max_memory is None else parse_size(args.max_memory)
 
     max_memory = on_root(comm, check_arguments)
@@ -155,7 +161,8 @@ def summary(result, bed_path, output=None, vtu=None):
              f"not load-carrying), {result['n_bonds']} bonds, V = {result['volume']:.4g} m^3, "
              f"{result['ranks']} rank(s)",
              f"solver: {s['ksp_type']}+{s['pc_type']} rtol {s['rtol']:g}, iterations "
-             f"{s['iterations']}, set-up {s['setup_seconds']:.3g} s, solves {s['solve_seconds']:.3g} s",
+             f"{s['iterations']}, set-up {s['setup_seconds']:.3g} s, "
+             f"solves {s['solve_seconds']:.3g} s",
              f"boundary conditions: {result['bc']}; "
              + ", ".join(f"{k.replace('_', ' ')} {v:.1e}" for k, v in s.items()
                          if "asymmetry" in k or k.startswith("love_weber"))]
@@ -183,7 +190,8 @@ def summary(result, bed_path, output=None, vtu=None):
     if output:
         lines.append(f"wrote {output}")
     if vtu:
-        lines.append(f"wrote {os.path.join(vtu, 'cases.pvd')} (6 load cases, per unit macro-strain)")
+        lines.append(f"wrote {os.path.join(vtu, 'cases.pvd')} "
+                     "(6 load cases, per unit macro-strain)")
     return "\n".join(lines)
 
 

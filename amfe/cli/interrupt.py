@@ -44,7 +44,7 @@ BROKEN_PIPE_EXIT = 128 + signal.SIGPIPE
 
 
 class Interrupted(BaseException):
-    """One of :data:`SIGNALS` arrived while a subcommand ran (a BaseException, like KeyboardInterrupt,
+    """One of :data:`SIGNALS` arrived while a subcommand ran (a BaseException, like Ctrl-C's,
     so that no ``except Exception`` swallows it)."""
 
     def __init__(self, signum):

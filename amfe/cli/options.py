@@ -60,4 +60,5 @@ def add_solver_args(p):
     p.add_argument("--rtol", type=float, default=None,
                    help="GAMG's relative tolerance (default 1e-5 for KUBC on a bed whose hull "
                         "vertices are all prescribed, its stress then second order in the "
-                        "error, or whose free hull vertices carry <= 1e-3 of the strain; else 1e-8 with --solver gamg, 1e-7 when auto picks GAMG)")
+                        "error, or whose free hull vertices carry <= 1e-3 of the strain; else "
+                        "1e-8 with --solver gamg, 1e-7 when auto picks GAMG)")

@@ -10,11 +10,10 @@ from decimal import Decimal
 import numpy as np
 
 from amfe.cli.homogenize import add_material_args, add_memory_arg, given_material
-from amfe.io.units import length
 from amfe.dataset.density import PRECISION, solid_fraction
 from amfe.errors import AmfeError
-from amfe.io.bedfile import write_bed
 from amfe.io.paths import check_output
+from amfe.io.units import length
 from amfe.model.bed import check_seed, generate_bed
 from amfe.model.bonds import find_bonds
 from amfe.model.material import SOURCE_DEFAULT, STEEL, resolve_material
@@ -106,11 +105,13 @@ def register(subparsers):
                         "(default: 0.25 0.25 0.1)")
     p.add_argument("--seed", type=int, help="random seed, integer >= 0 (default: 0); with "
                    "--scale, the bed seed (a data-set record's /seed)")
-    p.add_argument("--scale", choices=list(SCALES),
+    p.add_argument("--scale", type=_scale_name, metavar="SCALE",
                    help="draw every generation parameter from this data-set scale's "
                         "distribution (amfe.model.scales), seeded by --seed: `amfe pack --scale S "
                         "--seed <a record's seed>` regenerates that record's bed exactly; no "
-                        "other generation option may be given with it")
+                        "other generation option may be given with it; SCALE is one of "
+                        f"{', '.join(SCALES)} or a box scale (amfe dataset --size, e.g. "
+                        "box900x900x300um_Ti64)")
     p.add_argument("--periodic", action="store_true",
                    help="make a bed that tiles space in x, y and z (for homogenize --bc "
                         "periodic): the box snaps to whole periods of the HCP lattice (the "
@@ -161,7 +162,8 @@ def run(args):
         return run_scale(args, max_memory)
     size = tuple(_value(args, "size"))
     if not all(math.isfinite(s) and s > 0 for s in size):
-        raise AmfeError(f"--size must be three positive lengths in mm, got {' '.join(map(str, size))}")
+        raise AmfeError("--size must be three positive lengths in mm, got "
+                        f"{' '.join(map(str, size))}")
     lo, hi = _value(args, "enlargement")
     if lo > hi:
         raise AmfeError(f"--enlargement LO HI needs LO <= HI, got {lo} {hi}")
@@ -183,6 +185,17 @@ def run(args):
     report(bed, args.output, f"amfe pack: {size[0]:g} x {size[1]:g} x {size[2]:g} mm, seed "
                              f"{seed}, scan {bed.attrs['scan']}", record)
     return 0
+
+
+def _scale_name(name):
+    """--scale's value if it names a scale (amfe.model.scales.get_scale); argparse's error else."""
+    import argparse
+
+    from amfe.model.scales import get_scale
+    try:
+        return get_scale(name).name
+    except AmfeError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def run_scale(args, max_memory=None):
@@ -211,6 +224,8 @@ def report(bed, output, title, material=None):
     periodic = "periodic" in bed.attrs
     bonds = find_periodic_bonds(bed.centers, bed.radii, bed.attrs["periodic"])[0] if periodic \
         else find_bonds(bed.centers, bed.radii)
+    from amfe.io.bedfile import write_bed  # h5py: only when a bed is written
+
     write_bed(output, bed)
     a_star_max = bed.attrs["a_star_max"]
     print(title)
@@ -231,7 +246,8 @@ def report(bed, output, title, material=None):
               f"(max allowed {a_star_max:g})")
     else:
         print("  a* min/mean/max   - (no bonds)")
-    print(f"  shrunk particles  {bed.attrs['n_shrunk']} (radii reduced so that a* <= {a_star_max:g})")
+    print(f"  shrunk particles  {bed.attrs['n_shrunk']} "
+          f"(radii reduced so that a* <= {a_star_max:g})")
     m = material or {"E": STEEL.E, "nu": STEEL.nu, "psi": STEEL.psi, "source": SOURCE_DEFAULT}
     print(f"  material          E {m['E'] / 1e9:g} GPa, nu {m['nu']:g}, psi {m['psi']:g} "
           f"({m['source']})")

@@ -37,8 +37,8 @@ from amfe.io.atomic import write_json
 from amfe.io.paths import check_output, is_stdout
 from amfe.io.result_meta import header, predict_block
 from amfe.model.material import resolve_material
-
 from amfe.vocab import LABEL_NAMES as SIX
+
 NINE = SIX + ("G_yz", "G_xz", "G_xy")
 
 
@@ -79,6 +79,10 @@ def check_args(args):
                         "full-stiffness model")
     if args.output is not None:
         check_output(args.output, inputs=[*args.bed, args.model], allow_stdout=True)
+    from amfe.model.tolerance import check_command_rtol, given_rtol
+    from amfe.solvers.petsc import option_pairs
+    for name, value in given_rtol(None, option_pairs(args.petsc_args)):   # issue 45
+        check_command_rtol("predict --check" if args.check else "homogenize", value, name)
 
 
 def run(args):
@@ -87,10 +91,9 @@ def run(args):
     check_args(args)
     import torch
 
+    from amfe.io.bedfile import read_bed
     from amfe.training.predict import Surrogate, check_material
     from amfe.training.shipped import shipped_model_for
-
-    from amfe.io.bedfile import read_bed
 
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -360,8 +363,8 @@ def summary(out, output=None):
     else:
         lines.append("source: surrogate")
     t = out["timings"]
-    parts = [f"{k.replace('_', ' ')} {t[k]:.3g} s" for k in ("load_model", "read_bed", "pixelate",
-                                                              "bonds", "predict", "solve") if k in t]
+    stages = ("load_model", "read_bed", "pixelate", "bonds", "predict", "solve")
+    parts = [f"{k.replace('_', ' ')} {t[k]:.3g} s" for k in stages if k in t]
     lines.append(f"time {out['seconds']:.3g} s: " + ", ".join(parts))
     if "start_up" in t:
         imaging = t.get("pixelate", 0.0) + t.get("bonds", 0.0)

@@ -14,11 +14,15 @@ training starts, so a bad -o or --test costs nothing.
 """
 import os
 import sys
-
 from types import SimpleNamespace
 
-from amfe.cli.options import (nonnegative_float, nonnegative_int, positive_float, positive_int,
-                              thread_count)
+from amfe.cli.options import (
+    nonnegative_float,
+    nonnegative_int,
+    positive_float,
+    positive_int,
+    thread_count,
+)
 from amfe.errors import AmfeError
 from amfe.io.paths import check_output
 
@@ -41,8 +45,10 @@ def register(sub):
     p.add_argument("--arch", choices=list(ARCH_NAMES), default=d.arch,
                    help="network (default custom: the paper's Custom Net)")
     p.add_argument("--epochs", type=positive_int, default=d.epochs, help=f"default {d.epochs}")
-    p.add_argument("--batch-size", type=positive_int, default=d.batch_size, help=f"default {d.batch_size}")
-    p.add_argument("--lr", type=positive_float, default=d.lr, help=f"Adam learning rate (default {d.lr:g})")
+    p.add_argument("--batch-size", type=positive_int, default=d.batch_size,
+                   help=f"default {d.batch_size}")
+    p.add_argument("--lr", type=positive_float, default=d.lr,
+                   help=f"Adam learning rate (default {d.lr:g})")
     p.add_argument("--schedule", choices=SCHEDULES, default=d.schedule,
                    help="learning rate: constant (the paper's) or cosine decay to 0")
     p.add_argument("--loss", choices=LOSSES + ("constants",), default=d.loss,
@@ -56,7 +62,8 @@ def register(sub):
     p.add_argument("--nu-weight", type=positive_float, default=1.0,
                    help="--head stiffness --loss constants: weight of the Poisson ratios' "
                         "relative errors against the moduli's (default 1)")
-    p.add_argument("--weight-decay", type=nonnegative_float, default=d.weight_decay, help="Adam weight decay")
+    p.add_argument("--weight-decay", type=nonnegative_float, default=d.weight_decay,
+                   help="Adam weight decay")
     p.add_argument("--seed", type=nonnegative_int, default=d.seed,
                    help="seed of the first member (member k: seed + k; default 0)")
     p.add_argument("--members", type=positive_int, default=d.members,
@@ -189,7 +196,6 @@ def check_init_options(args):
 def run(args):
     curve = check_paths(args)
     if args.head == "stiffness":
-        from amfe.cli.train_stiffness import run_stiffness
         return run_stiffness(args, curve)
     import torch
 
@@ -246,3 +252,43 @@ def _write(path, write, *args):
         write(*args)
     except OSError as exc:
         raise AmfeError(f"cannot write {path}: {exc.strerror or exc}") from None
+
+
+def run_stiffness(args, curve):
+    """`--head stiffness`: a full-stiffness model (21 Cholesky outputs of C,
+    amfe.training.stiffness_train) from --init's network; train, evaluate on --test (the six
+    constants), save; 0 on success."""
+    check_init_options(args)   # a missing --init: StiffnessConfig.check says so
+    import torch
+
+    from amfe.training.checkpoint import save_checkpoint
+    from amfe.training.metrics import metrics_line
+    from amfe.training.stiffness_train import StiffnessConfig, train_stiffness
+
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    cfg = StiffnessConfig(init=args.init, init_member=args.init_member, members=args.members,
+                          seed=args.seed, epochs=args.epochs, batch_size=args.batch_size,
+                          lr=args.lr, schedule=args.schedule, loss=args.loss,
+                          split_seed=args.split_seed, val_fraction=args.val_fraction,
+                          augment=args.augment, tta=args.tta, max_train=args.max_train or 0,
+                          nu_weight=args.nu_weight)
+
+    def log(line):
+        if not args.quiet:
+            print(line, file=sys.stderr, flush=True)
+
+    ckpt = train_stiffness(args.data, cfg, log=log)
+    lines = [f"amfe train: stiffness head on {ckpt['arch']}, {len(ckpt['members'])} member(s), "
+             f"trained in {ckpt['training']['seconds']:.1f} s"]
+    if args.test:
+        from amfe.training.predict import Surrogate
+        from amfe.training.train import evaluate_file
+        m, _, _ = evaluate_file(Surrogate(ckpt, args.output), args.test)
+        ckpt["metrics"]["test"] = dict(m, path=str(args.test))
+        lines.append(f"  held-out {args.test} ({m['n']} beds) mean relative error %: "
+                     + metrics_line(m))
+    _write(args.output, save_checkpoint, args.output, ckpt)
+    lines.append(f"wrote {args.output} ({os.path.getsize(args.output) / 1e6:.2f} MB)")
+    print("\n".join(lines))
+    return 0

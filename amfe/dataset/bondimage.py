@@ -19,12 +19,11 @@ particles compiled loops (amfe.dataset._jit) give the same image bit for bit,
 """
 import numpy as np
 
-from amfe.model.bonds import (COINCIDENT, bond_springs, bonded_among, contact_geometry,
-                               find_bonds)
-from amfe.model.springs import A_STAR_MARGIN, critical_a_star, spring_model
-from amfe.errors import AmfeError
 from amfe.dataset.images import DEFAULT_CELL, DEFAULT_LAYER_THICKNESS, image_box
 from amfe.dataset.pixelkernel import use_kernel
+from amfe.errors import AmfeError
+from amfe.model.bonds import COINCIDENT, bond_springs, bonded_among, contact_geometry, find_bonds
+from amfe.model.springs import A_STAR_MARGIN, critical_a_star, spring_model
 
 _KERNEL_FROM = 20_000   # particles from which engine "auto" finds the bonds compiled
 NO_CAP_FIX = ("Reduce the particle overlaps: a bond image (amfe predict's input, amfe dataset's "

@@ -1,4 +1,4 @@
-"""Data-set files (docs/model.md, section 6): one record per bed, written kill-safe, merged, checked.
+"""Data-set files (docs/model.md, section 6): a record per bed, written kill-safe, merged, checked.
 
 While ``amfe dataset -o DATA.h5`` runs, every finished record (or failure) is
 its own small file ``DATA.h5.parts/rec_KKKKKKKK.npz``, written under a
@@ -27,7 +27,8 @@ DATA.h5 layout, one row per record, rows sorted by record index 0..M-1:
     n_particles (M,) int64    particles of the generated bed (-1 if none)
     n_removed   (M,) int64    of them not load-carrying (-1 if not solved)
     n_bonds     (M,) int64    bonds of the load-carrying frame (-1 if not solved)
-    volume      (M,) float64  homogenization volume [m^3]: format 2 the bed's box, format 1 the hull of the kept centres
+    volume      (M,) float64  homogenization volume [m^3]: format 2 the bed's box, format 1
+                              the hull of the kept centres
     seconds     (M, 3) float64  generate, image, homogenize wall times [s]
     solver      (M,) str      JSON of homogenize_bed's solver record ("" if not solved)
     params/NAME (M,) float64  the bed's generation parameters (amfe.model.scales.PARAM_NAMES)
@@ -49,14 +50,26 @@ import os
 
 import numpy as np
 
-from amfe.io.atomic import atomic_write_h5
-from amfe.errors import AmfeError, _list_items
-from amfe.model.scales import PARAM_NAMES, PARAM_UNITS, get_scale, record_seed
-
-from amfe.vocab import LABEL_NAMES
 from amfe.dataset.images import IMAGING_VERSION
-from amfe.dataset.parts import (LABEL_RULE_VERSION, STATUS_FAILED, STATUS_OK, done_indices,
-                                part_path, part_problem, read_part, reject_part, remove_parts)
+from amfe.dataset.parts import (
+    LABEL_RULE_VERSION,
+    STATUS_FAILED,
+    STATUS_OK,
+    done_indices,
+    part_path,
+    part_problem,
+    read_part,
+    reject_part,
+    remove_parts,
+)
+from amfe.errors import AmfeError, _list_items
+from amfe.io.atomic import atomic_write_h5
+from amfe.io.h5damage import damaged, read_every_chunk
+from amfe.model.boxscale import draw_material
+from amfe.model.material import STEEL
+from amfe.model.scales import PARAM_NAMES, PARAM_UNITS, get_scale, record_seed
+from amfe.vocab import LABEL_NAMES
+
 SECONDS_NAMES = ("generate", "image", "homogenize")
 DENSITY_DEFINITION = ("mean of the image: the volume fraction of the box [0,Lx]x[0,Ly]x[0,Lz] "
                       "filled by the union of the spheres")
@@ -131,8 +144,17 @@ def _copy_parts(rows, bonds, output, parts, params):
             bonds[k] = rec["bond_image"]
         else:
             all_bonds = False
-        pdata[k] = rec["params"]
+        pdata[k] = _padded(rec["params"])
     return all_bonds, pdata
+
+
+def _padded(params):
+    """A part's params row in :data:`PARAM_NAMES`' order: parts written before the material
+    columns (E, nu, psi) existed were steel's, and get steel's values."""
+    params = np.asarray(params, np.float64)
+    tail = [STEEL.E, STEEL.nu, STEEL.psi][params.shape[0] - len(PARAM_NAMES):] \
+        if params.shape[0] < len(PARAM_NAMES) else []
+    return np.concatenate([params, tail])
 
 
 def _layout_attrs(sc):
@@ -142,7 +164,8 @@ def _layout_attrs(sc):
         "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
         "bed_size": list(sc.size), "layer_thickness": sc.layer_thickness,
         "image_cell": [sc.cell[0], sc.cell[1], sc.layer_thickness],
-        "image_shape": list(sc.image_shape),
+        "image_shape": list(sc.image_shape), "image_box": list(sc.image_box),
+        "material_spec": _material_spec(sc),
         "image_spacing": sc.image_spacing,
         "density_definition": DENSITY_DEFINITION,
         "status_codes": "0 ok, 1 failed (see reason)",
@@ -150,10 +173,18 @@ def _layout_attrs(sc):
     }
 
 
+def _material_spec(sc):
+    """The scale's particle material, in words (the values of each record: params/E, nu, psi)."""
+    if sc.material == "draw":
+        return (f"drawn per bed: nu ~ U({sc.nu_range[0]:g}, {sc.nu_range[1]:g}), psi ~ "
+                f"U({sc.psi_range[0]:g}, {sc.psi_range[1]:g}), E steel's 210 GPa")
+    return f"{sc.material} for every bed (amfe.model.material)"
+
+
 # ---------------------------------------------------------------- merge
 
 def merge_parts(output, parts, params, first=None):
-    """Merge the records 0..count-1 of ``parts`` into the HDF5 file ``output``; returns (data, attrs).
+    """Merge the records 0..count-1 of ``parts`` into the HDF5 file ``output``: (data, attrs).
 
     ``first``: merge only records 0..first-1, into a data set of ``first``
     records, and keep the parts (a prefix of a running data set: what
@@ -217,6 +248,11 @@ REQUIRED = {  # name: (trailing shape or None for the image's, dtype kinds)
 }
 
 
+#: What to do with a data set HDF5 cannot read (:func:`amfe.io.h5damage.damaged`).
+DATA_SET_FIX = ("restore it from a copy, or make it again with amfe dataset (its label tables "
+                "rebuild it without solving: amfe dataset --from-labels)")
+
+
 def missing_dataset(path):
     """Why data set ``path`` (no such file) is missing: "does not exist", or, where a run's
     parts directory is there, that the run has not finished (its records are kept there)."""
@@ -257,10 +293,12 @@ def check_dataset(path):
     labels, C and density, positive moduli; failed rows have a reason; image
     values are finite and in [0, 1].
     """
-    try:
+    import h5py
+
+    with damaged(path, "data set", DATA_SET_FIX):
         data, attrs = load_dataset(path)
-    except OSError as exc:
-        raise AmfeError(f"cannot read {path}: {exc}") from None
+        with h5py.File(path, "r") as f:   # every chunk, also of datasets load_dataset skips
+            read_every_chunk(f)
     problems = _layout_problems(data, attrs)
     if problems:
         return problems, data, attrs
@@ -300,7 +338,32 @@ def _layout_problems(data, attrs):
     elif expect is not None and img.shape[1:] != tuple(expect):
         problems.append(f"/images rows have shape {img.shape[1:]}, scale {attrs.get('scale')} "
                         f"makes {tuple(expect)}")
+    if expect is not None and "bed_size" in attrs and not np.array_equal(
+            np.asarray(attrs["bed_size"], np.float64), np.asarray(get_scale(attrs["scale"]).size)):
+        problems.append(f"the bed_size attribute {list(attrs['bed_size'])} is not scale "
+                        f"{attrs.get('scale')}'s box")
     return problems
+
+
+def _material_problems(data, attrs):
+    """Records whose material (params/E, nu, psi) is not one the scale's spec can draw."""
+    p = data.get("params", {})
+    if not all(n in p for n in ("E", "nu", "psi")):
+        return []   # files made before the material columns: steel
+    sc = get_scale(attrs.get("scale"))
+    E, nu, psi = (np.asarray(p[n], np.float64) for n in ("E", "nu", "psi"))
+    if sc.material == "draw":
+        ok = ((E == draw_material(sc, 0).E) & (nu >= sc.nu_range[0]) & (nu <= sc.nu_range[1])
+              & (psi >= sc.psi_range[0]) & (psi <= sc.psi_range[1]))
+    else:
+        m = draw_material(sc, 0)
+        ok = (E == m.E) & (nu == m.nu) & (psi == m.psi)
+    ok |= np.isnan(E) & (data["status"] != STATUS_OK)   # a bed that failed before its draw
+    bad = np.flatnonzero(~ok)
+    if not bad.size:
+        return []
+    return [f"records {_list_items(np.ravel(data['index'][bad]), 8)} have a material (params/E, "
+            f"nu, psi) that scale {attrs.get('scale')} does not make"]
 
 
 def _record_problems(data, attrs):
@@ -337,7 +400,8 @@ def _record_problems(data, attrs):
                         f"{_list_items(np.ravel(index[bad]), 8)}")
     bad = np.flatnonzero(ok & np.isfinite(lab).all(1) & np.any(lab[:, :3] <= 0, axis=1))
     if bad.size:
-        problems.append(f"ok records with non-positive moduli: {_list_items(np.ravel(index[bad]), 8)}")
+        problems.append("ok records with non-positive moduli: "
+                        f"{_list_items(np.ravel(index[bad]), 8)}")
     reasons = data["reason"]
     bad = np.flatnonzero((status == STATUS_FAILED) & (np.char.str_len(reasons.astype(str)) == 0))
     if bad.size:
@@ -347,6 +411,7 @@ def _record_problems(data, attrs):
     fin = np.isfinite(dens)
     if np.any((dens[fin] < 0) | (dens[fin] > 1)):
         problems.append("packing densities outside [0, 1]")
+    problems += _material_problems(data, attrs)
     if "bond_images" in data:
         b = data["bond_images"]
         if b.shape != img.shape:

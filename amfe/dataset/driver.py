@@ -69,18 +69,22 @@ import sys
 import time
 from dataclasses import dataclass, replace
 
+from amfe.dataset.datafile import merge_parts
 from amfe.dataset.handout import FINISHED, NEXT, Progress, Window
+from amfe.dataset.labels import read_tables, rebuild_record, table_options, table_params, table_run
 from amfe.dataset.lock import DatasetLock, this_process
-from amfe.dataset.labels import (read_tables, rebuild_record, table_options, table_params,
-                                 table_run)
-from amfe.dataset.plan import (DatasetOptions, check_arguments, failed_share_error, prepare,
-                               rejected_lines)
+from amfe.dataset.parts import STATUS_OK, describe_params, run_params, write_part
+from amfe.dataset.plan import (
+    DatasetOptions,
+    check_arguments,
+    failed_share_error,
+    prepare,
+    rejected_lines,
+)
 from amfe.dataset.record import load_pixelate, make_record
 from amfe.dataset.summary import final_summary
 from amfe.errors import AmfeError
 from amfe.io.atomic import NoSpaceError
-from amfe.dataset.datafile import merge_parts
-from amfe.dataset.parts import STATUS_OK, describe_params, run_params, write_part
 from amfe.io.mpi import on_root
 from amfe.io.paths import check_output
 from amfe.model.scales import get_scale
@@ -118,7 +122,7 @@ def run_dataset(output, count, *, comm=None, progress=True, pixelate=None, out=N
     kept), a table record whose bed does not regenerate, a failed merge, or
     more than ``max_failed_share`` of the records failed (the file is written).
     """
-    from mpi4py import MPI
+    from mpi4py import MPI  # noqa: PLC0415 (heavy or optional: loaded when used)
 
     opts = DatasetOptions(**options)
     world = MPI.COMM_WORLD if comm is None else comm
@@ -176,7 +180,7 @@ class _Job:
 
 def _locked_run(MPI, job):
     """run_dataset with the lock held: plan, work, merge; the summary dict on every rank."""
-    world, output, params, sc = job.world, job.output, job.params, job.sc
+    world, output, params = job.world, job.output, job.params
     max_failed_share = job.opts.max_failed_share
 
     def plan_it():

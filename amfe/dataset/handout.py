@@ -12,6 +12,7 @@ import sys
 import threading
 
 import numpy as np
+from tqdm import tqdm
 
 NEXT, FINISHED = 0, 1   # the two counters of the hand-out window
 STOP = 2**40            # added to NEXT by stop(): past the end of any to-do list (< 2**62 / ranks)
@@ -64,7 +65,6 @@ class Progress:
         self._thread = None
         if not enabled:
             return
-        from tqdm import tqdm
         self.bar = tqdm(total=total, initial=initial, unit="bed", file=sys.stderr,
                         dynamic_ncols=True, mininterval=0.5, smoothing=0.05,
                         desc="amfe dataset")

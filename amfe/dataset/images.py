@@ -25,7 +25,7 @@ Only the in-plane sampling approximates: the covered length is a continuous
 function of (x, y) (a chord shrinks to 0 at a sphere's rim), so the midpoint
 rule converges fast and, unlike a smoothed (anti-aliased) 3D raster of the
 union, has no systematic error at the necks. Measured (tests/test_images.py,
-run/bench_images.py --check), in units of a cell volume, at the default
+run/bench/images.py --check), in units of a cell volume, at the default
 spacing (median radius / 6): generated beds, against a 4x finer sampling,
 rms 0.1 %, worst pixel 0.4 %; a single sphere inside a cell, worst of 300
 random ones, 0.08 %; cells of whole HCP lattice periods, 0.003 %; a whole
@@ -44,9 +44,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from amfe.model.bonds import validate_particles
-from amfe.errors import AmfeError
 from amfe.dataset.pixelkernel import union_volumes, use_kernel
+from amfe.errors import AmfeError
+from amfe.model.bonds import validate_particles
 
 DEFAULT_CELL = (30e-6, 30e-6)      # paper section 6: 0.03 mm x 0.03 mm in the plane [m]
 DEFAULT_LAYER_THICKNESS = 100e-6   # one powder layer, 0.1 mm [m]

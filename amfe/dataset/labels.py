@@ -25,6 +25,7 @@ import glob
 import hashlib
 import json
 import os
+from dataclasses import replace
 
 import numpy as np
 
@@ -35,6 +36,7 @@ from amfe.dataset.plan import MAX_COUNT
 from amfe.dataset.record import regenerate
 from amfe.errors import AmfeError, _list_items
 from amfe.io.atomic import atomic_write_h5
+from amfe.io.h5damage import damaged
 from amfe.model.averages import compliance_and_constants
 from amfe.model.scales import bed_for, record_seed
 from amfe.vocab import LABEL_NAMES
@@ -179,14 +181,17 @@ def _shard_end(directory, ident):
     return end
 
 
+#: What to do with a label shard HDF5 cannot read (:func:`amfe.io.h5damage.damaged`).
+TABLE_FIX = ("export it again from its data set (amfe dataset --export-labels DATA.h5 -o "
+             "LABELS.h5), or restore it from a copy")
+
+
 def _read_attrs(path):
     import h5py
-    try:
-        with h5py.File(path, "r") as f:
-            return {k: (v.decode() if isinstance(v, bytes) else
-                        v.item() if isinstance(v, np.generic) else v) for k, v in f.attrs.items()}
-    except OSError as exc:
-        raise AmfeError(f"cannot read label table {path}: {exc}") from None
+
+    with damaged(path, "label table", TABLE_FIX), h5py.File(path, "r") as f:
+        return {k: (v.decode() if isinstance(v, bytes) else
+                    v.item() if isinstance(v, np.generic) else v) for k, v in f.attrs.items()}
 
 
 # ---------------------------------------------------------------- read
@@ -214,7 +219,7 @@ def read_tables(paths):
             raise AmfeError(f"{path} is a table of another data set or method ({_describe(mine)}) "
                             f"than {paths[0]} ({_describe(ident)})")
         ident = mine
-        with h5py.File(path, "r") as f:
+        with damaged(path, "label table", TABLE_FIX), h5py.File(path, "r") as f:
             parts.append({n: f[n][()] for n in f})
     _check_versions(paths[0], ident)
     table = {n: np.concatenate([p[n] for p in parts]) for n in parts[0]}
@@ -278,7 +283,6 @@ def table_run(table, count, solve_rest=False):
 
 def table_options(table, opts):
     """``opts`` (amfe.dataset.plan.DatasetOptions) with the table's scale, seed and method."""
-    from dataclasses import replace
     a = table["attrs"]
     return replace(opts, scale=a["scale"], seed=int(a["dataset_seed"]), rtol=float(a["rtol"]),
                    solver=a["solver"], bc=a["bc"], ranks_per_bed=1)

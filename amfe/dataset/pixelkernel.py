@@ -23,7 +23,6 @@ identical bit for bit (tests/test_pixelkernel.py); it is the same imaging
 (IMAGING_VERSION unchanged). numba is imported only when a caller asks for
 this kernel (:func:`available`).
 """
-import math
 import sys
 
 import numpy as np
@@ -83,7 +82,7 @@ def union_volumes(c, r, grid, rows, q_levels, image):
     rows: sample rows per strip (the numpy path's); q_levels: quantisation
     levels per layer (its _Q_LEVELS).
     """
-    from amfe.dataset._jit import union_rows   # imports numba (compiled once, cached)
+    from amfe.dataset._jit import union_rows  # imports numba (compiled once, cached)
     order = np.argsort(c[:, 1], kind="stable")
     c, r = np.ascontiguousarray(c[order]), np.ascontiguousarray(r[order])
     ax, ay, t = grid.ax, grid.ay, float(grid.t)

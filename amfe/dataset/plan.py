@@ -13,12 +13,22 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from amfe.dataset.datafile import check_dataset
+from amfe.dataset.parts import (
+    STATUS_OK,
+    describe_params,
+    done_indices,
+    part_path,
+    part_problem,
+    parts_dir,
+    read_params_json,
+    reject_part,
+    remove_parts,
+    same_but_count,
+    write_params_json,
+)
 from amfe.errors import AmfeError, _list_items
 from amfe.io.atomic import is_no_space, no_space_error, remove_stale_tmp
-from amfe.dataset.datafile import check_dataset
-from amfe.dataset.parts import (STATUS_OK, describe_params, done_indices, part_path,
-                                part_problem, parts_dir, read_params_json, reject_part,
-                                remove_parts, same_but_count, write_params_json)
 
 #: Data-set seeds are stored as an HDF5 uint64 attribute; record_seed takes any of them.
 SEED_LIMIT = 2**64

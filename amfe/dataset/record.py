@@ -11,11 +11,13 @@ import traceback
 
 import numpy as np
 
+from amfe.dataset.parts import STATUS_FAILED, STATUS_OK, empty_record
 from amfe.dataset.upgrade import record_bond_image
 from amfe.errors import AmfeError
-from amfe.dataset.parts import STATUS_FAILED, STATUS_OK, empty_record
 from amfe.model.bed import generate_bed
+from amfe.model.options import SolveOptions
 from amfe.model.scales import PARAM_NAMES, get_scale, param_record, record_seed, sample_bed_params
+from amfe.solvers.driver import homogenize_bed
 from amfe.solvers.ksp import DEFAULT_RTOL
 from amfe.vocab import LABEL_NAMES
 
@@ -50,8 +52,6 @@ def make_record(k, dataset_seed, scale, group, rtol=DEFAULT_RTOL, pixelate=None,
     complete on the group's rank 0 (the others hold no image). Never raises
     for a bad bed or a failed solve: the record says status failed and why.
     """
-    from amfe.model.options import SolveOptions
-    from amfe.solvers.driver import homogenize_bed
 
     rec, bed, err = regenerate(k, dataset_seed, scale, group, pixelate)
     if err is None:
@@ -99,7 +99,7 @@ def regenerate(k, dataset_seed, scale, group, pixelate):
         rec["seconds"][0] = t1 - t0
         if group.rank == 0:
             image = np.asarray(pixelate(bed, cell=sc.cell, layer_thickness=sc.layer_thickness,
-                                        box=((0.0, 0.0, 0.0), sc.size),
+                                        box=((0.0, 0.0, 0.0), sc.image_box),
                                         spacing=sc.image_spacing), np.float32)
             if image.shape != sc.image_shape:
                 raise AmfeError(f"pixelate gave an image of shape {image.shape}, expected "
@@ -115,7 +115,7 @@ def regenerate(k, dataset_seed, scale, group, pixelate):
 
 def load_pixelate():
     try:
-        from amfe.dataset.images import pixelate
+        from amfe.dataset.images import pixelate  # noqa: PLC0415 (guarded: its error below)
     except ImportError as exc:
         raise AmfeError(f"amfe.dataset.images.pixelate is not available ({exc}); the images of a "
                         "data set need it") from None

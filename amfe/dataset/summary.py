@@ -51,6 +51,11 @@ def summary_text(data, attrs):
              f"{attrs.get('amfe_version')}, created {attrs.get('created')}): {int(ok.sum())} ok, "
              f"{int(M - ok.sum())} failed; images {'x'.join(map(str, data['images'].shape[1:]))}",
              f"  labels made under {LABEL_RULES[label_rule(attrs)]} (docs/model.md, section 5)"]
+    if "material_spec" in attrs:
+        p = data.get("params", {})
+        spread = "".join(f"; {n} {np.nanmin(p[n]):.4g}-{np.nanmax(p[n]):.4g}" for n in ("nu", "psi")
+                         if n in p and np.isfinite(p[n]).any())
+        lines.append(f"  material: {attrs['material_spec']}{spread}")
     for n, key in failure_groups(status, data["reason"]):
         lines.append(f"  failed {n:5d} x {key}")
     if ok.any():

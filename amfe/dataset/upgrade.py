@@ -3,19 +3,19 @@ import os
 
 import numpy as np
 
+from amfe.dataset.bondimage import bond_image
+from amfe.dataset.datafile import _image_dataset, check_dataset, missing_dataset
 from amfe.dataset.lock import DatasetLock
+from amfe.dataset.parts import STATUS_OK
 from amfe.errors import AmfeError
 from amfe.io.atomic import atomic_write_h5
-from amfe.dataset.datafile import _image_dataset, check_dataset, missing_dataset
-from amfe.dataset.parts import STATUS_OK
-from amfe.model.scales import get_scale
+from amfe.model.scales import bed_for, get_scale
 
 
 def record_bond_image(bed, sc):
     """The bond image of a record's bed on its scale's grid (box [0, scale size])."""
-    from amfe.dataset.bondimage import bond_image
     return bond_image(bed, cell=sc.cell, layer_thickness=sc.layer_thickness,
-                      box=((0.0, 0.0, 0.0), sc.size))
+                      box=((0.0, 0.0, 0.0), sc.image_box))
 
 
 
@@ -39,7 +39,6 @@ def add_bond_images(path, progress=True):
 
 
 def _add_bond_images(path, progress):
-    from amfe.model.scales import bed_for
 
     problems, data, attrs = check_dataset(path)
     if problems:
@@ -52,7 +51,7 @@ def _add_bond_images(path, progress):
     out = np.zeros((M, *sc.image_shape), np.float32)
     bar = None
     if progress:
-        from tqdm import tqdm
+        from tqdm import tqdm  # noqa: PLC0415 (heavy or optional: loaded when used)
         bar = tqdm(total=M, desc="bond images", unit="bed", dynamic_ncols=True)
     for k in range(M):
         try:

@@ -18,13 +18,13 @@ import os
 import h5py
 import numpy as np
 
+from amfe.errors import AmfeError
+from amfe.io.atomic import atomic_write
 from amfe.model.bed import Bed
 from amfe.model.bonds import check_shapes
 from amfe.model.material import check_material_names
 from amfe.model.memory import READ_BYTES, check_memory
 from amfe.model.torus import check_box
-from amfe.io.atomic import atomic_write
-from amfe.errors import AmfeError
 
 CENTERS = "particles/centers"
 RADII = "particles/radii"
@@ -57,7 +57,7 @@ def _from_attr(value):
     return value
 
 
-def write_bed(path, bed: Bed):
+def write_bed(path: str | os.PathLike, bed: Bed) -> None:
     """Write ``bed`` to the HDF5 file ``path`` (overwriting it), atomically.
 
     The file is written under a temporary name in the same directory and
@@ -163,7 +163,7 @@ def check_attrs(attrs, path="the bed"):
     check_material_names(attrs, path)
 
 
-def read_bed(path, max_memory=None) -> Bed:
+def read_bed(path: str | os.PathLike, max_memory: float | str | None = None) -> Bed:
     """Read a bed from any HDF5 file with /particles/centers (N,3) and /particles/radii (N,) [m].
 
     Root attributes become ``Bed.attrs`` (plain Python values; arrays as

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from amfe.model.averages import unit_strains
+from amfe.model.conditions import get_condition
 from amfe.model.element import bond_end_loads
 from amfe.model.periodic import bond_jumps
 from amfe.model.subc import unit_stresses
@@ -93,11 +94,11 @@ class Fields:
     shift: np.ndarray = None
 
     @property
-    def n_particles(self):
+    def n_particles(self) -> int:
         return int(self.particle_id.size)
 
     @property
-    def n_bonds(self):
+    def n_bonds(self) -> int:
         return int(self.bonds.shape[0])
 
 
@@ -143,7 +144,7 @@ def frame_fields(frame, u, groups, bc="kubc", centers=None, radii=None, strains=
     def stack(key, scale):
         return np.array([d[key] * scale for d in loads])
 
-    subc = bc == "subc"
+    subc = get_condition(bc).loads == "stress"   # the cases apply macro-stresses
     return Fields(
         particle_id=ids,
         centers=(frame.centers[order] * L + frame.origin if centers is None

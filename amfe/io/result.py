@@ -8,7 +8,8 @@ shipped JSON Schema. Arrays are numpy; units are SI (Pa, 1/Pa, m^3, m, N).
 """
 import json
 import os
-from dataclasses import dataclass, field, fields as dc_fields
+from dataclasses import dataclass, field
+from dataclasses import fields as dc_fields
 
 import numpy as np
 
@@ -52,7 +53,7 @@ class Result:
     schema_version: int = SCHEMA_VERSION
 
     @classmethod
-    def from_dict(cls, d, fields=None):
+    def from_dict(cls, d: dict, fields: Fields | None = None) -> "Result":
         """A Result from the dict :func:`amfe.solvers.driver.homogenize_bed` returns."""
         names = {f.name for f in dc_fields(cls)} - {"extra", "fields", "schema_version"}
         kw = {k: d[k] for k in names}
@@ -77,15 +78,15 @@ class Result:
             raise AmfeError(f"{os.fspath(path)} is not a complete amfe result "
                             f"({type(exc).__name__}: {exc})") from None
 
-    def __getattr__(self, name):
+    def __getattr__(self, name: str) -> float:
         if name in CONSTANT_NAMES:
             return self.properties[name]
         raise AttributeError(f"{type(self).__name__!s} has no attribute {name!r}")
 
-    def __dir__(self):
+    def __dir__(self) -> list[str]:
         return sorted(set(super().__dir__()) | set(CONSTANT_NAMES))
 
-    def to_dict(self):
+    def to_dict(self) -> dict:
         """The JSON layout (plain lists and numbers): the header, then the results."""
         d = {"schema_version": self.schema_version}
         d.update((k, self.extra[k]) for k in HEADER_KEYS if k in self.extra)
@@ -97,7 +98,7 @@ class Result:
         d.update((k, v) for k, v in self.extra.items() if k not in d)
         return d
 
-    def to_json(self, path):
+    def to_json(self, path: str | os.PathLike) -> None:
         """Write :meth:`to_dict` to ``path`` atomically (a reader never sees half a file).
 
         AmfeError, naming the path, for a directory, a path that is not a
@@ -115,7 +116,7 @@ class Result:
         except OSError as exc:
             raise AmfeError(f"cannot write {os.fspath(path)}: {exc.strerror or exc}") from None
 
-    def write_vtu(self, directory):
+    def write_vtu(self, directory: str | os.PathLike) -> list[str]:
         """ParaView files: ``case_<name>.vtu`` per load case, ``cases.json`` and ``cases.pvd``.
 
         Needs ``fields=True``; the layout is in :mod:`amfe.io.vtu` and
@@ -129,7 +130,7 @@ class Result:
     #: amfe 0.2's name of :meth:`write_vtu` (it wrote ``.vtp`` files then).
     write_vtp = write_vtu
 
-    def __repr__(self):
+    def __repr__(self) -> str:
         lines = [f"Result(bc={self.bc!r}, {self.n_particles} particles "
                  f"({self.n_removed} removed), {self.n_bonds} bonds, volume {self.volume:.4g} m^3,"]
         for name in CONSTANT_NAMES:

@@ -14,6 +14,7 @@ import numpy as np
 
 from amfe.errors import AmfeError
 from amfe.model.bonds import find_pairs
+from amfe.model.conditions import CONDITIONS, condition_names
 from amfe.version import __version__
 from amfe.vocab import CASE_NAMES
 
@@ -129,8 +130,31 @@ def predict_block(out):
 
 
 def load_schema():
-    """The JSON Schema (draft 2020-12) of amfe's results, shipped in this package."""
-    return json.loads(resources.files("amfe.io").joinpath(SCHEMA_FILE).read_text())
+    """The JSON Schema (draft 2020-12) of amfe's results, shipped in this package, with the
+    boundary conditions' names read from the table (:mod:`amfe.model.conditions`): a
+    result's ``bc`` is a registered condition, and ``--bc all`` holds those it solves."""
+    schema = json.loads(resources.files("amfe.io").joinpath(SCHEMA_FILE).read_text())
+    _name_conditions(schema)
+    return schema
+
+
+def _name_conditions(node):
+    """Set, in place, every ``bc`` enum to the registered names and every ``conditions``
+    object's names to those ``--bc all`` solves (the finite ones required)."""
+    if isinstance(node, list):
+        for item in node:
+            _name_conditions(item)
+        return
+    if not isinstance(node, dict):
+        return
+    if isinstance(node.get("bc"), dict) and "enum" in node["bc"]:
+        node["bc"]["enum"] = list(condition_names())
+    group = node.get("conditions")
+    if isinstance(group, dict) and "propertyNames" in group:
+        group["propertyNames"]["enum"] = [n for n, c in CONDITIONS.items() if c.in_all]
+        group["required"] = [n for n, c in CONDITIONS.items() if c.in_all and not c.periodic]
+    for value in node.values():
+        _name_conditions(value)
 
 
 def validate(result):
@@ -139,7 +163,7 @@ def validate(result):
     Needs ``jsonschema`` (``pip install amfe[test]``).
     """
     try:
-        import jsonschema
+        import jsonschema  # noqa: PLC0415 (optional: the test extra)
     except ImportError:
         raise AmfeError("validating a result needs jsonschema: pip install jsonschema") from None
     validator = jsonschema.Draft202012Validator(load_schema())

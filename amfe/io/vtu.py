@@ -26,14 +26,16 @@ Binary, uncompressed (:data:`COMPRESSION`): meshio's zlib compresses every
 array of a file at one level, and on the paper's bed (295 583 particles,
 1.7 M bonds) it took 5 to 6 times as long as storing (3.6 times amfe 0.2's
 writer, whose budget is 1.5) for files 21 % smaller; the float64 fields hardly
-compress (run/bench_vtu.py, docs/benchmarks.md).
+compress (run/bench/vtu.py, docs/benchmarks.md).
 
-Atomicity: everything is checked before a file is touched. An old
-``cases.pvd`` is removed first, each case is written atomically
-(:func:`amfe.io.atomic.atomic_write`), then ``cases.json``, ``cases.pvd``
-last, and case files of an earlier, different set are removed (also the
-``.vtp`` files of amfe 0.2). So ``cases.pvd`` exists if and only if the set
-beside it is complete.
+Atomicity: everything is checked before a file is touched. The directory is
+locked (:class:`amfe.io.vtuset.SetLock`), an old ``cases.pvd`` is removed first,
+each case is written atomically (:func:`amfe.io.atomic.atomic_write`; a symbolic
+link at its name is replaced, its target never written), then ``cases.json``,
+``cases.pvd`` last, and the case files that the earlier set's ``cases.json`` or
+``cases.pvd`` listed and the new one does not are removed; nothing else
+(:mod:`amfe.io.vtuset`). So ``cases.pvd`` exists if and only if the set beside
+it is complete.
 """
 import json
 import os
@@ -44,6 +46,7 @@ import numpy as np
 from amfe.errors import AmfeError
 from amfe.io.atomic import atomic_write, fsync_dir
 from amfe.io.pvd import PVD_NAME, SIDECAR_NAME, case_fields, pvd_text
+from amfe.io.vtuset import SetLock, listed_files, unlink_links
 from amfe.version import __version__
 
 COMPRESSION = None
@@ -73,7 +76,6 @@ END_CONVENTION = ("force_i_N and moment_i_Nm act on particle i (cell array i); p
                   "gets -force_i_N and L e x force_i_N - moment_i_Nm about its own centre, "
                   "with e = (x_j - x_i) / L and L = |x_j - x_i|")
 _SAFE_NAME = re.compile(r"^[A-Za-z0-9_\-]+$")
-_OURS = re.compile(r"^case_[A-Za-z0-9_\-]+\.vt[up]$")   # this set's, 0.2's .vtp, 0.1's
 _VOIGT = (("eps_xx", 0, 0), ("eps_yy", 1, 1), ("eps_zz", 2, 2), ("gamma_yz", 1, 2),
           ("gamma_xz", 0, 2), ("gamma_xy", 0, 1))
 
@@ -243,27 +245,29 @@ def _write_set(directory, write_case, names, sidecar_text):
     except OSError as exc:
         raise AmfeError(f"cannot create the output directory {directory}: {exc}") from None
     pvd = os.path.join(directory, PVD_NAME)
+    sidecar = os.path.join(directory, SIDECAR_NAME)
     final = [os.path.join(directory, case_filename(nm)) for nm in names]
-    try:
-        if os.path.lexists(pvd):                 # no stale collection outlives a failed write
-            os.remove(pvd)
-        for k, path in enumerate(final):
-            atomic_write(path, lambda tmp, k=k: write_case(k, tmp), by_name=True)
-        atomic_write(os.path.join(directory, SIDECAR_NAME),
-                     lambda fh: fh.write(sidecar_text.encode()))
-        text = pvd_text([os.path.basename(p) for p in final], names).encode()
-        atomic_write(pvd, lambda fh: fh.write(text))
-    except OSError as exc:
-        raise AmfeError(f"writing the load-case files in {directory} failed ({exc}); no "
-                        f"{PVD_NAME} was left, so no partial set looks complete") from None
-    keep = {os.path.basename(p) for p in final}
-    for entry in os.listdir(directory):          # an earlier, different set: orphans
-        if _OURS.match(entry) and entry not in keep:
+    with SetLock(directory):                     # one writer per directory
+        previous = listed_files(directory)       # before its cases.pvd goes
+        try:
+            if os.path.lexists(pvd):             # no stale collection outlives a failed write
+                os.remove(pvd)
+            unlink_links(final + [sidecar])      # a link is replaced, its target never written
+            for k, path in enumerate(final):
+                atomic_write(path, lambda tmp, k=k: write_case(k, tmp), by_name=True)
+            atomic_write(sidecar, lambda fh: fh.write(sidecar_text.encode()))
+            text = pvd_text([os.path.basename(p) for p in final], names).encode()
+            atomic_write(pvd, lambda fh: fh.write(text))
+        except OSError as exc:
+            raise AmfeError(f"writing the load-case files in {directory} failed ({exc}); no "
+                            f"{PVD_NAME} was left, so no partial set looks complete") from None
+        keep = {os.path.basename(p) for p in final}
+        for entry in previous - keep:            # the earlier set's own files, nothing else
             try:
                 os.remove(os.path.join(directory, entry))
             except OSError:
                 pass
-    fsync_dir(directory)
+        fsync_dir(directory)
     return final + [pvd]
 
 

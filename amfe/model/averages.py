@@ -24,7 +24,8 @@ from amfe.errors import AmfeError
 from amfe.signals import signals_deferred
 
 #: Keys of the dict returned by :func:`compliance_and_constants`, in docs/model.md's order.
-from amfe.vocab import CONSTANT_NAMES as CONSTANT_KEYS, VOIGT_PAIRS as _VOIGT_PAIRS
+from amfe.vocab import CONSTANT_NAMES as CONSTANT_KEYS
+from amfe.vocab import VOIGT_PAIRS as _VOIGT_PAIRS
 
 # Voigt index pairs (xx, yy, zz, yz, xz, xy).
 _VI = np.array([p[0] for p in _VOIGT_PAIRS])
@@ -77,7 +78,8 @@ def hull_of(centers) -> Hull:
     if x.ndim != 2 or x.shape[1] != 3:
         raise AmfeError(f"hull_of: centres must have shape (N, 3), got {x.shape}")
     if x.shape[0] < 4:
-        raise AmfeError(f"{_DEGENERATE_MSG} (only {x.shape[0]} particles; a volume needs at least 4)")
+        raise AmfeError(f"{_DEGENERATE_MSG} (only {x.shape[0]} particles; a volume needs at "
+                        "least 4)")
     if not np.all(np.isfinite(x)):
         raise AmfeError("hull_of: the particle centres contain non-finite coordinates")
 
@@ -271,7 +273,8 @@ def stiffness(strains, stresses):
     E = np.asarray(strains, dtype=float)
     Sg = np.asarray(stresses, dtype=float)
     if E.shape != (6, 6) or Sg.shape != (6, 6):
-        raise AmfeError(f"stiffness: strains and stresses must both be (6, 6), got {E.shape} and {Sg.shape}")
+        raise AmfeError("stiffness: strains and stresses must both be (6, 6), got "
+                        f"{E.shape} and {Sg.shape}")
     if not (np.all(np.isfinite(E)) and np.all(np.isfinite(Sg))):
         raise AmfeError("stiffness: the strains or stresses contain non-finite values "
                         "(a load case failed?)")
@@ -307,7 +310,8 @@ def compliance_and_constants(C):
     eig = np.linalg.eigvalsh(symmetric(C))
     if eig[0] <= 1e-12 * max(abs(eig[-1]), np.finfo(float).tiny):
         raise AmfeError("compliance_and_constants: C is not positive definite "
-                        f"(eigenvalues of its symmetric part: {np.array2string(eig, precision=4)}); "
+                        "(eigenvalues of its symmetric part: "
+                        f"{np.array2string(eig, precision=4)}); "
                         "the frame is unstable or a load case is wrong")
     S = np.linalg.inv(C)
     props = {

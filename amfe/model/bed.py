@@ -13,14 +13,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from amfe.version import __version__
-from amfe.model.bonds import bonded_among, contact_geometry, find_bonds, validate_particles
 from amfe.errors import AmfeError
-from amfe.model.material import STEEL, material_from_attrs
-from amfe.model.memory import check_memory, generation_bytes, lattice_counts
 from amfe.model.bedparams import SEED_LIMIT, BedParams, check_seed  # noqa: F401 - re-exported
-from amfe.model.scanpath import scanned_mask
+from amfe.model.bonds import bonded_among, contact_geometry, find_bonds, validate_particles
+from amfe.model.material import STEEL, Material, material_from_attrs
+from amfe.model.memory import check_memory, generation_bytes, lattice_counts
+from amfe.model.scanpath import ScanPath, scanned_mask
 from amfe.model.torus import find_periodic_bonds, periodic_hcp_lattice, snap_box, wrap
+from amfe.version import __version__
 
 SQRT3 = math.sqrt(3.0)
 
@@ -32,6 +32,8 @@ class Bed:
     centers: (N,3) float64 particle centres [m]; radii: (N,) float64 radii [m];
     attrs: material and generation parameters (str, bool, int, float, or small
     numeric lists), SI units; see :func:`generate_bed` for the keys it writes.
+    The arrays are the bed's own read-only copies, checked once: make a new Bed to
+    change them.
     """
 
     centers: np.ndarray
@@ -40,7 +42,12 @@ class Bed:
 
     def __post_init__(self):
         # the one place a bed's arrays are checked: below the face nothing checks them again
-        self.centers, self.radii = validate_particles(self.centers, self.radii)
+        # copied and read-only: a NaN written into the caller's arrays (or these) after the
+        # check must not reach the solver (docs/hard_cases.md, issue 45 item 4)
+        centers, radii = validate_particles(self.centers, self.radii)
+        self.centers, self.radii = np.array(centers, np.float64), np.array(radii, np.float64)
+        self.centers.flags.writeable = False
+        self.radii.flags.writeable = False
         if not isinstance(self.attrs, Mapping) or not all(isinstance(k, str) for k in self.attrs):
             raise AmfeError(f"Bed attrs must be a dict with str keys, got "
                             f"{type(self.attrs).__name__} {self.attrs!r}"[:300])
@@ -66,19 +73,19 @@ class Bed:
         return (f"Bed({n} particles, mean radius {1e6 * float(self.radii.mean()):.4g} um, box "
                 f"{' x '.join(f'{1e3 * v:.4g}' for v in box)} mm ({source}), {material})")
 
-    def __len__(self):
+    def __len__(self) -> int:
         return self.radii.size
 
     @property
-    def n(self):
+    def n(self) -> int:
         """Number of particles."""
         return self.radii.size
 
-    def sphere_volume(self):
+    def sphere_volume(self) -> float:
         """Sum of the sphere volumes [m^3]; overlaps are counted twice."""
         return float(np.sum(4.0 / 3.0 * np.pi * self.radii**3))
 
-    def material(self, default=STEEL):
+    def material(self, default: Material = STEEL) -> Material:
         """The particle :class:`Material` recorded in attrs (material_E, ...), else ``default``.
 
         E, nu and psi must be all present or all absent (AmfeError naming the
@@ -200,10 +207,13 @@ def limit_a_star(centers, radii, a_star_max, max_passes=50, box=None):
                     f"{bonds.a_star[bad].max():.6f}); lower the enlargement or the jitter")
 
 
-def generate_bed(size=(250e-6, 250e-6, 100e-6), *, mean_radius=12.5e-6,
-                 enlargement=(1.05, 1.14), jitter=0.025, layer_thickness=100e-6,
-                 scan=None, seed=0, a_star_max=0.98, material=STEEL, periodic=False,
-                 offset=None, max_memory=None, skip_seed=None):
+def generate_bed(size: tuple[float, float, float] = (250e-6, 250e-6, 100e-6), *,
+                 mean_radius: float = 12.5e-6, enlargement: tuple[float, float] = (1.05, 1.14),
+                 jitter: float = 0.025, layer_thickness: float = 100e-6,
+                 scan: ScanPath | None = None, seed: int = 0, a_star_max: float = 0.98,
+                 material: Material = STEEL, periodic: bool = False,
+                 offset: tuple[float, float, float] | None = None,
+                 max_memory: float | str | None = None, skip_seed: int | None = None) -> Bed:
     """A powder bed on a jittered, enlarged HCP lattice, cut by a scan path.
 
     size: (Lx, Ly, Lz) of the box [m] (default: the paper's figure-2 bed,

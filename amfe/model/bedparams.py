@@ -81,30 +81,37 @@ class BedParams:
         except (TypeError, ValueError):
             raise AmfeError(f"size must be three lengths (Lx, Ly, Lz) in m, got {size!r}") from None
         if len(size) != 3 or not all(math.isfinite(s) and s > 0 for s in size):
-            raise AmfeError(f"size must be three positive finite lengths (Lx, Ly, Lz) in m, got {size}")
+            raise AmfeError("size must be three positive finite lengths (Lx, Ly, Lz) in m, got "
+                            f"{size}")
         mean_radius = _check_number("mean radius", mean_radius, lo=0.0, lo_open=True, unit=" m")
         try:
             lo_f, hi_f = (float(e) for e in enlargement)
         except (TypeError, ValueError):
-            raise AmfeError(f"enlargement must be two factors (lo, hi), got {enlargement!r}") from None
-        if not (math.isfinite(lo_f) and math.isfinite(hi_f) and 1.0 <= lo_f <= hi_f < math.sqrt(2.0)):
+            raise AmfeError("enlargement must be two factors (lo, hi), got "
+                            f"{enlargement!r}") from None
+        if not (math.isfinite(lo_f) and math.isfinite(hi_f)
+                and 1.0 <= lo_f <= hi_f < math.sqrt(2.0)):
             raise AmfeError(f"enlargement must satisfy 1 <= lo <= hi < sqrt(2) = 1.414, got "
-                            f"lo={lo_f}, hi={hi_f} (below 1 the particles do not touch; from sqrt(2) "
-                            "on second lattice neighbours overlap)")
-        jitter = _check_number("jitter", jitter, lo=0.0, hi=0.5, hi_open=True, unit=" (fraction of R)")
+                            f"lo={lo_f}, hi={hi_f} (below 1 the particles do not touch; from "
+                            "sqrt(2) on second lattice neighbours overlap)")
+        jitter = _check_number("jitter", jitter, lo=0.0, hi=0.5, hi_open=True,
+                               unit=" (fraction of R)")
         layer_thickness = _check_number("powder layer thickness", layer_thickness, lo=0.0,
                                         lo_open=True, unit=" m")
         seed = check_seed(seed)
         if skip_seed is not None:
             skip_seed = check_seed(skip_seed, "skip_seed")
         if not isinstance(material, Material):
-            raise AmfeError(f"material must be an amfe.model.material.Material, got {type(material).__name__}")
+            raise AmfeError("material must be an amfe.model.material.Material, got "
+                            f"{type(material).__name__}")
         crit = critical_a_star(material.nu, material.psi)
-        a_star_max = _check_number("a* max", a_star_max, lo=0.0, hi=crit, lo_open=True, hi_open=True,
+        a_star_max = _check_number("a* max", a_star_max, lo=0.0, hi=crit, lo_open=True,
+                                   hi_open=True,
                                    unit=f" (the critical a* is {crit:.6f} for nu={material.nu}, "
                                         f"psi={material.psi})")
         if scan is not None and not isinstance(scan, ScanPath):
-            raise AmfeError(f"scan must be an amfe.model.scanpath.ScanPath or None, got {type(scan).__name__}")
+            raise AmfeError("scan must be an amfe.model.scanpath.ScanPath or None, got "
+                            f"{type(scan).__name__}")
         offset = self.offset
         if offset is not None:
             try:

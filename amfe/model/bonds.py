@@ -13,7 +13,6 @@ from amfe.errors import AmfeError, _list_items
 from amfe.model.material import Material
 from amfe.model.springs import A_STAR_MARGIN, critical_a_star, spring_constants
 
-
 LENGTH_RANGE = (1e-60, 1e60)
 """Radii and coordinates must lie in this range (in the caller's length unit, SI: m):
 contact radii go through R^4 (Heron's form), which under- or overflows float64
@@ -73,7 +72,8 @@ def validate_particles(centers, radii):
         raise AmfeError("the bed has no particles")
     bad = np.flatnonzero(~np.isfinite(centers).all(axis=1))
     if bad.size:
-        raise AmfeError(f"{bad.size} particles have non-finite centres: particles {_list_items(bad)}")
+        raise AmfeError(f"{bad.size} particles have non-finite centres: particles "
+                        f"{_list_items(bad)}")
     bad = np.flatnonzero(~(np.isfinite(radii) & (radii > 0)))
     if bad.size:
         raise AmfeError(f"{bad.size} particles have non-finite or non-positive radii: "
@@ -250,7 +250,7 @@ the bending springs (~a*^4) to zero and leaves a singular frame."""
 
 
 def check_a_star_cap(a_star_cap, material):
-    """``a_star_cap`` as a float in [A_STAR_CAP_MIN, critical a* - A_STAR_MARGIN), else AmfeError."""
+    """``a_star_cap`` as a float in [A_STAR_CAP_MIN, critical a* - A_STAR_MARGIN), else an error."""
     crit = critical_a_star(material.nu, material.psi)
     limit = crit - A_STAR_MARGIN
     try:

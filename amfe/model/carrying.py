@@ -31,6 +31,9 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from amfe.errors import AmfeError
+from amfe.model.averages import hull_of
+from amfe.model.bonds import find_pairs, validate_particles
+from amfe.model.torus import spanning_images, winding_rank
 
 #: A component is held by KUBC when a prescribed centre lies this many mean radii off
 #: the line through the others (a smaller offset is a near mechanism: docs/hard_cases.md).
@@ -80,6 +83,7 @@ def _fixed_point(x, r, labels, keep_components, start=None):
 def kubc_held(x, r, labels):
     """Component ids (sorted) that KUBC's prescribed translations hold (module docstring)."""
     tol = HELD_OFF_LINE * float(np.mean(r))
+    strays = stray_pieces(x, r, labels)
 
     def keep(mask, on_lo, on_hi):
         idx = np.flatnonzero(mask & (on_lo | on_hi).any(axis=1))
@@ -87,7 +91,8 @@ def kubc_held(x, r, labels):
         ids, start = np.unique(labels[idx], return_index=True)
         groups = np.split(idx, start[1:])
         return np.array([c for c, g in zip(ids, groups) if off_line(x[g]) >= tol], np.int64)
-    kept = _fixed_point(x, r, labels, keep)
+    start = np.setdiff1d(np.unique(labels), strays) if strays.size else None
+    kept = _fixed_point(x, r, labels, keep, start)
     if kept.size == 0:
         raise AmfeError("no bonded piece of the bed is held by the boundary conditions: none "
                         "has three prescribed boundary particles off one line (a chain, whose "
@@ -133,7 +138,6 @@ def periodic_winding(n, i, j, shift, labels):
     components' windings span fewer than three directions (no macro-stress
     along the others).
     """
-    from amfe.model.torus import spanning_images, winding_rank
     kept, windings = [], []
     crossing = np.any(shift != 0, axis=1)
     for c in np.unique(labels[i[crossing]]):
@@ -159,34 +163,107 @@ def periodic_winding(n, i, j, shift, labels):
     return np.array(kept, np.int64)
 
 
-def bed_box(centers, radii, size=None, kept=None):
-    """(L (3,), note): the bed's box lengths, whose product is V, in the arguments' units.
+#: A piece is small when it holds under this share of the particles, or cannot span a volume.
+STRAY_SHARE = 0.05
 
-    ``size`` (3,): the generated bed's recorded box (attrs ``size``, the box its
-    image covers; a periodic bed's periods), used when it holds the extent of
-    the load-carrying centres (``kept``, indices; default all). Otherwise, or
-    without it: the smallest axis-aligned box holding every load-carrying
-    sphere, max(x + R) - min(x - R) per axis; note then says why the recorded
-    size was not used (a bed edited after generation), else it is None. Either
-    way a floating piece, kept out, changes no volume.
+#: A small piece is a stray when a centre of it lies this many largest diameters or more
+#: outside the spheres' box of the other pieces (a gap two particles would fit in): no
+#: generated bed's piece lies so far out, while a small piece held at the bed's face just
+#: outside its box (tests/test_carrying.py) is still no stray.
+STRAY_GAP = 2.0
+
+
+def stray_pieces(x, r, labels):
+    """Component ids (sorted) of the stray pieces: small pieces lying apart from the bed.
+
+    A piece is small when it holds fewer than :data:`STRAY_SHARE` of the particles,
+    fewer than 4, or centres spanning under one mean radius along an axis (no volume);
+    a small piece is a stray when a centre of it lies :data:`STRAY_GAP` largest
+    diameters or more outside the spheres' box of the pieces that are not small.
+    Strays must not define the box (KUBC would grip them and not the bed: issue 45,
+    item 6), so :func:`kubc_held` leaves them out and they are removed. Empty when
+    every piece is small (then the box rule is the plain one).
     """
+    n = labels.max() + 1
+    count = np.bincount(labels, minlength=n)
+    lo = np.full((n, 3), np.inf)
+    hi = np.full((n, 3), -np.inf)
+    np.minimum.at(lo, labels, x)
+    np.maximum.at(hi, labels, x)
+    thin = np.min(hi - lo, axis=1) < float(np.mean(r))
+    small = (count > 0) & ((count < STRAY_SHARE * labels.size) | (count < 4) | thin)
+    big = ~small[labels]
+    if not big.any():
+        return np.zeros(0, np.int64)
+    box_lo = (x[big] - r[big, None]).min(axis=0)
+    box_hi = (x[big] + r[big, None]).max(axis=0)
+    gap = STRAY_GAP * 2.0 * float(np.max(r))
+    out = np.any((x < box_lo - gap) | (x > box_hi + gap), axis=1)
+    return np.flatnonzero(small & (np.bincount(labels, weights=out, minlength=n) > 0))
+
+
+#: Where V's box came from (:func:`box_rule`), in the words the result uses.
+BOX_SOURCES = ("recorded size", "periodic box", "spheres' box", "given box")
+
+
+class GivenBox(tuple):
+    """(Lx, Ly, Lz): a box the user gives (issue 48's --box); as ``size`` of
+    :func:`box_rule` (or of :func:`amfe.model.frame.build_frame`) it is ``given``."""
+
+
+def box_rule(centers, radii, size=None, kept=None, given=None):
+    """(L (3,), note, source): the bed's box lengths, whose product is V, in the arguments' units.
+
+    The one box rule (docs/model.md, section 5). ``given`` (3,): a box the user
+    states (issue 48's --box); it must hold the load-carrying centres (``kept``,
+    indices; default all), else AmfeError; source "given box". ``size`` (3,): the
+    generated bed's recorded box (attrs ``size``, the box its image covers), used
+    when it holds the extent of the load-carrying centres; source "recorded size".
+    Otherwise, or without either: the smallest axis-aligned box holding every
+    load-carrying sphere, max(x + R) - min(x - R) per axis; source "spheres' box",
+    and note says why the recorded size was not used (a bed edited after
+    generation), else it is None. A periodic bed's box is its periods (source
+    "periodic box", set by the frame). Either way a floating or stray piece
+    (:func:`stray_pieces`), kept out, changes no volume.
+    """
+    if isinstance(size, GivenBox):
+        size, given = None, size
     x = np.asarray(centers, dtype=float)
     r = np.asarray(radii, dtype=float)
     x, r = (x, r) if kept is None else (x[kept], r[kept])
     spheres = (x + r[:, None]).max(axis=0) - (x - r[:, None]).min(axis=0)
-    if size is None:
-        return spheres, None
-    L = np.asarray(size, dtype=float).reshape(-1)
-    if L.shape != (3,) or not np.all(np.isfinite(L) & (L > 0)):
-        raise AmfeError(f"the bed's size must be three positive lengths, got {size!r}")
     extent = np.ptp(x, axis=0)
+    if given is not None:
+        L = _three_lengths(given, "the given box")
+        if np.any(extent > L * (1 + 1e-9)):
+            axis = "xyz"[int(np.argmax(extent / L))]
+            raise AmfeError(f"the given box {tuple(float(v) for v in L)} does not hold the "
+                            f"load-carrying centres: they span {float(np.max(extent / L)):.4g} "
+                            f"times its length along {axis}; give at least "
+                            f"{tuple(float(v) for v in extent)}")
+        return L, None, "given box"
+    if size is None:
+        return spheres, None, "spheres' box"
+    L = _three_lengths(size, "the bed's size")
     if np.any(extent > L * (1 + 1e-9)):
         over = 100 * float(np.max(extent / L - 1))
         return spheres, (f"the bed's recorded size does not hold its load-carrying centres "
                          f"(their extent exceeds it by up to {over:.3g} %; edited after "
                          "generation?): V is their spheres' bounding box instead "
-                         "(docs/model.md, section 5)")
-    return L, None
+                         "(docs/model.md, section 5)"), "spheres' box"
+    return L, None, "recorded size"
+
+
+def _three_lengths(value, what):
+    L = np.asarray(value, dtype=float).reshape(-1)
+    if L.shape != (3,) or not np.all(np.isfinite(L) & (L > 0)):
+        raise AmfeError(f"{what} must be three positive lengths, got {value!r}")
+    return L
+
+
+def bed_box(centers, radii, size=None, kept=None, given=None):
+    """(L (3,), note): :func:`box_rule` without the source."""
+    return box_rule(centers, radii, size, kept, given)[:2]
 
 
 def removed_report(x, r, labels, kept_ids, n_input):
@@ -211,6 +288,36 @@ def removed_report(x, r, labels, kept_ids, n_input):
             "particle_share": float(gone.sum() / n_input),
             "volume_share": float(share.sum()), "touching_boundary": int(touching.sum()),
             "largest": listed}
+
+
+# The carrying rules of the boundary-condition table (amfe.model.conditions), one signature:
+# (x (n,3), r (n,), bonds i, j (M,), shift (M,3) or None, box (3,) or None, labels (n,)) ->
+# the sorted ids of the load-carrying components.
+
+def kubc_carrying(x, r, i, j, shift, box, labels):
+    """KUBC: the components its prescribed boundary translations hold."""
+    return kubc_held(x, r, labels)
+
+
+def mixed_carrying(x, r, i, j, shift, box, labels):
+    """Mixed conditions: KUBC's rule, and one held piece at most (the paper's grips hold one
+    frame; each piece would keep its own free rigid motions)."""
+    ids = kubc_held(x, r, labels)
+    if ids.size > 1:
+        raise AmfeError(f"mixed conditions: the bed has {ids.size} separate load-carrying pieces; "
+                        "the grips of the paper's experiments hold one frame (each piece would "
+                        "keep its own free rigid motions): use --bc kubc")
+    return ids
+
+
+def subc_carrying(x, r, i, j, shift, box, labels):
+    """SUBC: the components that reach all six faces."""
+    return subc_spanning(x, r, labels)
+
+
+def periodic_carrying(x, r, i, j, shift, box, labels):
+    """Periodic: the components that wind round the torus."""
+    return periodic_winding(x.shape[0], i, j, shift, labels)
 
 
 #: Share of the particles above which removing them is a warning.
@@ -245,8 +352,6 @@ def rule1_factor(centers, radii, size=None):
     move): the conversion of a surrogate trained on rule-1 labels.
     centers (N,3), radii (N,) [m]; size (3,) [m] or None.
     """
-    from amfe.model.averages import hull_of
-    from amfe.model.bonds import find_pairs, validate_particles
     x, r = validate_particles(centers, radii)
     length = float(r.mean())                      # as build_frame finds the bonds
     i, j = find_pairs(x / length, r / length)

@@ -14,11 +14,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from amfe.model.bonds import Bonds, bond_springs, contact_geometry, find_pairs
 from amfe.errors import AmfeError
+from amfe.model.bonds import Bonds, bond_springs, contact_geometry, find_pairs
+from amfe.model.carrying import box_rule, component_labels, periodic_carrying, removed_report
+from amfe.model.conditions import get_condition
 from amfe.model.material import STEEL, Material
-from amfe.model.carrying import (bed_box, component_labels, kubc_held, periodic_winding,
-                                 removed_report, subc_spanning)
 from amfe.model.torus import check_box, find_periodic_pairs, wrap
 
 
@@ -40,7 +40,8 @@ class Frame:
     bed's box, volume = its product [length_scale^3], V of every average;
     parts (n,) int: the kept component (0..k-1) of each particle; removed: the
     report of :func:`amfe.model.carrying.removed_report`; box_note: why the
-    recorded size was not V's box (None when it was, or there was none).
+    recorded size was not V's box (None when it was, or there was none);
+    box_source: where V's box came from (:data:`amfe.model.carrying.BOX_SOURCES`).
     """
 
     centers: np.ndarray
@@ -63,6 +64,7 @@ class Frame:
     parts: np.ndarray = None
     removed: dict = None
     box_note: str = None
+    box_source: str = None
 
     @property
     def volume(self):
@@ -119,18 +121,20 @@ def build_frame(centers, radii, material: Material = STEEL, a_star_cap=None, non
     """The load-carrying, non-dimensionalised frame of a bed under condition ``bc``.
 
     centers (N,3) [m], radii (N,) [m]: a :class:`~amfe.model.bed.Bed`'s arrays, checked
-    when it was made. Raises AmfeError for degenerate contacts, a bed without bonds, a load-carrying part too small to
-    span a volume, or (unless ``a_star_cap`` is given) bonds at or past the
-    critical a* (see :func:`amfe.model.bonds.bond_springs`).
+    when it was made. Raises AmfeError for degenerate contacts, a bed without bonds, a
+    load-carrying part too small to span a volume, or (unless ``a_star_cap`` is given)
+    bonds at or past the critical a* (see :func:`amfe.model.bonds.bond_springs`).
     ``nondimensional=False`` keeps SI units (length_scale = force_scale = 1):
     only for showing what the scaling buys. ``box`` (3,) [m]: the bed is
     periodic with these periods (docs/model.md, section 9): bonds by minimum
     image, the components that wind round the torus, which together must wrap
     round it in x, y and z (else no macro-stress along some axis: an error).
-    bc: "kubc", "mixed" or "subc" picks the finite rule of
-    :mod:`amfe.model.carrying` (mixed: one held piece at most). size (3,) [m]:
-    the bed's recorded box (attrs ``size``); V is its volume, else that of the
-    load-carrying spheres' bounding box (a periodic bed: the periods).
+    bc: a condition of :mod:`amfe.model.conditions`, whose carrying rule picks the
+    load-carrying components (:mod:`amfe.model.carrying`; mixed: one held piece at most).
+    size (3,) [m]: the bed's recorded box (attrs ``size``); V is its volume, else that of the
+    load-carrying spheres' bounding box (a periodic bed: the periods); a
+    :class:`amfe.model.carrying.GivenBox` is V's box as the user states it, checked
+    against the kept centres (:func:`amfe.model.carrying.box_rule`, the one box rule).
     """
     centers, radii = np.asarray(centers, float), np.asarray(radii, float)  # checked (a Bed's)
     n_input = centers.shape[0]
@@ -151,7 +155,10 @@ def build_frame(centers, radii, material: Material = STEEL, a_star_cap=None, non
                         "(bonded means |x_j - x_i| < R_i + R_j)")
     contact_geometry(x, r, i, j, None if box is None else shift * L)  # errors anywhere in the bed
     labels = component_labels(n_input, i, j)
-    ids = _carrying(x, r, i, j, shift, L, labels, bc)
+    carrying = get_condition(bc).carrying
+    if box is not None and not get_condition(bc).periodic:
+        carrying = periodic_carrying   # a torus: what winds round it carries load
+    ids = carrying(x, r, i, j, shift, L, labels)
     keep = np.isin(labels, ids)
     kept = np.flatnonzero(keep)
     if kept.size < 4:
@@ -160,9 +167,10 @@ def build_frame(centers, radii, material: Material = STEEL, a_star_cap=None, non
     kept = kept[morton_order(x[kept])]
     parts = np.searchsorted(ids, labels[kept])
     removed = removed_report(x, r, labels, ids, n_input)
-    size_f, box_note = L, None                       # periodic: the periods
+    size_f, box_note, box_source = L, None, "periodic box"  # periodic: the periods
     if box is None:                                  # in SI, then in frame units
-        size_f, box_note = bed_box(centers - origin, radii, size, kept)  # exact (frame_origin)
+        size_f, box_note, box_source = box_rule(centers - origin, radii, size,
+                                                kept)  # exact (frame_origin)
         size_f = size_f / length
     new_index = np.full(n_input, -1, np.int64)
     new_index[kept] = np.arange(kept.size)
@@ -190,7 +198,7 @@ def build_frame(centers, radii, material: Material = STEEL, a_star_cap=None, non
                  kappa_n=kappa_n, kappa_t=kappa_t, n_input=n_input, n_capped=n_capped,
                  length_scale=length, force_scale=material.E / E * length**2, material=material,
                  box=L, shift=shift, size=size_f, parts=parts, removed=removed,
-                 box_note=box_note, origin=origin)
+                 box_note=box_note, box_source=box_source, origin=origin)
 
 
 FAR = 4.0
@@ -215,17 +223,3 @@ def frame_origin(centers):
     near = np.where(lo > 0, lo, np.where(hi < 0, -hi, 0.0))   # the smallest |c| per axis
     far = (near > 0) & (near >= FAR * (hi - lo))
     return np.where(far, lo + (hi - lo) / 2, 0.0)
-
-
-def _carrying(x, r, i, j, shift, box, labels, bc):
-    """Sorted ids of the components that carry load under ``bc`` (docs/model.md, section 5)."""
-    if box is not None:
-        return periodic_winding(x.shape[0], i, j, shift, labels)
-    if bc == "subc":
-        return subc_spanning(x, r, labels)
-    ids = kubc_held(x, r, labels)
-    if bc == "mixed" and ids.size > 1:
-        raise AmfeError(f"mixed conditions: the bed has {ids.size} separate load-carrying pieces; "
-                        "the grips of the paper's experiments hold one frame (each piece would "
-                        "keep its own free rigid motions): use --bc kubc")
-    return ids

@@ -10,7 +10,6 @@ import numpy as np
 from amfe.errors import AmfeError
 from amfe.model.averages import box_center, unit_strains
 from amfe.model.loadcase import Group
-
 from amfe.vocab import CASE_NAMES
 
 

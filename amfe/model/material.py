@@ -11,7 +11,7 @@ reader would take for the material (material_e, Material_NU, E): ignored, it
 would leave the bed solved as steel.
 """
 import math
-from dataclasses import dataclass, asdict
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
@@ -56,7 +56,7 @@ class Material:
         if not (self.density > 0 and math.isfinite(self.density)):
             raise AmfeError(f"the density must be positive and finite, got {self.density}")
 
-    def asdict(self):
+    def asdict(self) -> dict:
         return asdict(self)
 
 
@@ -170,3 +170,14 @@ def _describe(sources):
 def material_from_attrs(attrs, default=STEEL):
     """The :class:`Material` a bed's attrs record, ``default`` if they record none."""
     return resolve_material(attrs, default=default)[0]
+
+
+#: Handbook alloys of the test sets of issue 46 (E, nu from handbooks, psi the paper's 0.08;
+#: docs/datasets.md, "Materials", gives the sources). Keyed by the name `amfe dataset
+#: --materials` takes; only E, nu and psi enter the springs.
+ALLOYS = {
+    "316L": Material(E=193e9, nu=0.29, psi=0.08, density=8000.0),
+    "Ti64": Material(E=113.8e9, nu=0.342, psi=0.08, density=4430.0),
+    "IN718": Material(E=205e9, nu=0.294, psi=0.08, density=8190.0),
+    "AlSi10Mg": Material(E=70e9, nu=0.33, psi=0.08, density=2670.0),
+}

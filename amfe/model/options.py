@@ -13,11 +13,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from amfe.errors import AmfeError
+from amfe.model.conditions import condition_names
 from amfe.model.material import Material
 from amfe.model.memory import parse_size
 
-#: The boundary conditions one solve offers (docs/model.md, sections 5 and 9).
-BC_NAMES = ("kubc", "mixed", "subc", "periodic")
 #: --solver: "auto" picks per bed (amfe.solvers.choice).
 SOLVER_NAMES = ("auto", "gamg", "cholesky")
 
@@ -122,8 +121,8 @@ def check_a_star_cap_type(value):
 class SolveOptions:
     """How to solve a bed (:func:`amfe.solvers.driver.homogenize_bed`), checked when made.
 
-    bc: one of :data:`BC_NAMES`; rtol: GAMG's relative tolerance in (0, 1) or
-    None (the default of docs/model.md, section 5); solver: one of
+    bc: a registered condition (:mod:`amfe.model.conditions`); rtol: GAMG's relative
+    tolerance in (0, 1) or None (the default of docs/model.md, section 5); solver: one of
     :data:`SOLVER_NAMES`; max_it: iteration limit or None; ksp_options: PETSc
     options of this solve only ({name: value}); petsc_args: PETSc command-line
     options (["-ksp_monitor"]) added to the database; accept_unconverged: keep
@@ -154,7 +153,7 @@ class SolveOptions:
 
     def __post_init__(self):
         checked = {
-            "bc": check_choice("bc", self.bc, BC_NAMES),
+            "bc": check_choice("bc", self.bc, condition_names()),
             "rtol": None if self.rtol is None else check_rtol(self.rtol),
             "solver": check_choice("solver", self.solver, SOLVER_NAMES),
             "max_it": check_max_it(self.max_it),

@@ -58,7 +58,7 @@ Scales:
   bed: 257 000 particles, 1.4 million bonds, 65-75 s on one core): for clusters.
 - ``small``: 0.6 mm x 0.6 mm x 0.3 mm (the same three layers, a fifth of the side of
   the paper's base), images 3 x 20 x 20 with its cells. Chosen by measurement
-  on the 2-core development machine (``run/bench_dataset.py``, 40 beds, the
+  on the 2-core development machine (``run/bench/dataset.py``, 40 beds, the
   machine shared with other jobs): beds of 3 800-10 700 particles (mean
   7 100, 35 000 bonds), 0.02 s generation + 0.06 s image + 1.4 s
   homogenization per bed on one core; 2 400 beds/hour on 1 rank, 3 900 on
@@ -73,6 +73,13 @@ Scales:
   ranges as the others: a size between ``small`` and ``paper`` for the
   any-size surrogate (issue 32, item 4). About four times the particles of
   a ``small`` bed (docs/datasets.md gives the measured times).
+- box scales (``amfe dataset --size X Y Z``, :mod:`amfe.model.boxscale`): these
+  draws at any box, named ``box{X}x{Y}x{Z}um`` (micrometres) with an
+  optional material suffix (an alloy, or nu and psi drawn per bed from a
+  stream of their own); ``get_scale`` parses the name. ``box600x600x300um``
+  makes ``small``'s beds bit for bit. Their images follow the whole-cell rule
+  (:attr:`Scale.image_box`): a side that is not whole cells is imaged on its
+  whole cells, the remainder strip cropped.
 - ``tiny``: for the test suite only: 0.15 mm x 0.15 mm x 0.1 mm (one
   layer, images 1 x 5 x 5, a few hundred particles) and a fifth of its beds
   deliberately empty (the hatch lies outside the box, so generate_bed refuses
@@ -80,85 +87,36 @@ Scales:
   recording of failed beds.
 """
 import math
-from dataclasses import dataclass
 
 import numpy as np
 
 from amfe.errors import AmfeError
-from amfe.model.bed import check_seed
+from amfe.model.bed import check_seed, generate_bed
+from amfe.model.boxscale import a_star_cap, draw_material, parse_box
+from amfe.model.material import STEEL
+from amfe.model.scale import MM, SCALES, UM, WHOLE_CELL_TOL, Scale, _whole_cells  # noqa: F401
 from amfe.model.scanpath import ScanPath
 
 PARAM_STREAM = 0x5CA1E  # second word of the parameter stream's SeedSequence
 
-MM = 1e-3
-UM = 1e-6
-
-
-@dataclass(frozen=True)
-class Scale:
-    """The distribution of one data-set scale; lengths in m, angles in degrees."""
-
-    name: str
-    size: tuple                      # (Lx, Ly, Lz) of the box
-    layer_thickness: float = 0.1 * MM
-    cell: tuple = (30 * UM, 30 * UM)  # image cell (x, y); z: one powder layer
-    image_spacing: float = 2.5 * UM  # in-plane sample spacing of amfe.dataset.images.pixelate
-    mean_radius: float = 12.5 * UM
-    jitter: float = 0.025
-    a_star_max: float = 0.98
-    enlargement_lo: float = 1.05
-    enlargement_hi: tuple = (1.06, 1.14)
-    track_width: tuple = (0.05 * MM, 0.15 * MM)
-    coverage: tuple = (0.35, 1.0)    # track width / hatch spacing
-    layer_rotations: tuple = (67.0, 90.0)
-    skip_probability: float = 0.5    # share of beds with skipped track pieces
-    skip_fraction: tuple = (0.05, 0.3)
-    skip_length: tuple = (0.1 * MM, 0.3 * MM)
-    empty_probability: float = 0.0   # tests only: share of deliberately empty beds
-    purpose: str = ""
-
-    @property
-    def n_layers(self):
-        return max(1, int(math.ceil(self.size[2] / self.layer_thickness - 1e-9)))
-
-    @property
-    def image_shape(self):
-        """(layers, H, W) = (powder layers, cells along y, cells along x)."""
-        return (self.n_layers, int(round(self.size[1] / self.cell[1])),
-                int(round(self.size[0] / self.cell[0])))
-
-    def describe(self):
-        lx, ly, lz = (s / MM for s in self.size)
-        return (f"{self.name}: {lx:g} x {ly:g} x {lz:g} mm, {self.n_layers} layer(s) of "
-                f"{self.layer_thickness / MM:g} mm, images {'x'.join(map(str, self.image_shape))}")
-
-
-SCALES = {
-    "small": Scale("small", (0.6 * MM, 0.6 * MM, 0.3 * MM),
-                   purpose="2 000 beds in under an hour on 2 cores"),
-    "medium": Scale("medium", (1.2 * MM, 1.2 * MM, 0.3 * MM),
-                    purpose="twice the small side, images 3 x 40 x 40; for the any-size surrogate"),
-    "paper": Scale("paper", (3.0 * MM, 3.0 * MM, 0.3 * MM),
-                   purpose="the paper's 3 x 3 mm x 3 layers, 3 x 100 x 100 images; for clusters"),
-    "tiny": Scale("tiny", (0.15 * MM, 0.15 * MM, 0.1 * MM), empty_probability=0.2,
-                  purpose="test suite only; a fifth of the beds are empty on purpose"),
-}
-
 # The flat per-record parameters a data set stores (params/<name>), in this order.
 PARAM_NAMES = ("enlargement_lo", "enlargement_hi", "track_width", "hatch_spacing", "coverage",
                "angle", "layer_rotation", "offset", "skip_fraction", "skip_length",
-               "mean_radius", "jitter", "a_star_max", "empty")
+               "mean_radius", "jitter", "a_star_max", "empty", "E", "nu", "psi")
 PARAM_UNITS = {"enlargement_lo": "-", "enlargement_hi": "-", "track_width": "m",
                "hatch_spacing": "m", "coverage": "- (track width / hatch spacing)",
                "angle": "deg", "layer_rotation": "deg", "offset": "m", "skip_fraction": "-",
                "skip_length": "m", "mean_radius": "m", "jitter": "- (fraction of R)",
-               "a_star_max": "-", "empty": "1 if the bed was made empty on purpose (tiny scale)"}
+               "a_star_max": "-", "empty": "1 if the bed was made empty on purpose (tiny scale)",
+               "E": "Pa (the particle material)", "nu": "-", "psi": "-"}
 
 
 def get_scale(scale):
     """The :class:`Scale` named ``scale`` (or ``scale`` itself); AmfeError for an unknown name."""
     if isinstance(scale, Scale):
         return scale
+    if isinstance(scale, str) and scale.startswith("box"):
+        return parse_box(scale)
     try:
         return SCALES[scale]
     except (KeyError, TypeError):
@@ -219,7 +177,7 @@ def sample_bed_params(scale, bed_seed):
         far = 1000.0 * max(sc.size)
         scan = ScanPath(track_width=width, hatch_spacing=4.0 * far, angle=0.0,
                         layer_rotation=0.0, offset=far)
-    return {
+    out = {
         "size": tuple(float(s) for s in sc.size),
         "mean_radius": sc.mean_radius,
         "enlargement": (sc.enlargement_lo, hi),
@@ -229,6 +187,10 @@ def sample_bed_params(scale, bed_seed):
         "seed": bed_seed,
         "a_star_max": sc.a_star_max,
     }
+    if sc.material != "steel":   # box scales: from a stream of its own, the draws above unchanged
+        out["material"] = draw_material(sc, bed_seed)
+        out["a_star_max"] = a_star_cap(sc.a_star_max, out["material"])
+    return out
 
 
 def param_record(params):
@@ -238,11 +200,13 @@ def param_record(params):
     (track width, spacing, angle, rotation, offset NaN).
     """
     scan = params.get("scan")
+    mat = params.get("material", STEEL)
     lo, hi = params["enlargement"]
     rec = dict.fromkeys(PARAM_NAMES, float("nan"))
     rec.update(enlargement_lo=float(lo), enlargement_hi=float(hi),
                mean_radius=float(params["mean_radius"]), jitter=float(params["jitter"]),
-               a_star_max=float(params["a_star_max"]), skip_fraction=0.0, coverage=1.0)
+               a_star_max=float(params["a_star_max"]), skip_fraction=0.0, coverage=1.0,
+               E=mat.E, nu=mat.nu, psi=mat.psi)
     if scan is not None and not scan.is_full:
         far = scan.offset > 10.0 * max(params["size"])
         rec.update(track_width=scan.track_width, hatch_spacing=scan.hatch_spacing,
@@ -257,5 +221,4 @@ def param_record(params):
 
 def bed_for(scale, bed_seed):
     """The bed with seed ``bed_seed`` of ``scale``: generate_bed(**sample_bed_params(...))."""
-    from amfe.model.bed import generate_bed
     return generate_bed(**sample_bed_params(scale, bed_seed))

@@ -68,23 +68,25 @@ class ScanPath:
         if not self.track_width > 0:
             raise AmfeError(f"scan path: track width must be positive, got {self.track_width} m")
         if not self.hatch_spacing > 0:
-            raise AmfeError(f"scan path: hatch spacing must be positive, got {self.hatch_spacing} m")
+            raise AmfeError("scan path: hatch spacing must be positive, got "
+                            f"{self.hatch_spacing} m")
         if not 0.0 <= self.skip_fraction < 1.0:
-            raise AmfeError(f"scan path: skip fraction must lie in [0, 1), got {self.skip_fraction}")
+            raise AmfeError("scan path: skip fraction must lie in [0, 1), got "
+                            f"{self.skip_fraction}")
         if not self.skip_length > 0:
             raise AmfeError(f"scan path: skip length must be positive, got {self.skip_length} m")
 
     @classmethod
-    def full(cls):
+    def full(cls) -> "ScanPath":
         """A path that scans every point: abutting tracks (width == spacing), no skips."""
         return cls(track_width=1.0, hatch_spacing=1.0, angle=0.0, layer_rotation=0.0)
 
     @property
-    def is_full(self):
+    def is_full(self) -> bool:
         """True when the tracks cover the whole plane and nothing is skipped."""
         return self.skip_fraction == 0.0 and self.track_width >= self.hatch_spacing
 
-    def as_attrs(self):
+    def as_attrs(self) -> dict:
         """Flat dict of the parameters (SI units, degrees) for bed file attributes."""
         return {
             "scan_track_width": float(self.track_width),

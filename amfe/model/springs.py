@@ -36,7 +36,8 @@ def _paper_parts(s, k_br, psi):
 
 
 def paper_coefficients(material: Material):
-    """The material's constants of eqs. 1-4: (E, psi, 1 - nu^2, pi/6 (1 - nu^2), (2 - nu)(1 + nu))."""
+    """The material's constants of eqs. 1-4:
+    (E, psi, 1 - nu^2, pi/6 (1 - nu^2), (2 - nu)(1 + nu))."""
     nu = material.nu
     return (material.E, material.psi, 1.0 - nu**2, np.pi / 6.0 * (1.0 - nu**2),
             (2.0 - nu) * (1.0 + nu))

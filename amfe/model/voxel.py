@@ -14,7 +14,30 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from amfe.errors import AmfeError
+from amfe.model.bonds import contact_geometry, find_pairs
+from amfe.model.carrying import (
+    bed_box,
+    component_labels,
+    kubc_held,
+    periodic_winding,
+    removed_report,
+    removed_warning,
+)
 from amfe.model.hex8 import VERTICES
+from amfe.model.kubc import boundary_particles
+from amfe.model.memory import check_memory
+from amfe.model.torus import check_box, find_periodic_pairs, wrap
+from amfe.model.voxelgrid import (  # noqa: F401 (the grid's names, re-exported)
+    DEFAULT_VOXELS_PER_RADIUS,
+    FREE_NODE_BYTES,
+    GRID_BYTES,
+    MAX_VOXELS_PER_AXIS,
+    NODE_BYTES,
+    Grid,
+    grid_over,
+    voxel_bytes,
+)
+from amfe.model.voxelmemory import check_estimate
 
 NECK_WARN_SHARE = 0.5
 """Below this share of necks resolved by at least 2 voxels across, a warning."""
@@ -23,66 +46,6 @@ NECK_ERROR_SHARE = 0.2
 and the voxel solid no longer joins the spheres the frame joins."""
 CHUNK_PAIRS = 1 << 21
 """(sphere, voxel) candidate pairs tested at once in :func:`voxelize` (~100 MB)."""
-
-
-@dataclass(frozen=True)
-class Grid:
-    """A regular voxel grid: lowest corner lo (3,) [m], counts n (3,) int, sides h (3,) [m]."""
-
-    lo: np.ndarray
-    n: np.ndarray
-    h: np.ndarray
-
-    @property
-    def shape(self):
-        """(nz, ny, nx): the shape of a voxel array."""
-        return tuple(int(k) for k in self.n[::-1])
-
-    @property
-    def volume(self):
-        """Volume of the box [m^3]."""
-        return float(np.prod(self.n * self.h))
-
-
-def grid_over(lo, hi, voxel_size, even=False):
-    """The grid that fills the box [lo, hi] with voxels no larger than voxel_size [m].
-
-    n_k = ceil(L_k / voxel_size) voxels per axis (at least 1), sides h_k =
-    L_k / n_k: the box is covered exactly (KUBC's faces are its faces) and the
-    voxels are bricks within a factor (n_k + 1) / n_k of cubes. ``even``: round
-    each n_k up to an even count (a periodic grid the matrix-free operator coarsens).
-    """
-    from amfe.model.material import real_number
-    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
-    voxel_size = real_number("the voxel size", voxel_size)
-    if not (np.isfinite(voxel_size) and voxel_size > 0):
-        raise AmfeError(f"the voxel size must be a positive length in m, got {voxel_size!r}")
-    size = hi - lo
-    if not np.all(size > 0):
-        raise AmfeError(f"the voxel model needs a box of positive size, got {size.tolist()} m")
-    with np.errstate(over="ignore"):
-        counts = np.ceil(size / voxel_size * (1.0 - 1e-12))
-    if not np.all(counts < MAX_VOXELS_PER_AXIS):
-        raise AmfeError(f"a voxel size of {voxel_size:.4g} m divides the box of "
-                        f"{' x '.join(f'{x:.4g}' for x in size)} m into {_count(counts)} voxels: "
-                        "far more than any machine holds; give a larger --voxel-size (default: "
-                        f"the mean radius / {DEFAULT_VOXELS_PER_RADIUS})")
-    n = np.maximum(1, counts).astype(np.int64)
-    if even:
-        n += n % 2
-    return Grid(lo=lo, n=n, h=size / n)
-
-
-MAX_VOXELS_PER_AXIS = 2.0**40
-"""More voxels than this along one axis are refused in :func:`grid_over` (no machine holds
-even one such row; the counts would overflow int64 in products)."""
-
-
-def _count(counts):
-    """The product of float voxel counts (3,) as text, without overflowing."""
-    with np.errstate(over="ignore"):
-        total = float(np.prod(counts))
-    return f"{total:.3g}" if np.isfinite(total) else "more than 1e308"
 
 
 def voxelize(centers, radii, grid, periodic=False):
@@ -211,32 +174,6 @@ def load_carrying(solid, periodic=False, grip=None):
     return kept, pieces, int(solid.sum() - kept.sum())
 
 
-DEFAULT_VOXELS_PER_RADIUS = 4
-"""Default voxel size: the mean radius over this (docs/model.md, section 10)."""
-GRID_BYTES = 32
-"""Bytes per voxel of the grid that every rank holds (solid masks, component labels,
-node numbers)."""
-NODE_BYTES = 16_000
-"""Bytes per active node over all ranks: the matrix (about 81 nonzeros a row), its
-constrained copy, GAMG's hierarchy, six cases' vectors and the assembly's temporaries
-(peak RSS less the interpreter's: 10.0 kB per node on one rank at 18 000 and 45 000
-nodes; on two ranks, twice the largest process's peak: 15.1-16.2 kB per node at
-0.35-0.59 M nodes, docs/model.md section 10, "Memory and the largest beds")."""
-
-
-FREE_NODE_BYTES = 5_000
-"""The same for the matrix-free operator (:mod:`amfe.solvers.voxelfree`): the elements'
-node lists, the coarse grid's assembled matrix and GAMG (an eighth of the nodes), the
-vectors (twice the largest process's peak on 2 ranks: 4.4 kB per node at 1.37 M nodes,
-4.7 kB at 0.59 M; docs/model.md section 10, "Matrix-free operator")."""
-
-
-def voxel_bytes(voxels, nodes, ranks=1, operator="assembled"):
-    """Estimated peak bytes over ``ranks`` of a voxel model: grids replicated, the rest shared."""
-    per_node = NODE_BYTES if operator == "assembled" else FREE_NODE_BYTES
-    return GRID_BYTES * voxels * ranks + per_node * nodes
-
-
 @dataclass
 class VoxelSolid:
     """The voxel model of a bed before meshing (docs/model.md, section 10).
@@ -279,7 +216,6 @@ def kubc_box(centers, radii, size=None, kept=None):
     the load-carrying spheres' bounding box. note: bed_box's (why the recorded
     size was not used), else None.
     """
-    from amfe.model.carrying import bed_box
     L, note = bed_box(centers, radii, size, kept)
     x = centers if kept is None else centers[kept]
     r = radii if kept is None else radii[kept]
@@ -309,17 +245,10 @@ def voxel_solid(centers, radii, voxel_size=None, period=None, size=None, max_mem
     (:func:`amfe.model.voxelmemory.voxel_estimate`; ``even`` is the matrix-free
     operator's) is checked first, before any pair is found or voxel made.
     """
-    from amfe.model.memory import check_memory
-    from amfe.model.bonds import contact_geometry, find_pairs
-    from amfe.model.kubc import boundary_particles
-    from amfe.model.carrying import (component_labels, kubc_held, periodic_winding,
-                                     removed_report, removed_warning)
-    from amfe.model.torus import check_box, find_periodic_pairs, wrap
 
     centers, radii = np.asarray(centers, float), np.asarray(radii, float)
     if voxel_size is None:
         voxel_size = float(radii.mean()) / DEFAULT_VOXELS_PER_RADIUS
-    from amfe.model.voxelmemory import check_estimate
     check_estimate(centers, radii, voxel_size, max_memory, period=period, size=size,
                    ranks=ranks, even=even, operator="matrix-free" if even else "assembled")
     shift = None

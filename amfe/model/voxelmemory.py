@@ -7,7 +7,8 @@ from the box, the voxel size and the spheres' volume, with the fixes. Pure numpy
 """
 import numpy as np
 
-from amfe.model.voxel import DEFAULT_VOXELS_PER_RADIUS, grid_over, voxel_bytes
+from amfe.model.memory import _gib, check_memory, default_limit
+from amfe.model.voxelgrid import DEFAULT_VOXELS_PER_RADIUS, grid_over, voxel_bytes
 
 
 def _length3(size):
@@ -52,7 +53,6 @@ def check_estimate(centers, radii, voxel_size, max_memory, **where):
     naming the fixes: a coarser voxel size (one that would fit), the matrix-free operator,
     or a smaller window of the bed. ``where``: :func:`voxel_estimate`'s keywords (period,
     size, ranks, even, operator)."""
-    from amfe.model.memory import _gib, check_memory, default_limit
     estimate, nodes, grid, phi = voxel_estimate(centers, radii, voxel_size, **where)
     limit = default_limit() if max_memory is None else float(max_memory)
     if estimate <= limit:

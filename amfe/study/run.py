@@ -18,7 +18,9 @@ import sys
 import time
 
 import numpy as np
+from tqdm import tqdm
 
+from amfe.api import homogenize
 from amfe.dataset.density import solid_fraction
 from amfe.dataset.lock import DatasetLock, _alive, read_lock, this_process
 from amfe.errors import AmfeError
@@ -28,6 +30,7 @@ from amfe.model.bed import generate_bed
 from amfe.model.material import STEEL, Material
 from amfe.model.scanpath import ScanPath
 from amfe.study.spec import SCAN, SweepSpec
+from amfe.study.surrogate import predict_rows
 from amfe.vocab import CONSTANT_NAMES
 
 SPEC_FILE, ROWS_DIR = "sweep.json", "rows"
@@ -157,7 +160,6 @@ def _read_rows(rows_dir, n):
 def _bar(enabled, total, initial):
     if not enabled:
         return None
-    from tqdm import tqdm
     return tqdm(total=total, initial=initial, unit="bed", file=sys.stderr, desc="amfe sweep",
                 dynamic_ncols=True, mininterval=0.5)
 
@@ -189,7 +191,6 @@ class _Worker:
             rows.append(row)
         ok = [i for i, b in enumerate(beds) if b is not None]
         if self.spec.method == "surrogate" and ok:
-            from amfe.study.surrogate import predict_rows
             for i, part in zip(ok, predict_rows(self.surrogates, [beds[i] for i in ok])):
                 rows[i].update(part)
         for i in ok:
@@ -205,7 +206,6 @@ class _Worker:
         return rows
 
     def _solve(self, bed):
-        from amfe.api import homogenize
 
         options = {} if not self.petsc_args else {"petsc_options": _as_dict(self.petsc_args)}
         logger = logging.getLogger(LOGGER)

@@ -38,7 +38,7 @@ class SweepTable:
 
     def to_pandas(self):
         """(beds, points) as pandas DataFrames (ImportError without pandas)."""
-        import pandas as pd
+        import pandas as pd  # noqa: PLC0415 (heavy or optional: loaded when used)
         return pd.DataFrame(self.beds), pd.DataFrame(self.points)
 
     def __repr__(self) -> str:

@@ -36,13 +36,31 @@ import os
 import sys
 import time
 
+import numpy as np
+
 T_START = time.perf_counter()
-from paraview.simple import (ColorBy, ExtractSurface, GetActiveViewOrCreate,  # noqa: E402
-                             GetColorTransferFunction, GetScalarBar, Glyph, Interact,
-                             Outline, PassArrays, PVDReader, PythonAnnotation, ResetCamera,
-                             SaveScreenshot, SaveState, Show, Text, Tube, WarpByVector,
-                             XMLUnstructuredGridReader)
 from paraview import servermanager  # noqa: E402
+from paraview.simple import (  # noqa: E402
+    ColorBy,
+    ExtractSurface,
+    GetActiveViewOrCreate,
+    GetColorTransferFunction,
+    GetScalarBar,
+    Glyph,
+    Interact,
+    Outline,
+    PassArrays,
+    PVDReader,
+    PythonAnnotation,
+    ResetCamera,
+    SaveScreenshot,
+    SaveState,
+    Show,
+    Text,
+    Tube,
+    WarpByVector,
+    XMLUnstructuredGridReader,
+)
 
 SIGNED = ("axial_force_N", "torsion_Nm")
 SPHERE_SHARE = 0.3
@@ -75,8 +93,7 @@ def parse(argv):
 
 def measure(reader, color):
     """Warp factor and 2-98 percentile range from the data, as amfe view computes them."""
-    import numpy as np
-    from vtkmodules.numpy_interface import dataset_adapter as dsa
+    from vtkmodules.numpy_interface import dataset_adapter as dsa  # noqa: PLC0415 (heavy or optional: loaded when used)
 
     data = dsa.WrapDataObject(servermanager.Fetch(reader))
     x = np.asarray(data.Points)

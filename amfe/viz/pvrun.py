@@ -91,7 +91,8 @@ def render(cmd, scene, png, size, state=None):
     tmp = os.path.join(os.path.dirname(os.path.abspath(png)),
                        f".{os.path.basename(png)}.{os.getpid()}.png")
     args = cmd + [SCRIPT, scene.path, "--png", tmp, "--color", COLOR_ARRAYS[scene.color][0],
-                  "--title", scene.title, "--label", scene.label, "--range", repr(scene.vmin), repr(scene.vmax),
+                  "--title", scene.title, "--label", scene.label,
+                  "--range", repr(scene.vmin), repr(scene.vmax),
                   "--warp", repr(scene.warp), "--size", str(size[0]), str(size[1])]
     if state:
         args += ["--state", state]

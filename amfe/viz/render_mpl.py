@@ -25,9 +25,9 @@ def _fast_lines():
 
     mplot3d's own projects segment by segment in Python: 10 s for 150 000 bonds.
     """
-    from matplotlib.collections import LineCollection
-    from mpl_toolkits.mplot3d import proj3d
-    from mpl_toolkits.mplot3d.art3d import Line3DCollection
+    from matplotlib.collections import LineCollection  # noqa: PLC0415 (heavy or optional: loaded when used)
+    from mpl_toolkits.mplot3d import proj3d  # noqa: PLC0415 (heavy or optional: loaded when used)
+    from mpl_toolkits.mplot3d.art3d import Line3DCollection  # noqa: PLC0415 (heavy or optional: loaded when used)
 
     class FastLine3DCollection(Line3DCollection):
         def set_segments(self, segments):
@@ -72,11 +72,11 @@ def render(scene, png, size=(1200, 900), dpi=100):
     str
         ``png``.
     """
-    import matplotlib
+    import matplotlib  # noqa: PLC0415 (heavy or optional: loaded when used)
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.colors import Normalize, TwoSlopeNorm
-    from mpl_toolkits.mplot3d.art3d import Line3DCollection
+    import matplotlib.pyplot as plt  # noqa: PLC0415 (heavy or optional: loaded when used)
+    from matplotlib.colors import Normalize, TwoSlopeNorm  # noqa: PLC0415 (heavy or optional: loaded when used)
+    from mpl_toolkits.mplot3d.art3d import Line3DCollection  # noqa: PLC0415 (heavy or optional: loaded when used)
 
     mm = 1e3                                   # axes in mm: readable ticks
     x0 = scene.points * mm

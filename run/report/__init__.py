@@ -1,0 +1,1 @@
+"""docs/report.md and the studies behind it (the voxel ladders, the model cards)."""

@@ -1,0 +1,1 @@
+"""The surrogate's data, training, calibration and evaluation."""
