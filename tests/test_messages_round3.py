@@ -89,7 +89,7 @@ def test_a_non_model_file_is_named_for_what_it_is(lattice_bed, tmp_path, kind):
         load_checkpoint(path)
     msg = str(exc.value)
     assert "pickled" not in msg and "give the .pt file that amfe train wrote" in msg
-    assert {"hdf5": "is an HDF5 file", "text": "is not a model",
+    assert {"hdf5": "is an HDF5 file", "text": "is not a plain amfe checkpoint (a torch",
             "empty": "is empty"}[kind] in msg
     code, out, err = run_main(["predict", lattice_bed[0], "--model", path])
     assert "pickled" not in assert_one_error(code, err, "predict")
