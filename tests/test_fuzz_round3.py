@@ -19,7 +19,6 @@ import os
 import h5py
 import numpy as np
 import pytest
-
 from cli_fixtures import assert_one_error, run_main, sha256, tiny_model
 from helpers import cubic_lattice
 
@@ -234,7 +233,8 @@ BED_API = [
 # SolveOptions through amfe.homogenize(bed, **kwargs), frame model
 OPTIONS_API = [
     ({"rtol": 0}, ERR, "rtol"), ({"rtol": 1}, ERR, "rtol"), ({"rtol": -1e-6}, ERR, "rtol"),
-    ({"rtol": "abc"}, ERR, "rtol"), ({"rtol": True}, ERR, "rtol"), ({"rtol": math.inf}, ERR, "rtol"),
+    ({"rtol": "abc"}, ERR, "rtol"), ({"rtol": True}, ERR, "rtol"),
+    ({"rtol": math.inf}, ERR, "rtol"),
     ({"rtol": 1e-8}, OK, "close"),
     ({"solver": "GAMG"}, ERR, "solver"), ({"solver": None}, ERR, "solver"),
     ({"solver": "cholesky"}, OK, "close"), ({"solver": "gamg"}, OK, "close"),
