@@ -197,6 +197,12 @@ def _voxel(bed, options, error, comm, spec):
         raise AmfeError(f"homogenize: the voxel model solves bc 'kubc' or 'periodic', not {bc!r}")
     if spec["vtu_dir"] is not None:
         raise AmfeError("homogenize: the voxel model writes no ParaView files yet (no --vtu)")
+    if error is None and options.a_star_cap is not None:   # issue 45 fuzz: was ignored
+        raise AmfeError("homogenize: the a* cap (--cap-a-star) caps the frame's springs; the "
+                        "voxel model has none: leave it out, or give --model frame")
+    if error is None and options.diagnose:
+        raise AmfeError("homogenize: --diagnose describes the frame's solve; the voxel model "
+                        "has no diagnostics: leave it out, or give --model frame")
     with messages(spec["progress"]):
         result = homogenize_voxel(bed, options and replace(options, bc=bc), comm,
                                   voxel_size=spec["voxel_size"], input_error=error,

@@ -245,7 +245,7 @@ def test_records_do_not_depend_on_the_rank_count(made, tmp_path):
 
 
 def test_parts_written_before_the_material_columns_read_as_steel():
-    from amfe.dataset.datafile import _padded
+    from amfe.dataset.merge import _padded
     old = np.arange(len(PARAM_NAMES) - 3, dtype=float)
     row = _padded(old)
     assert row.shape == (len(PARAM_NAMES),) and np.array_equal(row[:-3], old)

@@ -1,9 +1,11 @@
 """The boundary-condition table (amfe.model.conditions): a condition defined and registered in
 this file alone runs end to end, through amfe.homogenize and the command line."""
+import dataclasses
 import json
 
 import numpy as np
 import pytest
+import scipy.sparse.linalg as spla
 from cli_fixtures import run_main
 
 import amfe
@@ -12,9 +14,11 @@ from amfe.io.result_meta import validate
 from amfe.model.averages import box_center, unit_strains
 from amfe.model.carrying import kubc_carrying
 from amfe.model.conditions import CONDITIONS, Condition, get_condition, register, unregister
+from amfe.model.frame import build_frame
 from amfe.model.kubc import kubc_displacements
 from amfe.model.loadcase import Group
 from amfe.model.options import SolveOptions
+from amfe.solvers.scipy_direct import global_stiffness
 from amfe.vocab import CASE_NAMES
 
 
@@ -110,3 +114,48 @@ def test_the_schema_reads_the_names_from_the_table(toys):
     unregister("kubc_thick")
     with pytest.raises(AmfeError, match="bc"):
         validate({**result, "bc": "kubc_thick"})
+
+
+def held_rotation_groups(frame):
+    """KUBC's six cases with the boundary particles' rotations held at zero too (the affine
+    field's rotation under a symmetric strain)."""
+    (g,) = get_condition("kubc").groups(frame)
+    fixed = g.fixed.copy()
+    fixed[g.fixed[:, :3].any(axis=1), 3:] = True
+    return [dataclasses.replace(g, fixed=fixed)]
+
+
+def energy_stiffness(bed, groups_of, volume):
+    """C (6, 6) [Pa] = U^T K U / V by SuperLU, every prescribed DOF at its value: Hill's
+    identity, independent of the driver's averages. volume: V [m^3] (the result's)."""
+    frame = build_frame(bed.centers, bed.radii)
+    (g,) = groups_of(frame)
+    K = global_stiffness(frame)
+    pres = np.flatnonzero(g.fixed.ravel())
+    free = np.setdiff1d(np.arange(K.shape[0]), pres)
+    U = np.array([np.asarray(v, float).ravel() for v in g.values]).T    # (6n, 6)
+    U[free] = spla.splu(K[free][:, free].tocsc()).solve(-(K[free][:, pres] @ U[pres]))
+    return (U.T @ (K @ U)) / (volume / frame.length_scale**3) * frame.stress_scale
+
+
+HELD = Condition("kubc_held_rotations", held_rotation_groups, kubc_carrying,
+                 "amfe.solvers.driver:bagi_average", first_order,
+                 help="KUBC with the boundary rotations held (a test's)")
+
+
+def test_held_rotations_registered_here_match_an_independent_energy(bed):
+    """C of a condition defined here equals U^T K U / V of a SuperLU solve (to rounding), as
+    KUBC's does, and lies above KUBC's (more constraints) without being KUBC's."""
+    register(HELD)
+    try:
+        held = amfe.homogenize(bed, bc=HELD.name, solver="cholesky")
+    finally:
+        unregister(HELD.name)
+    kubc = amfe.homogenize(bed, solver="cholesky")
+    C, Ck = np.asarray(held.C), np.asarray(kubc.C)
+    scale = np.abs(Ck).max()
+    assert np.abs(C - energy_stiffness(bed, held_rotation_groups, held.volume)).max() < 1e-9 * scale
+    assert np.abs(Ck - energy_stiffness(bed, get_condition("kubc").groups, kubc.volume)).max() \
+        < 1e-9 * scale
+    gap = np.linalg.eigvalsh((C - Ck + (C - Ck).T) / 2)
+    assert gap.min() > -1e-9 * scale and gap.max() > 1e-4 * scale

@@ -25,8 +25,8 @@ from test_dataset import ROW_KEYS, _session_pids, dataset_cmd, read_rows
 
 import amfe.dataset.parts as datasetparts
 from amfe.cli import main
-from amfe.dataset.datafile import merge_parts
 from amfe.dataset.lock import DatasetLock, lock_path, read_lock
+from amfe.dataset.merge import merge_parts
 from amfe.dataset.parts import (
     part_path,
     parts_dir,
@@ -299,7 +299,7 @@ def test_merge_checks_before_it_destroys(tmp_path, monkeypatch, reference):
     assert os.listdir(rejected_dir(out)) == ["rec_00000007.npz"]
     write_part(parts, recs[7], params)
     # a merged file that fails its check is not renamed into place; the parts stay
-    monkeypatch.setattr("amfe.dataset.datafile.check_dataset",
+    monkeypatch.setattr("amfe.dataset.merge.check_dataset",
                         lambda path: (["injected problem"], {}, {}))
     with pytest.raises(AmfeError, match="fails its check .injected problem"):
         merge_parts(out, parts, params)

@@ -134,7 +134,7 @@ def test_a_damaged_chunk_of_a_data_set_is_one_line_for_check_and_train(tmp_path)
     code, out, err = run_main(["dataset", "--check", p])
     assert code == 2 and "inflate() failed" in err and str(p) in err
     assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
-    code, out, err = run_main(["train", p, "-o", tmp_path / "m.pt", "--quiet", "--epochs", "1"])
+    code, _, err = run_main(["train", p, "-o", tmp_path / "m.pt", "--quiet", "--epochs", "1"])
     assert code == 2 and len(err.strip().splitlines()) == 1, err
     assert "damaged or truncated file" in err and str(p) in err
     assert not (tmp_path / "m.pt").exists()
@@ -220,15 +220,15 @@ def test_a_second_writer_of_one_directory_is_refused(tmp_path):
     from amfe.io.vtuset import LOCK_NAME, SetLock
     write_fields_vtu(tmp_path, _fields(1))
     before = {p: (tmp_path / p).read_bytes() for p in os.listdir(tmp_path)}
-    with SetLock(tmp_path):                           # another run holds DIR (a live pid)
-        with pytest.raises(AmfeError, match="being written by another amfe run .*wait for it"):
-            write_fields_vtu(tmp_path, _fields(2))
+    with SetLock(tmp_path), pytest.raises(      # another run holds DIR (a live pid)
+            AmfeError, match="being written by another amfe run .*wait for it"):
+        write_fields_vtu(tmp_path, _fields(2))
     assert {p: (tmp_path / p).read_bytes() for p in os.listdir(tmp_path)} == before
     assert not (tmp_path / LOCK_NAME).exists()        # released by its holder, not by us
     import subprocess
     import sys
     dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
-                          capture_output=True, text=True).stdout.strip()
+                          capture_output=True, text=True, check=True).stdout.strip()
     from amfe.io.atomic import host_name
     (tmp_path / LOCK_NAME).write_text(f'{{"pid": {dead}, "host": "{host_name()}"}}\n')
     with pytest.raises(AmfeError, match="stale lock .*remove the lock and run again: rm "):

@@ -465,7 +465,9 @@ def test_fuzz_training_data_faults(data):
     fault = data.draw(st.sampled_from(["none"] + sorted(TRAIN_DATA_FAULTS)), label="fault")
     row = data.draw(st.sampled_from([0, 10, 21, 39]), label="row")   # ok rows of tiny_dataset
     lr = data.draw(st.sampled_from(["1e-3", "1e6"]), label="--lr")
-    extra = _options(data, (("--val-fraction", ["0.2", "0"]), ("--max-train", ["5", "0"])))
+    # (--max-train 5 is not drawn: a fault in a record it leaves out is never read, and the run
+    # rightly succeeds; which records it keeps depends on the split)
+    extra = _options(data, (("--val-fraction", ["0.2", "0"]), ("--max-train", ["0"])))
 
     def ok(out, output):
         metrics = load_checkpoint(output)["metrics"].get("validation", {})

@@ -22,8 +22,9 @@ from test_fuzz import (
     _homogenize_ok,
     _predict_ok,
     _strict_json,
-    check_run,  # noqa: F401 - tiny is a fixture
-    )
+    check_run,
+    tiny,  # noqa: F401 - a fixture, used by name
+)
 
 SPECIAL = ["FIFO", "LINK", "DANGLING", "LINK_TO_FIFO", "LINK_TO_DIR", "LOOP", "EMPTY",
            "LINK_INTO_MISSING_DIR"]

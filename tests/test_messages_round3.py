@@ -89,7 +89,7 @@ def test_a_non_model_file_is_named_for_what_it_is(lattice_bed, tmp_path, kind):
         load_checkpoint(path)
     msg = str(exc.value)
     assert "pickled" not in msg and "give the .pt file that amfe train wrote" in msg
-    assert {"hdf5": "is an HDF5 file", "text": "is not a model",
+    assert {"hdf5": "is an HDF5 file", "text": "is not a plain amfe checkpoint (a torch",
             "empty": "is empty"}[kind] in msg
     code, out, err = run_main(["predict", lattice_bed[0], "--model", path])
     assert "pickled" not in assert_one_error(code, err, "predict")
@@ -173,7 +173,7 @@ def test_the_voxel_cli_prints_no_springs_note(lattice_bed, monkeypatch):
         return result
     monkeypatch.setattr(amfe.api, "homogenize", fake)
     code, out, err = run_main(["homogenize", lattice_bed[0], "--model", "voxel",
-                               "--voxel-size", "3e-7", "--rtol", "1e-3", "--quiet"])
+                               "--voxel-size", "3e-7", "--rtol", "1e-4", "--quiet"])
     assert code == 0, err
     assert "paper's springs" not in out and "warning: Ex exceeds" in out
 

@@ -108,7 +108,7 @@ def _check_signature(path):
     elif not head:
         what = "empty"
     else:
-        what = "not a model (a torch checkpoint is a zip archive)"
+        what = "not a plain amfe checkpoint (a torch checkpoint is a zip archive)"
     raise AmfeError(f"model file {path} is {what}; give the .pt file that "
                     "amfe train wrote")
 
@@ -166,6 +166,9 @@ def _unpickler_reason(exc):
 
 def build_members(ckpt, path="checkpoint"):
     """The ensemble's networks, weights loaded, in eval mode (AmfeError for junk weights)."""
+    if not isinstance(ckpt, dict):   # amfe.Surrogate("model.pt"): a TypeError deep inside
+        raise AmfeError(f"amfe.Surrogate takes a checkpoint dict, got {type(ckpt).__name__} "
+                        f"{ckpt!r:.80}; read a model file with amfe.Surrogate.load(path)")
     check_members(ckpt, path)
     nets = []
     for k, state in enumerate(ckpt["members"]):

@@ -143,7 +143,7 @@ def _scale_name(args):
 
 
 def _check(path):
-    from amfe.dataset.datafile import check_dataset
+    from amfe.dataset.datacheck import check_dataset
     from amfe.dataset.summary import summary_text
 
     rank = _world_rank()

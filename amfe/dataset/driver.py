@@ -51,7 +51,7 @@ record whose part exists. A part that cannot be written (a full disk) stops
 the hand-out: the groups finish the beds they hold and every rank raises the
 same AmfeError; the parts written are kept. When all exist, world rank 0
 merges them into a temporary file, checks it, renames it onto DATA.h5 and
-only then removes the parts (:func:`amfe.dataset.datafile.merge_parts`).
+only then removes the parts (:func:`amfe.dataset.merge.merge_parts`).
 
 Rebuilds. With label tables (``--from-labels``, :mod:`amfe.dataset.labels`)
 the same machinery (lock, hand-out, parts, merge) makes each record by
@@ -69,10 +69,10 @@ import sys
 import time
 from dataclasses import dataclass, replace
 
-from amfe.dataset.datafile import merge_parts
 from amfe.dataset.handout import FINISHED, NEXT, Progress, Window
 from amfe.dataset.labels import read_tables, rebuild_record, table_options, table_params, table_run
 from amfe.dataset.lock import DatasetLock, this_process
+from amfe.dataset.merge import merge_parts
 from amfe.dataset.parts import STATUS_OK, describe_params, run_params, write_part
 from amfe.dataset.plan import (
     DatasetOptions,

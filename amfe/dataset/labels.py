@@ -29,7 +29,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from amfe.dataset.datafile import check_dataset
+from amfe.dataset.datacheck import check_dataset
 from amfe.dataset.images import IMAGING_VERSION
 from amfe.dataset.parts import LABEL_RULE_VERSION, STATUS_FAILED, STATUS_OK
 from amfe.dataset.plan import MAX_COUNT

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from amfe.dataset.datafile import check_dataset
+from amfe.dataset.datacheck import check_dataset
 from amfe.dataset.parts import (
     STATUS_OK,
     describe_params,

@@ -8,7 +8,7 @@ on the first thousands of beds while the rest are labelled (docs/datasets.md).
 """
 import os
 
-from amfe.dataset.datafile import merge_parts
+from amfe.dataset.merge import merge_parts
 from amfe.dataset.parts import done_indices, parts_dir, read_params_json
 from amfe.errors import AmfeError
 from amfe.io.paths import check_output

@@ -4,7 +4,8 @@ import os
 import numpy as np
 
 from amfe.dataset.bondimage import bond_image
-from amfe.dataset.datafile import _image_dataset, check_dataset, missing_dataset
+from amfe.dataset.datacheck import check_dataset
+from amfe.dataset.datafile import _image_dataset, missing_dataset
 from amfe.dataset.lock import DatasetLock
 from amfe.dataset.parts import STATUS_OK
 from amfe.errors import AmfeError

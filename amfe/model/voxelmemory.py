@@ -11,6 +11,15 @@ from amfe.model.memory import _gib, check_memory, default_limit
 from amfe.model.voxelgrid import DEFAULT_VOXELS_PER_RADIUS, grid_over, voxel_bytes
 
 
+def _length3(size):
+    """``size`` as three positive finite lengths (3,) [m], or None."""
+    try:
+        L = np.asarray(size, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        return None
+    return L if L.shape == (3,) and np.all(np.isfinite(L)) and np.all(L > 0) else None
+
+
 def voxel_estimate(centers, radii, voxel_size, period=None, size=None, ranks=1, even=False,
                    operator="assembled"):
     """(bytes, nodes, grid, solid fraction): the voxel model's memory, estimated before any
@@ -26,9 +35,9 @@ def voxel_estimate(centers, radii, voxel_size, period=None, size=None, ranks=1, 
     """
     if period is not None:
         lo, hi = np.zeros(3), np.asarray(period, float)
-    elif size is not None and np.all(np.isfinite(size)) and np.all(np.asarray(size) > 0):
-        lo, hi = np.zeros(3), np.asarray(size, float)
-    else:
+    elif _length3(size) is not None:
+        lo, hi = np.zeros(3), _length3(size)
+    else:   # no size, or a junk one (refused later, where the frame's box is made)
         lo, hi = (centers - radii[:, None]).min(axis=0), (centers + radii[:, None]).max(axis=0)
     grid = grid_over(lo, hi, voxel_size, even=even)
     voxels = float(np.prod(grid.n.astype(float)))

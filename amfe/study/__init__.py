@@ -14,9 +14,11 @@ from amfe.study.spec import SweepSpec, grid, seeds_of
 from amfe.study.table import SweepTable, tables, write_tables
 
 
-def sweep(grid_axes: dict, seeds: "int | list" = 4, *, size=(0.6e-3, 0.6e-3, 0.3e-3),
+def sweep(grid_axes: dict, seeds: "int | list" = 4, *,
+          size: tuple[float, float, float] = (0.6e-3, 0.6e-3, 0.3e-3),
           method: str = "solver", fallback: bool = False, solver: str = "auto",
-          rtol: float | None = None, output: str | os.PathLike | None = None, comm=None,
+          rtol: float | None = None, output: str | os.PathLike | None = None,
+          comm: object = None,
           base: dict | None = None, progress: bool = False) -> SweepTable:
     """The constants of beds over the full grid of ``grid_axes`` {parameter: [values]} (SI:
     lengths in m) times ``seeds`` (a count, 0..N-1, or a list), as a :class:`SweepTable`.

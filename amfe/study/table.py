@@ -36,7 +36,7 @@ class SweepTable:
     points: dict
     spec: dict
 
-    def to_pandas(self):
+    def to_pandas(self) -> tuple:
         """(beds, points) as pandas DataFrames (ImportError without pandas)."""
         import pandas as pd  # noqa: PLC0415 (heavy or optional: loaded when used)
         return pd.DataFrame(self.beds), pd.DataFrame(self.points)

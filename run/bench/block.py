@@ -39,7 +39,7 @@ import subprocess
 import sys
 import time
 
-from run.common import ROOT  # noqa: E402
+from run.common import ROOT, parser  # noqa: E402
 
 
 def bed_of(args):
@@ -282,7 +282,7 @@ def report(args, runs):
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = parser(__doc__)
     ap.add_argument("--size", nargs=3, type=float, default=[1.2, 1.2, 0.3], help="box [mm]")
     ap.add_argument("--scale", help="a data-set scale (small, tiny) instead of --size")
     ap.add_argument("--seed", type=int, default=0)

@@ -23,12 +23,13 @@ from amfe.model.bed import generate_bed  # noqa: E402
 from amfe.model.bonds import bond_springs, find_bonds  # noqa: E402
 from amfe.model.element import element_blocks  # noqa: E402
 from amfe.model.material import STEEL  # noqa: E402
+from run.common import parser
 
 TARGET_S = 2.0
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = parser(__doc__)
     ap.add_argument("--size", nargs=3, type=float, default=(1.75, 1.75, 0.3), metavar=("LX", "LY", "LZ"),
                     help="bed size in mm (default 1.75 1.75 0.3: about 100 000 particles)")
     ap.add_argument("--seed", type=int, default=0)

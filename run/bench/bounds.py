@@ -25,6 +25,7 @@ from amfe.model.bed import generate_bed
 from amfe.solvers.driver import homogenize_bed
 from amfe.model.options import SolveOptions
 from amfe.vocab import CONSTANT_NAMES
+from run.common import parser
 
 MODULI = ("Ex", "Ey", "Ez", "G_yz", "G_xz", "G_xy")
 
@@ -94,7 +95,7 @@ def convergence(args):
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = parser(__doc__)
     p.add_argument("--speed-base", type=float, default=0.6, help="base of the speed bed in mm")
     p.add_argument("--bases", type=float, nargs="+", default=[0.6, 0.9, 1.2],
                    help="bases of the convergence beds in mm (default 0.6 0.9 1.2)")

@@ -43,7 +43,7 @@ import sys
 import tempfile
 import time
 
-from run.common import ROOT  # noqa: E402
+from run.common import ROOT, parser  # noqa: E402
 ENV = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
            OMPI_MCA_rmaps_base_oversubscribe="1", OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1")
 MARK = "BENCH-RESULT "
@@ -150,7 +150,7 @@ def report(scale, count, ranks, r, path="new"):
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = parser(__doc__)
     ap.add_argument("--count", type=int, default=20)
     ap.add_argument("--ranks", default="1,2", help="comma list of rank counts (default 1,2)")
     ap.add_argument("--seed", type=int, default=0)

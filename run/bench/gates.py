@@ -35,6 +35,7 @@ import tempfile
 import time
 
 import numpy as np
+from run.common import parser
 
 VARIANTS = {
     "new": [],
@@ -81,7 +82,7 @@ def row(name, wall, res, ref):
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = parser(__doc__)
     ap.add_argument("beds", nargs="*")
     ap.add_argument("--variants", default="new,old")
     ap.add_argument("--reference", type=int, default=0, metavar="N")

@@ -38,13 +38,14 @@ import numpy as np  # noqa: E402
 
 from amfe.model.bed import generate_bed  # noqa: E402
 from amfe.dataset.images import SAMPLES_PER_RADIUS, pixelate  # noqa: E402
+from run.common import parser
 
 BEDS = [("figure 2", (0.25, 0.25, 0.1), 1.0), ("0.6 mm", (0.6, 0.6, 0.2), 1.0),
         ("paper", (3.0, 3.0, 0.3), 20.0)]
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = parser(__doc__)
     ap.add_argument("--paper", action="store_true",
                     help="also the 3 x 3 x 0.3 mm bed (~300 000 particles)")
     ap.add_argument("--seed", type=int, default=0)

@@ -27,6 +27,7 @@ import time
 
 import h5py
 import numpy as np
+from run.common import parser
 
 ENV = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
            OMPI_MCA_rmaps_base_oversubscribe="1", OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1")
@@ -81,7 +82,7 @@ def resolve(table, n, tmp):
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = parser(__doc__)
     ap.add_argument("--count", type=int, default=100)
     ap.add_argument("--ranks", type=int, default=2)
     ap.add_argument("--seed", type=int, default=9)

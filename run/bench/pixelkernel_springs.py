@@ -27,6 +27,7 @@ from amfe.dataset.images import DEFAULT_CELL, image_box
 from amfe.model.bonds import COINCIDENT, bonded_among
 from amfe.model.scales import bed_for
 from amfe.model.springs import A_STAR_MARGIN, critical_a_star, paper_coefficients
+from run.common import parser
 
 GATE = 1.05
 
@@ -100,7 +101,7 @@ def best_of(kernel, args, consts, box, out, calls):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = parser(__doc__)
     ap.add_argument("--beds", nargs="+", default=["small:1", "small:2", "small:3", "medium:1", "medium:2"])
     ap.add_argument("--pairs", type=int, default=101, help="alternating A/B pairs per bed")
     ap.add_argument("--calls", type=int, default=5, help="kernel calls per sample (best kept)")

@@ -18,6 +18,7 @@ from mpi4py import MPI
 
 from amfe import homogenize, read_bed
 from amfe.solvers.blocksolve import galerkin_algorithm
+from run.common import parser
 
 
 def run(bed, ksp_options, rtol=None):
@@ -33,7 +34,7 @@ def props(r):
 
 
 def main():
-    ap = argparse.ArgumentParser()
+    ap = parser(__doc__)
     ap.add_argument("beds", nargs="+")
     ap.add_argument("--repeat", type=int, default=1)
     ap.add_argument("--reference", action="store_true")

@@ -19,6 +19,7 @@ import time
 import numpy as np  # noqa: E402
 
 from amfe.solvers.petsc import init_petsc  # noqa: E402
+from run.common import parser
 
 BEDS = {  # name: box size [mm], fully scanned HCP
     "1k": (0.3, 0.3, 0.1),
@@ -30,7 +31,7 @@ MUMPS = {"ksp_type": "preonly", "pc_type": "cholesky", "pc_factor_mat_solver_typ
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = parser(__doc__)
     ap.add_argument("--beds", default="1k,13k,116k", help="comma list of " + ",".join(BEDS))
     ap.add_argument("--paper", action="store_true", help="add the paper's full bed")
     ap.add_argument("--direct-max", type=int, default=130_000,

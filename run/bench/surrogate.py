@@ -22,7 +22,7 @@ import tempfile
 import time
 
 
-from run.common import ROOT  # noqa: E402
+from run.common import ROOT, parser  # noqa: E402
 
 
 def bench_batched(sur, images, threads=(1, 2), batches=(1, 100, None), repeats=5):
@@ -135,7 +135,7 @@ def run_all(model, data_path, log=print):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = parser(__doc__)
     ap.add_argument("--model", default=None, help="checkpoint (default: the shipped model)")
     ap.add_argument("--data", default="/work/data/small_test.h5",
                     help="data set whose images are predicted (default the held-out test set)")

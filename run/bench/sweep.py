@@ -17,6 +17,7 @@ import subprocess
 import sys
 import time
 from decimal import Decimal
+from run.common import parser
 
 GRID = ["--grid", "hatch_spacing=0.1,0.12,0.15", "--grid", "track_width=0.05,0.08,0.1",
         "--seeds", "4", "--no-progress"]
@@ -40,7 +41,7 @@ def rows(directory):
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = parser(__doc__)
     ap.add_argument("--ranks", type=int, default=2)
     ap.add_argument("--out", default="/tmp/amfe-bench-sweep")
     args = ap.parse_args()

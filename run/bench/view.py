@@ -25,7 +25,7 @@ import time
 
 import numpy as np
 
-from run.common import ROOT  # noqa: E402
+from run.common import ROOT, parser  # noqa: E402
 AMFE = [sys.executable, "-m", "amfe.cli"]
 TARGET_S = 30.0
 
@@ -81,7 +81,7 @@ def time_write(vtu_dir):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = parser(__doc__)
     ap.add_argument("--dir", default="results/bench_view", help="work directory")
     ap.add_argument("--size", nargs=3, default=["1.75", "1.75", "0.3"], metavar="MM")
     ap.add_argument("--ranks", type=int, default=2, help="MPI ranks of the solve")

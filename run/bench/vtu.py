@@ -30,7 +30,7 @@ import time
 
 import numpy as np
 
-from run.common import ROOT  # noqa: E402
+from run.common import ROOT, parser  # noqa: E402
 TARGET = 1.5
 
 
@@ -90,7 +90,7 @@ def timed_write(write, fields, parent):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = parser(__doc__)
     ap.add_argument("--dir", default="results/bench_vtu", help="work directory (the bed, files)")
     ap.add_argument("--repeat", type=int, default=3, help="sets written by each writer")
     ap.add_argument("--cases", type=int, default=6, help="load cases per set")

@@ -23,6 +23,7 @@ from scipy import ndimage
 
 from amfe.training.data import dataset_info, read_rows
 from amfe.training.predict import Surrogate
+from run.common import parser
 
 
 def predictions(sur, path):
@@ -77,7 +78,7 @@ def fit_logistic(A, bad, lam=0.1, steps=50):
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = parser(__doc__)
     ap.add_argument("--calibration", nargs="+", required=True)
     ap.add_argument("--test", required=True)
     args = ap.parse_args()

@@ -16,6 +16,7 @@ import sys
 import numpy as np
 
 from amfe.vocab import LABEL_NAMES as SIX
+from run.common import parser
 
 TILE = 0.6e-3
 
@@ -37,7 +38,7 @@ def windows(bed, n):
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = parser(__doc__)
     p.add_argument("--seed", type=int, default=24)
     p.add_argument("--records", type=int, nargs="+", default=[0, 1, 2, 3, 4])
     p.add_argument("--labels", help="the seed's data set, for the beds' KUBC C (else solved)")

@@ -18,7 +18,7 @@ import shlex
 import sys
 from types import SimpleNamespace
 
-from run.common import ROOT  # noqa: E402
+from run.common import ROOT, parser  # noqa: E402
 
 OUT = os.path.join(ROOT, "docs", "model_card.md")
 MODEL = "amfe/models/multiscale_small.pt"
@@ -74,7 +74,7 @@ def error_rows(metrics):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = parser(__doc__)
     ap.add_argument("--model", default=os.path.join(ROOT, MODEL))
     ap.add_argument("--test", action="append", required=True, help="held-out data set (repeat)")
     ap.add_argument("--ood", help="out-of-distribution data set of run/train/make_ood.py")

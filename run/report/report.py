@@ -36,14 +36,14 @@ import sys
 import tempfile
 import time
 
-from run.common import ROOT  # noqa: E402
+from run.common import ROOT, parser  # noqa: E402
 
 from run.report import measure as M  # noqa: E402
 from run.report import surrogate_cost as S  # noqa: E402
 from run.report import rve as R  # noqa: E402
 
 def parse(argv):
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = parser(__doc__)
     ap.add_argument("--quick", action="store_true", help="smaller beds: under 5 minutes")
     ap.add_argument("--tiny", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--out", default=os.path.join(ROOT, "docs"), help="output folder (docs/)")

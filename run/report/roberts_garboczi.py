@@ -34,6 +34,7 @@ from amfe.model.overlap import overlapping_spheres
 from amfe.model.voxel import VoxelSolid, grid_over, load_carrying, voxelize
 from amfe.solvers.petsclib import PETSc
 from amfe.solvers.voxel import voxel_stiffness
+from run.common import parser
 
 R = 1e-6
 
@@ -72,7 +73,7 @@ def earlier_levels(spec):
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = parser(__doc__)
     ap.add_argument("--porosity", type=float, nargs="+", default=[0.3, 0.5])
     ap.add_argument("--levels", type=float, nargs="+", default=[4, 6, 8],
                     help="R/H of each level (with --extend, at least two levels in all)")

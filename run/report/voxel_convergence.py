@@ -27,6 +27,7 @@ from amfe.model.options import SolveOptions
 from amfe.model.voxel import VoxelSolid, grid_over, load_carrying, resolved_share, voxelize
 from amfe.solvers.petsclib import PETSc
 from amfe.solvers.voxel import voxel_stiffness
+from run.common import parser
 
 R = 10e-6
 A_STAR = 0.8
@@ -61,7 +62,7 @@ def pair_run(n, material):
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = parser(__doc__)
     ap.add_argument("--levels", type=int, nargs="+", default=[6, 12, 24, 48])
     args = ap.parse_args()
     material = Material(E=210e9, nu=0.28)

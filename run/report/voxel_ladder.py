@@ -27,7 +27,7 @@ from amfe.io.bedfile import read_bed
 from amfe.model.extrapolate import extrapolate, fit_order
 
 KEYS = ["Ex", "Ey", "Ez", "G_yz", "G_xz", "G_xy"]
-from run.common import ROOT  # noqa: E402
+from run.common import ROOT, parser  # noqa: E402
 
 
 def run_one(bed, bc, ranks, extra):
@@ -86,7 +86,7 @@ def extrapolated(levels):
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = parser(__doc__)
     ap.add_argument("bed")
     ap.add_argument("--bc", default="periodic", choices=["periodic", "kubc"])
     ap.add_argument("--levels", type=float, nargs="+", default=[4, 6, 8],

@@ -21,7 +21,7 @@ import sys
 import numpy as np
 
 from amfe.model.extrapolate import extrapolate
-from run.common import ROOT
+from run.common import ROOT, parser
 
 KEYS = ["Ex", "Ey", "Ez", "G_yz", "G_xz", "G_xy", "E_mean"]
 """E_mean: the mean of Ex, Ey, Ez, extrapolated as one constant (it averages the grid's
@@ -105,7 +105,7 @@ def headline(path=STORE):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = parser(__doc__)
     ap.add_argument("--ladder", nargs="*", default=[], metavar="KEY=JSON")
     ap.add_argument("--rg", default=None, help="run/report/roberts_garboczi.py's JSON")
     ap.add_argument("-o", "--output", default=None)

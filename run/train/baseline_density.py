@@ -18,6 +18,7 @@ import os
 import sys
 
 import numpy as np
+from run.common import parser
 
 
 
@@ -54,7 +55,7 @@ def predict(coef, density, side_mm):
 
 def main(argv=None):
     from amfe.vocab import LABEL_NAMES
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = parser(__doc__)
     p.add_argument("--train", action="append", required=True)
     p.add_argument("--test", action="append", required=True)
     args = p.parse_args(argv)

@@ -16,6 +16,7 @@ is refused.
 import argparse
 import os
 import sys
+from run.common import parser
 
 
 
@@ -90,7 +91,7 @@ def predictions(sur, path, info):
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = parser(__doc__)
     p.add_argument("model")
     p.add_argument("data", nargs="+")
     p.add_argument("-o", "--output", required=True)

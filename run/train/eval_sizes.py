@@ -16,11 +16,12 @@ import os
 import sys
 
 import numpy as np
+from run.common import parser
 
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = parser(__doc__)
     p.add_argument("--pair", nargs=2, action="append", required=True, metavar=("MODEL", "TEST"))
     p.add_argument("--baseline-train", action="append", default=[])
     p.add_argument("--png")

@@ -21,6 +21,7 @@ import numpy as np
 from amfe.training.metrics import relative_errors as relative
 from amfe.training.stiffness import NINE
 from amfe.vocab import LABEL_NAMES as SIX
+from run.common import parser
 
 SHEAR = NINE[6:]
 
@@ -55,7 +56,7 @@ def summary(six):
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = parser(__doc__)
     p.add_argument("data")
     p.add_argument("--model", required=True, help="the stiffness-head checkpoint")
     p.add_argument("--baseline", help="a six-constant checkpoint (default: the shipped small model)")

@@ -22,6 +22,7 @@ import os
 import sys
 
 import numpy as np
+from run.common import parser
 
 
 GATE, GOAL = 0.04, (0.02, 0.02, 0.02, 0.03, 0.03, 0.03)
@@ -163,7 +164,7 @@ def curve_report(sizes, results, test, png):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = parser(__doc__)
     ap.add_argument("models", nargs="+", metavar="MODEL.pt")
     ap.add_argument("--test", action="append", required=True, metavar="HELDOUT.h5")
     ap.add_argument("--names", help="comma list of row names (default: file names)")

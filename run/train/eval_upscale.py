@@ -22,6 +22,7 @@ import numpy as np
 
 from amfe.training.metrics import relative_errors
 from amfe.vocab import LABEL_NAMES as SIX
+from run.common import parser
 
 TILE_PX = 20
 TILE_SIZE = (0.6e-3, 0.6e-3, 0.3e-3)   # m: a `small` bed, what the tiles' model knows
@@ -50,7 +51,7 @@ def scores(pred, labels):
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = parser(__doc__)
     p.add_argument("--train", required=True, help="beds of the test size to fit the factors on")
     p.add_argument("--test", required=True)
     p.add_argument("--model", default="amfe/models/stiffness_small.pt")

@@ -19,6 +19,7 @@ whose copy_tree writes it.
 import argparse
 import os
 import sys
+from run.common import parser
 
 
 MUST_AGREE = ("scale", "bed_size", "image_shape", "image_cell", "imaging_version",
@@ -84,7 +85,7 @@ def join(paths, output):
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = parser(__doc__)
     p.add_argument("data", nargs="+")
     p.add_argument("-o", "--output", required=True)
     args = p.parse_args(argv)

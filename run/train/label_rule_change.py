@@ -24,6 +24,7 @@ from amfe.model.scales import bed_for, record_seed
 from amfe.solvers.driver import homogenize_bed
 from amfe.training.predict import Surrogate
 from amfe.vocab import LABEL_NAMES
+from run.common import parser
 
 
 def labels_of(res):
@@ -38,7 +39,7 @@ def largest_piece(bed):
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = parser(__doc__)
     ap.add_argument("--seed", type=int, default=41)
     ap.add_argument("--count", type=int, default=120)
     ap.add_argument("--scale", default="small")

@@ -36,6 +36,7 @@ import numpy as np
 from amfe.dataset.parts import STATUS_OK, done_indices, read_part, write_part  # noqa: E402
 from amfe.vocab import LABEL_NAMES  # noqa: E402
 from amfe.model.scales import MM, PARAM_NAMES, SCALES  # noqa: E402
+from run.common import parser
 
 BASE = SCALES["small"]
 VARIANTS = {
@@ -53,7 +54,7 @@ def variant_scale(name):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = parser(__doc__)
     ap.add_argument("-o", "--output", default="/work/data/small_ood.h5")
     ap.add_argument("--per-variant", type=int, default=15)
     ap.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))

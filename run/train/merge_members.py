@@ -12,10 +12,11 @@ import argparse
 import sys
 
 from amfe.errors import AmfeError
+from run.common import parser
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = parser(__doc__)
     p.add_argument("checkpoints", nargs="+", help="the parts (.pt), two or more")
     p.add_argument("--data", required=True, help="the training data set of every part")
     p.add_argument("-o", "--output", required=True, help="the merged checkpoint (.pt)")

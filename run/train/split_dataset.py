@@ -12,6 +12,7 @@ The output is written atomically (amfe.io.atomic: never half a file).
 import argparse
 import os
 import sys
+from run.common import parser
 
 
 def copy_tree(src, dst, data_of):
@@ -52,7 +53,7 @@ def split(source, first, end, output):
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = parser(__doc__)
     p.add_argument("data")
     p.add_argument("first", type=int)
     p.add_argument("end", type=int)

@@ -56,7 +56,7 @@ import time
 import numpy as np
 
 from amfe.vocab import LABEL_NAMES
-from run.common import ROOT
+from run.common import ROOT, parser
 from run.train.surrogate_docs import LARGE_ERROR, command, round1_model, write_docs
 
 
@@ -303,7 +303,7 @@ def error_groups(args, ckpt):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = parser(__doc__)
     ap.add_argument("--train", default="/work/data/small_train.h5")
     ap.add_argument("--test", default="/work/data/small_test.h5")
     ap.add_argument("--ood", default="/work/data/small_ood.h5")
