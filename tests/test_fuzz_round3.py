@@ -15,6 +15,7 @@ The whole file runs in well under a minute (one 3 x 3 x 3 lattice bed, one tiny 
 """
 import math
 import os
+import re
 
 import h5py
 import numpy as np
@@ -326,11 +327,11 @@ SHARD_CASES = [
 # amfe predict BEDS... (the tiny model): batch predict
 PREDICT_CLI = [
     (["tiny_bed", "tiny_bed"], OK, "batch"),
-    (["tiny_bed", "missing"], ERR, "does not exist"),
-    (["tiny_bed", "dir"], ERR, "directory"),
-    (["tiny_bed", "text"], ERR, "HDF5|bed file"),
-    (["tiny_bed", "empty"], ERR, "HDF5|bed file|empty"),
-    (["tiny_bed", "bed"], ERR, "size|shape|image"),
+    (["tiny_bed", "missing"], "failed record", "does not exist"),   # issue 46: its own record
+    (["tiny_bed", "dir"], "failed record", "directory"),
+    (["tiny_bed", "text"], "failed record", "HDF5|bed file"),
+    (["tiny_bed", "empty"], "failed record", "HDF5|bed file|empty"),
+    (["tiny_bed", "bed"], "failed record", "size|shape|image|mm"),
     (["tiny_bed", "-o", "tiny_bed"], ERR, "input"),
     (["tiny_bed", "tiny_bed", "-o", "dir"], ERR, "directory"),
     (["tiny_bed", "--threshold", "nan"], ERR, "threshold"),
@@ -343,8 +344,6 @@ PREDICT_CLI = [
 # Cases whose outcome differed from the one written before the run, and why the observed
 # one keeps the contract (a clear error, or a right answer); the tests hold the observed.
 OBSERVED = {
-    "periodic attr text": (OK, "same", "the attribute is read only under bc periodic; the "
-                           "kubc constants are the reference's (see the bc periodic case)"),
     "{'petsc_options': {'ksp_max_it': 0}}": (OK, "close", "auto takes Cholesky, which has no "
                                              "iterations: one 'PETSc options never used: "
                                              "-ksp_max_it' warning, the exact constants"),
@@ -355,20 +354,10 @@ OBSERVED = {
                                            "does on the command line"),
     "surrogate path": (ERR, "amfe.Surrogate takes a checkpoint dict", "found here: a "
                        "TypeError traceback ('string indices must be integers'); fixed"),
-    "tiny_bed bed": ("flagged", "FLAGGED", "a 5.6 um bed without a recorded size is imaged "
-                     "on the model's box (packing density 0.000) and predicted, but flagged "
-                     "'unlike the training beds' (fill 0.001 outside 0.29-1.0), exit 0"),
 }
 # Tracebacks found here in other helpers' areas (issue 45's faults: Bed attributes, label
 # shards' HDF5 reading), recorded as expected failures until fixed there.
-XFAIL = {
-    "size attr text": "Bed does not check attrs['size']: ValueError from carrying.bed_box",
-    "size attr text, voxel model": "Bed does not check attrs['size']: ValueError from "
-                                   "carrying.bed_box (kubc_box)",
-    "periodic attr text, bc periodic": "Bed does not check attrs['periodic']: ValueError "
-                                       "'could not convert string to float'",
-    "no_index": "read_tables: a shard without /index is a KeyError traceback",
-}
+XFAIL = {}   # none left: the four tracebacks of this round are fixed (issue 45)
 
 
 def _mark(case_id, outcome, what):
@@ -499,6 +488,10 @@ def test_predict_cli(args, outcome, what, files, tmp_path):
     argv = ["predict", *args] + ([] if "--model" in args else ["--model", "model"])
     outcome, what = _mark(" ".join(args), outcome, what)
     code, out, err, _ = _cli(files, argv + ["--threads", "1"], tmp_path)
+    if outcome == "failed record":   # a batch: the other bed predicted, exit 3
+        assert code == 3 and "Traceback" not in err, err
+        assert re.search(what, out) and "FAILED (not predicted)" in out, out
+        return
     if outcome == "flagged":
         assert code == 0 and "Traceback" not in err, err
         assert out.count(what) == 1 and "in distribution" in out, out   # the other bed's

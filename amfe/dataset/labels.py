@@ -221,6 +221,12 @@ def read_tables(paths):
         ident = mine
         with damaged(path, "label table", TABLE_FIX), h5py.File(path, "r") as f:
             parts.append({n: f[n][()] for n in f})
+        lacking = [n for n in ("index", "bed_seed") if n not in parts[-1]]
+        if lacking or (len(parts) > 1 and set(parts[-1]) != set(parts[0])):
+            raise AmfeError(f"{path} is not a complete label table: "
+                            + (f"it has no /{', /'.join(lacking)}" if lacking else
+                               f"its datasets differ from {paths[0]}'s")
+                            + f"; {TABLE_FIX}")
     _check_versions(paths[0], ident)
     table = {n: np.concatenate([p[n] for p in parts]) for n in parts[0]}
     order = np.argsort(table["index"], kind="stable")

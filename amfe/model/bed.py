@@ -52,6 +52,9 @@ class Bed:
             raise AmfeError(f"Bed attrs must be a dict with str keys, got "
                             f"{type(self.attrs).__name__} {self.attrs!r}"[:300])
         self.attrs = dict(self.attrs)
+        for key in ("size", "periodic"):   # the box V is taken from: checked here, not in a solve
+            if key in self.attrs:
+                _check_box_attr(key, self.attrs[key])
 
     def __repr__(self) -> str:
         """One line: the count, the radii, the box and its source, the material."""
@@ -92,6 +95,17 @@ class Bed:
         missing ones otherwise); material_density is optional.
         """
         return material_from_attrs(self.attrs, default)
+
+
+def _check_box_attr(key, value):
+    """AmfeError unless attrs[key] is a box: three positive finite lengths [m]."""
+    try:
+        box = np.asarray(value, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        box = np.array([np.nan])
+    if box.shape != (3,) or not np.all(np.isfinite(box) & (box > 0)):
+        raise AmfeError(f"Bed attrs[{key!r}] must be three positive lengths in m (a box), got "
+                        f"{value!r}"[:300])
 
 
 def hcp_lattice(size, r0):
