@@ -10,13 +10,19 @@ The records are built by the command's own code (amfe.cli.predict_core), so
 import os
 import time
 from types import SimpleNamespace
+from typing import TYPE_CHECKING
 
 from amfe.cli.predict_core import predict_records
 from amfe.errors import AmfeError
 
+if TYPE_CHECKING:   # the type only: torch stays unloaded until a prediction
+    from amfe.training.prediction import Prediction
 
-def predict(beds, *, fallback=False, stiffness=False, model=None, threshold=None,
-            check=False, petsc_args=()):
+
+def predict(beds: "object | str | os.PathLike | list", *, fallback: bool = False,
+            stiffness: bool = False, model: "str | os.PathLike | None" = None,
+            threshold: float | None = None, check: bool = False,
+            petsc_args: tuple = ()) -> "Prediction | list[Prediction]":
     """Predict each bed's elastic constants with the shipped model for its size and material.
 
     beds: a bed file's path, a :class:`~amfe.model.bed.Bed`, or a list of them.

@@ -252,7 +252,7 @@ def test_pickled_object_checkpoint_refused(ensemble, tmp_path):
     assert not marker.exists()
     junk = tmp_path / "junk.pt"
     junk.write_bytes(b"not a checkpoint")
-    with pytest.raises(AmfeError, match="is not a model"):   # bytes, not a torch zip (issue 45)
+    with pytest.raises(AmfeError, match="not a plain amfe checkpoint"):   # bytes, not a zip
         load_checkpoint(junk)
     with pytest.raises(AmfeError, match="not plain data"):
         save_checkpoint(tmp_path / "x.pt", dict(ensemble, extra=object()))

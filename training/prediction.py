@@ -11,6 +11,7 @@ and the Poisson ratios do not change.
 """
 import json
 import math
+import os
 
 from amfe.io.atomic import write_json
 
@@ -71,7 +72,7 @@ class Prediction:
         """The record, as in ``amfe predict -o``'s ``beds`` (a copy)."""
         return json.loads(json.dumps(self.record))
 
-    def to_json(self, path) -> None:
+    def to_json(self, path: "str | os.PathLike") -> None:
         """Write the record as JSON (atomically)."""
         write_json(path, self.record)
 
