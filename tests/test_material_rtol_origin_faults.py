@@ -11,23 +11,10 @@ from cli_fixtures import assert_one_error, run_main, tiny_dataset, tiny_model
 import amfe
 from amfe.errors import AmfeError
 from amfe.io.bedfile import read_bed, write_bed
-from amfe.model.bed import Bed, generate_bed
+from amfe.model.bed import Bed
 from amfe.model.frame import build_frame, frame_origin
 
-SIZE = (0.1e-3, 0.1e-3, 0.06e-3)   # 28 particles: a direct solve in well under a second
 NAMES = ("Ex", "Ey", "Ez", "nu_yz", "nu_xz", "nu_xy", "G_yz", "G_xz", "G_xy")
-
-
-@pytest.fixture(scope="module")
-def bed():
-    return generate_bed(size=SIZE, seed=1)
-
-
-@pytest.fixture(scope="module")
-def bed_path(bed, tmp_path_factory):
-    path = tmp_path_factory.mktemp("bed") / "bed.h5"
-    write_bed(path, bed)
-    return str(path)
 
 
 @pytest.fixture

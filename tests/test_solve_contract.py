@@ -8,25 +8,12 @@ import pytest
 from cli_fixtures import assert_one_error, run_main
 
 from amfe.errors import AmfeError
-from amfe.io.bedfile import write_bed
 from amfe.model.bed import generate_bed
 from amfe.model.options import SolveOptions
 from amfe.model.tolerance import ACCURACY, AMPLIFICATION, loosest_rtol
 from amfe.solvers.driver import homogenize_bed
 
 SIZE = (0.1e-3, 0.1e-3, 0.06e-3)
-
-
-@pytest.fixture(scope="module")
-def bed():
-    return generate_bed(size=SIZE, seed=1)
-
-
-@pytest.fixture(scope="module")
-def bed_path(bed, tmp_path_factory):
-    path = tmp_path_factory.mktemp("bed") / "bed.h5"
-    write_bed(path, bed)
-    return str(path)
 
 
 @pytest.mark.parametrize("bc", ["kubc", "periodic"])
