@@ -12,7 +12,6 @@ from amfe.model.options import SolveOptions
 from amfe.solvers.driver import homogenize_bed
 
 
-
 @pytest.mark.parametrize("bc", ["kubc", "subc"])
 def test_diagnose_solves_with_the_runs_preconditioner(bed, bc):
     """Item 5: the diagnosis ran smoothed aggregation while the run (and the JSON) was
