@@ -166,7 +166,12 @@ def bed_with_attrs(tmp_path, name, **attrs):
     bed = generate_bed(size=ISSUE_SIZE, seed=0)
     keep = {k: v for k, v in bed.attrs.items() if not k.startswith("material_")}
     path = tmp_path / name
-    write_bed(path, Bed(bed.centers, bed.radii, {**keep, **attrs}))
+    write_bed(path, Bed(bed.centers, bed.radii, keep))
+    with h5py.File(path, "r+") as f:   # as another program would write them (a Bed checks its own)
+        for key, value in attrs.items():
+            if key in f.attrs:
+                del f.attrs[key]
+            f.attrs[key] = value
     return str(path)
 
 
