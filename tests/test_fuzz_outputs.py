@@ -7,6 +7,7 @@ result, or exit 2 with one line and no file written), that the special file is s
 was: a FIFO stays a FIFO and its reader gets the JSON, a link stays a link and its target
 gets the JSON, and nothing is ever replaced.
 """
+import errno
 import json
 import os
 import stat
@@ -64,7 +65,11 @@ class Special:
     def check(self):
         if self.kind in ("FIFO", "LINK_TO_FIFO"):
             if self.reader.is_alive():   # nothing was written: let the reader see the end
-                os.close(os.open(self.target, os.O_WRONLY | os.O_NONBLOCK))
+                try:
+                    os.close(os.open(self.target, os.O_WRONLY | os.O_NONBLOCK))
+                except OSError as exc:   # ENXIO: no reader left, it has just read all and ends
+                    if exc.errno != errno.ENXIO:
+                        raise
             self.reader.join(timeout=60)
             assert stat.S_ISFIFO(os.lstat(self.target).st_mode), "the FIFO was replaced"
         elif self.target and os.path.exists(self.target):
