@@ -30,7 +30,6 @@ from amfe.model.bed import generate_bed
 from amfe.model.material import STEEL, Material
 from amfe.model.scanpath import ScanPath
 from amfe.study.spec import SCAN, SweepSpec
-from amfe.study.surrogate import predict_rows
 from amfe.vocab import CONSTANT_NAMES
 
 SPEC_FILE, ROWS_DIR = "sweep.json", "rows"
@@ -191,6 +190,8 @@ class _Worker:
             rows.append(row)
         ok = [i for i, b in enumerate(beds) if b is not None]
         if self.spec.method == "surrogate" and ok:
+            # torch and the model only for a surrogate sweep, not on a solver one's start-up
+            from amfe.study.surrogate import predict_rows
             for i, part in zip(ok, predict_rows(self.surrogates, [beds[i] for i in ok])):
                 rows[i].update(part)
         for i in ok:
