@@ -203,6 +203,9 @@ def summary(out, output=None):
         lines.append("FLAGGED: the surrogate's prediction is not finite (a damaged model?)")
     elif reasons == ["interval"]:
         lines.append("FLAGGED: an interval is wider than the model's limit")
+    elif "uncalibrated" in reasons:
+        lines.append("FLAGGED: another size and another thickness or material at once: no "
+                      "held-out beds of such a combination (solve it to trust it: --fallback)")
     elif out["flagged"]:
         lines.append("FLAGGED: unlike the training beds")
     else:

@@ -14,8 +14,10 @@ import os
 import time
 
 from amfe.cli.interrupt import launcher_rank
+from amfe.cli.predict_any import Models, needs_route, route_record
+from amfe.cli.predict_common import finish, finite_or_none, solve_for
 from amfe.errors import AmfeError
-from amfe.io.result_meta import header, predict_block
+from amfe.io.result_meta import header
 from amfe.model.material import resolve_material
 from amfe.vocab import LABEL_NAMES as SIX
 
@@ -32,10 +34,14 @@ def predict_records(args, items, times, t_start):
     from amfe.training.shipped import shipped_model_for
 
     records, beds, chosen = [None] * len(items), [None] * len(items), [None] * len(items)
+    models = Models()
     for k, item in enumerate(items):
         path = os.fspath(item) if isinstance(item, (str, os.PathLike)) else None
         try:
             beds[k] = _read(item, path)
+            if not (args.model or args.stiffness) and needs_route(beds[k][1]):
+                records[k] = route_record(args, models, beds[k], times, t_start)
+                continue
             chosen[k] = args.model or shipped_model_for(beds[k][1], args.stiffness)
         except AmfeError as exc:
             records[k] = _failed(args, (path, beds[k] and beds[k][1]), exc, times, t_start)
@@ -153,36 +159,17 @@ def _one_bed(args, sur, threshold, item, prediction, times, t_start, extra):
     bars = interval_of(sur, bed, res, extra["factor"]) if "non-finite" not in reasons else None
     if bars is not None and bars["interval_flag"]:
         reasons.append("interval")
-    comm = None
-    if args.check or args.fallback:
-        from mpi4py import MPI
-        comm = MPI.COMM_WORLD
-        reasons = comm.bcast(reasons, root=0)   # every rank takes the same branch
+    bad = [k for k, v in zip(SIX, res["mean"][0]) if not math.isfinite(v)]
+    solver, rank = solve_for(args, bed, reasons, times, f"the model {sur.path} is damaged or "
+                             f"overflows on this bed ({', '.join(bad) or 'spread'})")
     flagged = bool(reasons)
-    if "non-finite" in reasons and not args.fallback:
-        bad = [k for k, v in zip(SIX, res["mean"][0]) if not math.isfinite(v)]
-        raise AmfeError(f"the surrogate's prediction is not finite ({', '.join(bad) or 'spread'}"
-                        f"): the model {sur.path} is damaged or overflows on this bed; run with "
-                        "--fallback to solve with PETSc instead, or use amfe homogenize")
-
-    solver = None
-    if comm is not None and (args.check or flagged):
-        from amfe.model.options import SolveOptions
-        from amfe.solvers.driver import homogenize_bed
-        from amfe.solvers.petsc import init_petsc
-        init_petsc(args.petsc_args)
-        t = time.perf_counter()
-        solver = homogenize_bed(bed, SolveOptions(material=bed.material(),
-                                                  solver="gamg")).to_dict()
-        times["solve"] = time.perf_counter() - t
-    rank = comm.rank if comm is not None else launcher_rank()
 
     surrogate_props = _properties(res)
     out = {
         "bed": None if path is None else os.fspath(path),
         "bc": "kubc",   # the labels' boundary condition (docs/model.md, section 5)
         "properties": surrogate_props,
-        "spread": _finite_or_none(as_properties(res["spread"][0])),
+        "spread": finite_or_none(as_properties(res["spread"][0])),
         "spread_score": score if math.isfinite(score) else None,
         "threshold": threshold,
         # Split conformal intervals at the model's nominal coverage, None where the model
@@ -207,7 +194,7 @@ def _one_bed(args, sur, threshold, item, prediction, times, t_start, extra):
     }
     if "stiffness" in res:   # a stiffness head: C and the nine constants derived from it
         out["stiffness"] = {"C": [[float(v) for v in row] for row in res["stiffness"][0]],
-                            "constants": _finite_or_none(dict(zip(NINE, map(float,
+                            "constants": finite_or_none(dict(zip(NINE, map(float,
                                                                             res["constants9"][0])))),
                             "voigt": "xx, yy, zz, yz, xz, xy; Pa"}
     if solver is not None:
@@ -221,18 +208,7 @@ def _one_bed(args, sur, threshold, item, prediction, times, t_start, extra):
                             "relative_difference": {k: _relative(surrogate_props[k],
                                                                  solver_props[k]) for k in SIX}}
         out["solver"] = solver["solver"]
-    return _finish(out, (path, bed), times, t_start), rank
-
-
-def _finish(out, item, times, t_start):
-    """The record with its header, predict block and timings."""
-    path, bed = item
-    out = {**header("predict", bed.centers, bed.radii, resolve_material(bed.attrs)[1],
-                    input_path=path), **out, "predict": predict_block(out)}
-    times["total"] = time.perf_counter() - t_start
-    out["seconds"] = times["total"]
-    out["timings"] = times
-    return out
+    return finish(out, (path, bed), times, t_start), rank
 
 
 def interval_of(sur, bed, res, factor=1.0):
@@ -277,16 +253,9 @@ def _properties(res):
     props = as_properties(res["mean"][0])
     if "constants9" in res:
         props.update(zip(NINE[6:], map(float, res["constants9"][0, 6:])))
-    return _finite_or_none(props)
+    return finite_or_none(props)
 
 
 def _relative(value, reference):
     """(value - reference) / |reference|, None when the value is None (not finite)."""
     return None if value is None else (value - reference) / abs(reference)
-
-
-def _finite_or_none(props):
-    """{name: value}, a non-finite value as None (JSON null: JSON has no NaN)."""
-    return {k: (v if math.isfinite(v) else None) for k, v in props.items()}
-
-
