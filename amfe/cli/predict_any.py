@@ -27,14 +27,17 @@ def bed_kind(bed):
     import numpy as np
 
     from amfe.model.material import resolve_material
+    from amfe.training.anypredict import CELL, LAYER
     size = bed.attrs.get("size")
     note = None
-    if size is None:
+    if size is None:   # the spheres' box from the origin, to the nearest whole cell and layer
         far = np.max(np.asarray(bed.centers) + np.asarray(bed.radii)[:, None], axis=0)
-        size = tuple(float(v) for v in far)
+        unit = np.array([CELL[0], CELL[1], LAYER])
+        size = tuple(float(v) for v in np.maximum(np.round(far / unit), 1) * unit)
         note = (f"the bed file records no size: imaged on its spheres' bounding box from the "
-                f"origin, {size[0] * 1e3:g} x {size[1] * 1e3:g} x {size[2] * 1e3:g} mm "
-                "(whole cells and layers)")
+                f"origin ({far[0] * 1e3:.4g} x {far[1] * 1e3:.4g} x {far[2] * 1e3:.4g} mm) to "
+                f"the nearest whole cells and layers, {size[0] * 1e3:g} x {size[1] * 1e3:g} x "
+                f"{size[2] * 1e3:g} mm")
     return tuple(float(v) for v in size), resolve_material(bed.attrs)[0], note
 
 
@@ -44,8 +47,9 @@ def needs_route(bed):
     for a bed outside every range."""
     from amfe.training.anypredict import CELL, LAYER, PAPER_NU, PAPER_PSI, route_of
     from amfe.training.anysize import cropped_box
-    from amfe.training.sizerule import SIZES, size_weights
+    from amfe.training.sizerule import SIZES, check_size, size_weights
     size, material, _ = bed_kind(bed)
+    check_size(size[0] * 1e3, size[1] * 1e3)      # quoting the bed's own size, not the cropped
     box = cropped_box(size, CELL)
     layers = round(size[2] / LAYER)
     lx, ly = box[0] * 1e3, box[1] * 1e3

@@ -156,9 +156,18 @@ def _one_bed(args, sur, threshold, item, prediction, times, t_start, extra):
 
     score = float(res["score"][0])
     reasons = flag_reasons(res, threshold, sur.n_members)
-    bars = interval_of(sur, bed, res, extra["factor"]) if "non-finite" not in reasons else None
-    if bars is not None and bars["interval_flag"]:
-        reasons.append("interval")
+    risk = _risk(sur, bed, res, image, extra["factor"]) if "non-finite" not in reasons else None
+    if risk is not None:   # the one flag (issue 46): the risk, its bin's intervals
+        reasons = (["risk"] if risk["flagged"] else []) + [
+            r for r in reasons if r == "non-finite" or (r == "spread" and args.threshold)]
+        conformal = {"coverage": risk.pop("coverage"), "names": list(SIX),
+                     "sizes": {"risk bin": risk.pop("calibration")}}
+        bars = interval_of(sur, bed, res, extra["factor"], conformal)
+    else:
+        bars = interval_of(sur, bed, res, extra["factor"]) if "non-finite" not in reasons \
+            else None
+        if bars is not None and bars["interval_flag"]:
+            reasons.append("interval")
     bad = [k for k, v in zip(SIX, res["mean"][0]) if not math.isfinite(v)]
     solver, rank = solve_for(args, bed, reasons, times, f"the model {sur.path} is damaged or "
                              f"overflows on this bed ({', '.join(bad) or 'spread'})")
@@ -182,6 +191,7 @@ def _one_bed(args, sur, threshold, item, prediction, times, t_start, extra):
                        else None),
         "flagged": flagged,
         "flag_reasons": reasons,
+        **({"risk": risk} if risk is not None else {}),
         "source": "surrogate", "error": None, "notes": list(extra["notes"]),
         "size": list(_image_size(bed, sur.ckpt)),   # the imaged box [m]
         "model": os.fspath(sur.path),
@@ -211,15 +221,19 @@ def _one_bed(args, sur, threshold, item, prediction, times, t_start, extra):
     return finish(out, (path, bed), times, t_start), rank
 
 
-def interval_of(sur, bed, res, factor=1.0):
-    """The bed's interval block (amfe.training.conformal.interval_block) at its imaged size;
+def interval_of(sur, bed, res, factor=1.0, conformal=None):
+    """The bed's interval block (amfe.training.conformal.interval_block) at its imaged size
+    (``conformal`` with one entry, "risk bin": that calibration whatever the size);
     ``res``'s moduli scaled by ``factor`` (E_bed / E_model) are unscaled for the model's
     calibration and the intervals scaled back."""
-    from amfe.training.conformal import interval_block
+    from amfe.training.conformal import interval_block, size_key
     from amfe.training.predict import _image_size
     from amfe.training.prediction import scale_intervals
-    conformal = sur.ckpt.get("conformal")
     size = _image_size(bed, sur.ckpt)
+    if conformal is None:
+        conformal = sur.ckpt.get("conformal")
+    else:
+        conformal = {**conformal, "sizes": {size_key(size): conformal["sizes"]["risk bin"]}}
     if "constants9" in res and conformal and len(conformal.get("names", ())) == 9:
         row, names, spread = res["constants9"][0].copy(), NINE, res["spread9"][0]
         row[[0, 1, 2, 6, 7, 8]] /= factor   # a stiffness head calibrated on all nine
@@ -227,6 +241,23 @@ def interval_of(sur, bed, res, factor=1.0):
         row, names, spread = res["mean"][0].copy(), SIX, res["spread"][0]
         row[:3] /= factor
     return scale_intervals(interval_block(row, names, conformal, size, spread), factor)
+
+
+def _risk(sur, bed, res, image, factor):
+    """The bed's risk block (amfe.training.flagrisk.bed_risk, with the bin's "coverage") when
+    ``sur`` is a shipped model with a flag model and the bed is of its size, else None."""
+    from amfe.training.flagrisk import bed_risk, shipped_flag
+    from amfe.training.predict import bond_image_like_training
+    from amfe.training.shipped import SHIPPED, models_dir
+    model = shipped_flag(sur.path, models_dir(), SHIPPED)
+    if model is None or tuple(image.shape[1:]) != tuple(sur.ckpt["image_shape"][1:]) \
+            or image.shape[0] * 2 != sur.ckpt["image_shape"][0]:
+        return None
+    bonds = bond_image_like_training(bed, sur.ckpt) / factor   # at the model's E
+    mean = res["mean"][0].copy()
+    mean[:3] /= factor
+    return {**bed_risk(model, image, bonds, mean, res["spread"][0]),
+            "coverage": model["coverage"]}
 
 
 def flag_reasons(res, threshold, n_members):

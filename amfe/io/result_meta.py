@@ -124,7 +124,8 @@ def predict_block(out):
             "spread": {"relative": out["spread"], "score": score, "threshold": threshold},
             "flags": {"flagged": bool(out["flagged"]), "spread": "spread" in reasons,
                       "fill": "fill" in reasons, "non_finite": "non-finite" in reasons,
-                      "interval": "interval" in reasons,
+                      "interval": "interval" in reasons, "risk": "risk" in reasons,
+                      "uncalibrated": "uncalibrated" in reasons,
                       "reasons": list(reasons), "fill_value": out["fill"],
                       "fill_range": fill_range},
             "source": out["source"]}

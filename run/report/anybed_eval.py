@@ -7,8 +7,10 @@ relative error, the share of beds with a constant more than 10 % off, and the ro
 import h5py
 import numpy as np
 import torch
+from scipy.stats import binom
 
-from amfe.training.anypredict import any_members
+from amfe.training.anypredict import any_members, rule_calibration
+from amfe.training.ensemble import relative_spread
 from amfe.training.predict import Surrogate
 from amfe.training.sizerule import SIZES
 from amfe.vocab import LABEL_NAMES
@@ -38,9 +40,11 @@ def read_kind(path):
 
 
 def predict_set(models, path):
-    """(mean predictions (n, 6), labels (n, 6), route) of a data set, bed by bed kind."""
+    """(mean predictions (n, 6), labels (n, 6), route, covered (n, 6) bool: the label inside
+    the 90 % interval amfe predict gives) of a data set, bed by bed kind."""
     fill, bonds, labels, (nu, psi, E, box), _ = read_kind(path)
     preds, routes = np.empty_like(labels), set()
+    covered = np.zeros(labels.shape, bool)
     # beds of one material share one call (a drawn-material set: every bed its own)
     keys = np.stack([nu, psi, E], axis=1)
     for key in np.unique(keys, axis=0):
@@ -49,14 +53,28 @@ def predict_set(models, path):
                     E=key[2])
         members, route = any_members(models, fill[rows], bonds[rows], kind)
         preds[rows] = members.mean(axis=0)
+        spread = relative_spread(members)
+        for i, row in enumerate(rows):
+            cal = (rule_calibration(models["shipped"], spread[i])
+                   if route == "size rule" else
+                   models["anybed"].ckpt["conformal"]["sizes"]["0.6x0.6"])
+            q = np.array([cal["quantile"][k] for k in LABEL_NAMES])
+            s0 = np.array([cal["spread_scale"][k] for k in LABEL_NAMES])
+            half = q * np.abs(preds[row]) * (spread[i] + s0)
+            covered[row] = np.abs(labels[row] - preds[row]) <= half
         routes.add(route)
-    return preds, labels, ", ".join(sorted(routes))
+    return preds, labels, ", ".join(sorted(routes)), covered
 
 
-def errors(preds, labels):
+def errors(preds, labels, covered):
     rel = np.abs(preds - labels) / np.abs(labels)
+    n = len(labels)
+    lo, hi = (v / n for v in binom.interval(0.99, n, 0.9))
+    cov = covered.mean(axis=0)
     return {"mre": dict(zip(LABEL_NAMES, map(float, rel.mean(axis=0)))),
-            "over_10": float(np.mean(rel.max(axis=1) > 0.10)), "n": int(len(labels))}
+            "over_10": float(np.mean(rel.max(axis=1) > 0.10)), "n": int(n),
+            "coverage": dict(zip(LABEL_NAMES, map(float, cov))), "band": [lo, hi],
+            "coverage_in_band": bool(np.all((cov >= lo) & (cov <= hi)))}
 
 
 def main():
@@ -69,13 +87,17 @@ def main():
     models = load_models(args.anybed)
     rows, out = [], {}
     for path in args.sets:
-        preds, labels, route = predict_set(models, path)
-        e = errors(preds, labels)
+        preds, labels, route, covered = predict_set(models, path)
+        e = errors(preds, labels, covered)
         out[path] = {**e, "route": route}
         rows.append([path.rsplit("/", 1)[-1], e["n"], route]
                     + [f"{100 * e['mre'][k]:.2f}" for k in LABEL_NAMES]
-                    + [f"{100 * e['over_10']:.1f}"])
-    print(md_table(["set", "beds", "route", *LABEL_NAMES, "> 10 % off (%)"], rows))
+                    + [f"{100 * e['over_10']:.1f}",
+                       f"{100 * min(e['coverage'].values()):.1f}-"
+                       f"{100 * max(e['coverage'].values()):.1f}"
+                       + ("" if e["coverage_in_band"] else " (out of band)")])
+    print(md_table(["set", "beds", "route", *LABEL_NAMES, "> 10 % off (%)",
+                    "90 % coverage (%)"], rows))
     if args.json:
         write_json(args.json, out)
 
