@@ -215,8 +215,8 @@ def _count_like(a, b):
 def param_differences(a, b):
     """What differs between run parameters ``a`` (a file's or a run's) and ``b`` (asked),
     beside what :func:`same_but_count` allows, in words: ["seed 5 (asked 6)", ...]."""
-    skip = _count_like(a, b)
-    return [f"{n} {a.get(n, '(none)')} (asked {b.get(n, '(none)')})"
+    skip, default = _count_like(a, b), {"solver": "gamg", "bc": "kubc"}   # run_params omits
+    return [f"{n} {a.get(n, default.get(n, '(none)'))} (asked {b.get(n, default.get(n, '(none)'))})"
             for n in sorted((set(a) | set(b)) - skip) if a.get(n) != b.get(n)]
 
 

@@ -18,8 +18,8 @@ import numpy as np
 from amfe.dataset.datacheck import check_dataset
 from amfe.dataset.images import IMAGING_VERSION
 from amfe.dataset.parts import (
-    STATUS_OK,
     LABEL_RULE_VERSION,
+    STATUS_OK,
     describe_params,
     done_indices,
     file_params,
