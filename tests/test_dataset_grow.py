@@ -157,6 +157,10 @@ def test_a_grow_killed_while_solving_keeps_the_old_file_and_resumes(made, tmp_pa
     # a reader sees the old, finished file meanwhile
     assert main(["dataset", "--check", str(grown)]) == 0
     assert f"{FIRST} records" in capsys.readouterr().out
+    # its own count again: complete, and the grow's records are kept for the grow
+    make(grown, FIRST)
+    assert "already complete" in capsys.readouterr().out
+    assert sorted(glob.glob(os.path.join(parts_dir(grown), "rec_*.npz"))) == kept
     # --prefix-of of a growing file: its rows, then the new records finished in a row
     first = tmp_path / "first.h5"
     assert main(["dataset", "--prefix-of", str(grown), "-o", str(first)]) == 0

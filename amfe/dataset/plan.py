@@ -119,8 +119,9 @@ def _finished_file(output, params):
     if _same_run(attrs, params):
         parts = parts_dir(output)
         pending = read_params_json(parts) if os.path.isdir(parts) else None
-        if pending is None or int(pending.get("count", 0)) <= int(attrs["count"]):
+        if not isinstance(pending, dict) or int(pending.get("count", 0)) <= int(attrs["count"]):
             remove_parts(parts)  # left by a kill between the merge's rename and this
+        # else: the new records of a grow to more, kept for the run that resumes it
         return {"complete": True, "data": data, "attrs": attrs}
     return _unfinished(output, params, base=_growable(output, attrs, params))
 
