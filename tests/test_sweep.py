@@ -156,6 +156,14 @@ def test_the_surrogate_rows_and_the_fallback(tmp_path):
             assert f["Ex [Pa]"] == a["Ex [Pa]"]
     points = read_csv(tmp_path / "f" / "points.csv")
     assert sum(int(p["solved"]) for p in points) == sum(r["source"] == "solver" for r in fall)
+    # a surrogate row's solid fraction is its image's mean: within the stated 1e-3 of the
+    # one a solver sweep computes for the same beds (amfe.dataset.density)
+    solver_grid = [g for g in grid if g not in ("--method", "surrogate")]
+    code, _, err = run_main(["sweep", "-o", tmp_path / "v", *solver_grid])
+    assert code == 0, err
+    for a, v in zip(alone, read_csv(tmp_path / "v" / "beds.csv")):
+        assert a["seed"] == v["seed"]
+        assert abs(float(a["solid_fraction [-]"]) - float(v["solid_fraction [-]"])) <= 1e-3
 
 
 def test_every_method_writes_the_same_layout(tmp_path):

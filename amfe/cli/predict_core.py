@@ -24,17 +24,19 @@ from amfe.vocab import LABEL_NAMES as SIX
 NINE = SIX + ("G_yz", "G_xz", "G_xy")
 
 
-def predict_records(args, items, times, t_start):
+def predict_records(args, items, times, t_start, cache=None):
     """(records, number of failed beds) of ``items`` (bed paths or Beds), in their order.
 
     args: the options of amfe predict (model, stiffness, fallback, check, threshold,
-    petsc_args); times: seconds spent before (start-up) shared by every record."""
+    petsc_args); times: seconds spent before (start-up) shared by every record; cache: a
+    dict that keeps the loaded models between calls (a sweep's batches)."""
     from amfe.training.predict import Surrogate, check_material
     from amfe.training.prediction import scale_moduli
     from amfe.training.shipped import shipped_model_for
 
     records, beds, chosen = [None] * len(items), [None] * len(items), [None] * len(items)
-    models = Models()
+    cache = {} if cache is None else cache
+    models = cache.setdefault("routes", Models())
     for k, item in enumerate(items):
         path = os.fspath(item) if isinstance(item, (str, os.PathLike)) else None
         try:
@@ -47,7 +49,9 @@ def predict_records(args, items, times, t_start):
             records[k] = _failed(args, (path, beds[k] and beds[k][1]), exc, times, t_start)
     for model in dict.fromkeys(m for m in chosen if m is not None):
         t = time.perf_counter()
-        sur = Surrogate.load(model)
+        if model not in cache:
+            cache[model] = Surrogate.load(model)
+        sur = cache[model]
         times["load_model"] = time.perf_counter() - t
         threshold = args.threshold if args.threshold is not None else sur.threshold
         if args.fallback and threshold is None and not sur.fill_range \
