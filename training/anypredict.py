@@ -14,6 +14,7 @@ The route (docs/surrogate.md, "Any bed"), decided by the bed's kind:
 E enters by scaling: every network works at 210 GPa and the moduli are
 multiplied by E / 210 GPa (the Poisson ratios do not depend on E).
 """
+import json
 import time
 
 import numpy as np
@@ -26,7 +27,8 @@ from amfe.training.anybed import E_TRAINED, anybed_inputs, check_bed_kind
 from amfe.training.anysize import HEIGHT_TOL, cropped_box
 from amfe.training.conformal import DEFAULT_COVERAGE, DEFAULT_FLAG_HALF_WIDTH, size_key
 from amfe.training.ensemble import predict_raw, relative_spread
-from amfe.training.sizerule import size_weights
+from amfe.training.shipped import models_dir
+from amfe.training.sizerule import inverse_size, size_weights
 from amfe.vocab import LABEL_NAMES
 
 #: nu and psi this close to the paper's are the shipped models' material.
@@ -113,12 +115,29 @@ def bed_images(bed, size):
     return np.asarray(fill, np.float32), np.asarray(bonds, np.float32), box
 
 
-def rule_calibration(shipped, spread):
-    """The size rule's conformal calibration for one bed: per constant, the widest of the
-    shipped models' calibrations (each at its own size) given the bed's spread (6,). A
-    bed between the shipped sizes has no calibration beds of its own (the stated rule,
-    docs/surrogate.md, "Any size"): the neighbours' alone under-covered Ez at 2 mm (80 %
-    of 100 held-out beds)."""
+#: The size rule's pooled calibration, in amfe/models/ (run/train/calibrate_sizerule.py).
+SIZERULE_CALIBRATION = "sizerule_calibration.json"
+
+
+def rule_calibration(shipped, spread, side_mm=None):
+    """The size rule's conformal calibration for one bed with the ensemble spread (6,) and
+    side ``side_mm`` (the L of 1/L = (1/Lx + 1/Ly)/2).
+
+    A bed between the shipped sizes has no calibration beds of its own size: the rule's
+    intervals are calibrated on beds of other sizes in the same span between shipped
+    sizes (0.75 and 1.05 mm; 1.6 and 2.5 mm: never the test sizes), pooled per span
+    (:data:`SIZERULE_CALIBRATION`; docs/surrogate.md, "Any bed"). Without that file, or
+    outside its spans: per constant, the widest of the shipped models' calibrations.
+    """
+    path = models_dir() / SIZERULE_CALIBRATION
+    if path.is_file() and side_mm is not None:
+        with open(path) as f:
+            data = json.load(f)
+        if data.get("format") != "amfe.sizerule_calibration" or data.get("format_version") != 2:
+            raise AmfeError(f"{path} is not a size-rule calibration of version 2")
+        for span in data["spans"]:
+            if span["lo_mm"] <= side_mm < span["hi_mm"]:
+                return span["calibration"]
     cals = [shipped[s].ckpt["conformal"]["sizes"][size_key((s * 1e-3, s * 1e-3))]
             for s in sorted(shipped)]
     q, s0 = {}, {}
@@ -145,7 +164,8 @@ def predict_any_bed(models, bed, size, material):
     members, route = any_members(models, fill[None], bonds[None], kind)
     mean, spread = members.mean(axis=0)[0], relative_spread(members)[0]
     if route == "size rule":
-        cal = rule_calibration(models["shipped"], spread)
+        cal = rule_calibration(models["shipped"], spread,
+                               1 / inverse_size(kind["lx_mm"], kind["ly_mm"]))
     else:
         cal = models["anybed"].ckpt["conformal"]["sizes"]["0.6x0.6"]
     conformal = {"coverage": DEFAULT_COVERAGE, "flag_half_width": DEFAULT_FLAG_HALF_WIDTH,

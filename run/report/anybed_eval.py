@@ -12,7 +12,7 @@ from scipy.stats import binom
 from amfe.training.anypredict import any_members, rule_calibration
 from amfe.training.ensemble import relative_spread
 from amfe.training.predict import Surrogate
-from amfe.training.sizerule import SIZES
+from amfe.training.sizerule import SIZES, inverse_size
 from amfe.vocab import LABEL_NAMES
 from run.common import ROOT, md_table, parser, write_json
 
@@ -55,7 +55,8 @@ def predict_set(models, path):
         preds[rows] = members.mean(axis=0)
         spread = relative_spread(members)
         for i, row in enumerate(rows):
-            cal = (rule_calibration(models["shipped"], spread[i])
+            cal = (rule_calibration(models["shipped"], spread[i],
+                                   1 / inverse_size(box[0], box[1]))
                    if route == "size rule" else
                    models["anybed"].ckpt["conformal"]["sizes"]["0.6x0.6"])
             q = np.array([cal["quantile"][k] for k in LABEL_NAMES])
