@@ -32,7 +32,7 @@ from amfe.model.averages import (
 from amfe.model.bed import Bed
 from amfe.model.carrying import frame_warnings
 from amfe.model.conditions import CONDITIONS, get_condition, solver_part
-from amfe.model.frame import build_frame
+from amfe.model.frame import FRAME_LOG, build_frame
 from amfe.model.options import SolveOptions
 from amfe.solvers.adjoint import attach_strain_adjoint
 from amfe.solvers.choice import (
@@ -56,6 +56,7 @@ from amfe.solvers.mgchoice import CHOSEN_OPTIONS, choose_multigrid, multigrid_fe
 from amfe.solvers.options import call_options
 from amfe.solvers.petsc import unused_options_warning
 from amfe.solvers.petsclib import PETSc
+from amfe.solvers.progress import Progress
 
 LOG = logging.getLogger("amfe.solvers")
 
@@ -153,13 +154,20 @@ def _homogenize(bed, options, comm, input_error, scope):
     inp = checked_inputs(mpi, bed, options, CONDITIONS, input_error)
     options, condition = inp.options, get_condition(inp.options.bc)
     t0 = time.perf_counter()
-    log = _progress(mpi.rank)
-    frame = build_frame(bed.centers, bed.radii, inp.material, options.a_star_cap,
-                        nondimensional=options.nondimensional,
-                        box=inp.box if condition.periodic else None, bc=options.bc,
-                        size=bed.attrs.get("size"))
+    log = Progress(_progress(mpi.rank), len(bed.centers))   # long solves: each phase's start
+    log.phase("frame", f"frame: building it from {len(bed.centers)} particles "
+              "(contacts, load-carrying part, springs)")
+    token = FRAME_LOG.set(log.log if log.long else None)
+    try:
+        frame = build_frame(bed.centers, bed.radii, inp.material, options.a_star_cap,
+                            nondimensional=options.nondimensional,
+                            box=inp.box if condition.periodic else None, bc=options.bc,
+                            size=bed.attrs.get("size"))
+    finally:
+        FRAME_LOG.reset(token)
     t_frame = time.perf_counter() - t0
     groups = condition.groups(frame)
+    log.n_cases = sum(len(g.names) for g in groups)
     # the same on every rank: rank 0 decides (qhull; docs/benchmarks.md, "Figures quoted ...")
     corrected = correction_wanted(options.ksp_options) and mpi.bcast(
         solver_part(condition.second_order)(frame, groups) if mpi.rank == 0 else None)
