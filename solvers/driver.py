@@ -129,10 +129,11 @@ def homogenize_bed(bed: Bed, options: SolveOptions | None = None, comm: object =
     :class:`~amfe.io.result.Fields` on every rank ("root": on rank 0 only, for
     the files the caller writes).
 
-    Progress (one line per phase and load case) and warnings leave through the
-    ``logging`` logger "amfe.solvers", on rank 0 only; this function prints and
-    writes nothing. Every solve must reach a true relative residual of at most
-    :data:`~amfe.solvers.ksp.RESIDUAL_FACTOR` x rtol (or x the rounding floor);
+    Progress (one line per phase and load case; on beds above
+    :data:`~amfe.solvers.progress.PROGRESS_PARTICLES` also each phase's start and the time
+    left) and warnings leave through the ``logging`` logger "amfe.solvers", on rank 0 only;
+    this function prints and writes nothing. Every solve must reach a true relative
+    residual of at most :data:`~amfe.solvers.ksp.RESIDUAL_FACTOR` x rtol (or x the rounding floor);
     ``accept_unconverged`` keeps the numbers of one that does not, with a
     warning. The bed's recorded box (``attrs["size"]`` (3,) [m]) is V (else the
     load-carrying spheres' bounding box; docs/model.md, section 5).

@@ -79,9 +79,12 @@ class Progress:
         running case over its tolerance. Every :data:`ITERATION_EVERY` s a line with the
         iterations and the time left, from the mean rate of convergence so far:
         log(ratio) / log(1 / rate) iterations left, at the mean time of one."""
+        if not self.long:
+            return
         now = time.perf_counter()
-        if it == 0:
+        if it == 0:   # its V-cycles made: the iterations start
             self.first, self.shown = (now, ratio), now
+            self.log(f"block CG: started, largest residual {ratio:.3g} x its tolerance")
             return
         start, ratio0 = self.first
         if ratio <= 1.0 or now - self.shown < ITERATION_EVERY:
