@@ -30,7 +30,8 @@ def homogenize(bed: Bed | str | os.PathLike | tuple, *, bc: str = "kubc",
                accept_unconverged: bool = False, max_memory: float | str | None = None,
                material_source: str | None = None, input_path: str | os.PathLike | None = None,
                model: str = "frame", voxel_size: float | None = None,
-               voxel_operator: str = "assembled") -> Result | dict[str, Result]:
+               voxel_operator: str = "assembled",
+               box: tuple | None = None) -> Result | dict[str, Result]:
     """Effective elastic constants of a powder bed, as a :class:`~amfe.io.result.Result`.
 
     Parameters
@@ -104,6 +105,13 @@ def homogenize(bed: Bed | str | os.PathLike | tuple, *, bc: str = "kubc",
         (default), or applied element by element with a two-grid
         preconditioner, a few kB a node instead of about 16 (docs/model.md,
         section 10, "Matrix-free operator").
+    box : (Lx, Ly, Lz), optional
+        V's box [m], as you state it (the command line's ``--box``), checked to
+        hold the load-carrying centres and centred on them; default: the bed's
+        recorded size, else the load-carrying spheres' bounding box
+        (docs/model.md, section 5). ``result.extra["volume_box"]`` says which
+        box V is and where it came from; ``result.extra["density"]`` is the
+        solid fraction of that box (relative density, to 1e-3).
 
     Returns
     -------
@@ -121,6 +129,7 @@ def homogenize(bed: Bed | str | os.PathLike | tuple, *, bc: str = "kubc",
     >>> result.C.shape
     (6, 6)
     """
+    from amfe.dataset.density import result_density  # noqa: PLC0415 (scipy: a solve's)
     from amfe.solvers.driver import homogenize_bed, petsc_comm
 
     check_flag("progress", progress)
@@ -143,6 +152,7 @@ def homogenize(bed: Bed | str | os.PathLike | tuple, *, bc: str = "kubc",
             rtol=rtol, solver=solver, max_it=max_it, a_star_cap=a_star_cap,
             ksp_options=check_petsc_options("petsc_options", petsc_options),
             accept_unconverged=accept_unconverged, max_memory=max_memory, diagnose=diagnose,
+            box=box,
             fields=check_flag("fields", fields) or ("root" if vtu_dir is not None else False))
         if isinstance(bed, (str, os.PathLike)):
             input_path = bed if input_path is None else input_path
@@ -153,17 +163,25 @@ def homogenize(bed: Bed | str | os.PathLike | tuple, *, bc: str = "kubc",
     except AmfeError as exc:
         error = exc
 
+    def with_density(result):
+        result.extra["density"] = result_density(bed.centers, bed.radii,
+                                                 result.extra["volume_box"],
+                                                 options.material.density)
+        return result
+
     # --- voxel model dispatch (issue 35): its own solver, nothing of the frame's path ---
     if model != "frame" or voxel_size is not None or voxel_operator != "assembled":
-        return _voxel(bed, options, error, pcomm,
-                      dict(bc=bc, model=model, voxel_size=voxel_size, progress=progress,
-                           vtu_dir=vtu_dir, input_path=input_path, operator=voxel_operator))
+        return with_density(_voxel(bed, options, error, pcomm,
+                                   dict(bc=bc, model=model, voxel_size=voxel_size,
+                                        progress=progress, vtu_dir=vtu_dir,
+                                        input_path=input_path, operator=voxel_operator)))
 
     def one(bc, vtu_dir):
         with messages(progress):
             result = homogenize_bed(bed, options and replace(options, bc=bc), pcomm,
                                     input_error=error)
         describe_input(result.extra, input_path)
+        with_density(result)
         if vtu_dir is not None:
             paths = on_root(mpi, write_fields_vtu, vtu_dir, result.fields)
             result.extra["vtk"] = {"collection": paths[-1], "files": paths[:-1]}

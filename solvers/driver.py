@@ -34,6 +34,7 @@ from amfe.model.carrying import frame_warnings
 from amfe.model.conditions import CONDITIONS, get_condition, solver_part
 from amfe.model.frame import FRAME_LOG, build_frame
 from amfe.model.options import SolveOptions
+from amfe.model.volumebox import unit_warnings, volume_box_record
 from amfe.solvers.adjoint import attach_strain_adjoint
 from amfe.solvers.choice import (
     USER_METHOD_OPTIONS,
@@ -49,7 +50,7 @@ from amfe.solvers.correction import (
     moment_corrections,
     relative_size,
 )
-from amfe.solvers.inputs import checked_inputs, given_options
+from amfe.solvers.inputs import checked_inputs, given_options, given_size
 from amfe.solvers.ksp import DEFAULT_RTOL, RESIDUAL_FACTOR
 from amfe.solvers.loadcases import solve_load_cases
 from amfe.solvers.mgchoice import CHOSEN_OPTIONS, choose_multigrid, multigrid_features
@@ -163,7 +164,7 @@ def _homogenize(bed, options, comm, input_error, scope):
         frame = build_frame(bed.centers, bed.radii, inp.material, options.a_star_cap,
                             nondimensional=options.nondimensional,
                             box=inp.box if condition.periodic else None, bc=options.bc,
-                            size=bed.attrs.get("size"))
+                            size=given_size(bed, options))
     finally:
         FRAME_LOG.reset(token)
     t_frame = time.perf_counter() - t0
@@ -309,7 +310,9 @@ def _average(solved, options):
                      adjoint_seconds=sol.setups[0].adjoint_seconds)
     C = C * frame.stress_scale
     S, props = compliance_and_constants(C)
-    for line in frame_warnings(frame, options.bc):   # removed pieces, the box rule: the terminal
+    size = np.asarray(frame.size) * frame.length_scale
+    warnings = frame_warnings(frame, options.bc) + unit_warnings(solved.bed.radii, size)
+    for line in warnings:   # removed pieces, the box rule, the unit: the terminal
         LOG.warning(line)
     t_avg = time.perf_counter() - t0
     result = {
@@ -317,6 +320,7 @@ def _average(solved, options):
         "C": C.tolist(),
         "S": S.tolist(),
         "volume": float(volume * frame.length_scale**3),
+        "volume_box": volume_box_record(frame.box_lo, size, frame.box_source, frame.box_note),
         "n_particles": int(frame.n_input),
         "n_removed": int(frame.n_removed),
         "removed": frame.removed,
@@ -336,7 +340,7 @@ def _average(solved, options):
             **stats,
         },
         "material": solved.material,
-        "warnings": list(solved.warnings) + frame_warnings(frame, options.bc),
+        "warnings": list(solved.warnings) + warnings,
     }
     bed = solved.bed
     result = {**homogenize_header(frame, bed.centers, bed.radii, solved.material), **result}

@@ -16,6 +16,7 @@ from collections import namedtuple
 from amfe.errors import AmfeError
 from amfe.model.bed import Bed
 from amfe.model.bonds import check_a_star_cap
+from amfe.model.carrying import GivenBox
 from amfe.model.material import resolve_material
 from amfe.model.memory import check_memory, default_limit, solve_bytes
 from amfe.model.options import SolveOptions, check_rtol
@@ -112,6 +113,9 @@ def checked_inputs(mpi, bed, options, bcs, input_error=None):
         box = bed.attrs.get("periodic")
         if bcs[options.bc].periodic and box is None:
             raise AmfeError(NOT_PERIODIC)
+        if options.box is not None and bcs[options.bc].periodic:
+            raise AmfeError(f"--box sets V's box, but under {options.bc} V is the periodic "
+                            "bed's box, its periods: leave --box out")
         material, record = _material(bed, options)
         _check_options(options)
         if options.a_star_cap is not None:
@@ -134,6 +138,14 @@ def checked_inputs(mpi, bed, options, bcs, input_error=None):
     check(solve_bytes(bed.radii.size, len(hosts)),
           f"homogenizing {bed.radii.size} particles on {len(hosts)} rank(s)")
     return Inputs(options, material, record, box, check)
+
+
+def given_size(bed, options):
+    """The ``size`` of V's box rule (:func:`amfe.model.carrying.box_rule`): the options' given
+    box (a GivenBox), else the bed's recorded size (attrs ``size``), else None."""
+    if options.box is not None:
+        return GivenBox(options.box)
+    return bed.attrs.get("size")
 
 
 def _arrays(bed):

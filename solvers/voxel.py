@@ -30,11 +30,12 @@ from amfe.model.hex8 import VERTICES, element_stiffness
 from amfe.model.material import STEEL
 from amfe.model.memory import check_memory
 from amfe.model.options import SolveOptions
+from amfe.model.volumebox import unit_warnings, volume_box_record
 from amfe.model.voxel import voxel_bytes, voxel_solid
 from amfe.model.voxelmesh import block_rows, build_mesh, element_loads
 from amfe.solvers.consistency import agree_across_ranks
 from amfe.solvers.driver import petsc_comm
-from amfe.solvers.inputs import checked_inputs
+from amfe.solvers.inputs import checked_inputs, given_size
 from amfe.solvers.ksp import RESIDUAL_FACTOR, check_solution, make_ksp, petsc_options
 from amfe.solvers.options import call_options
 from amfe.solvers.partition import row_ranges
@@ -117,8 +118,9 @@ def _homogenize_voxel(bed, options, comm, input_error, scope, how):
     options = replace(inp.options, material=inp.material)
     t0 = time.perf_counter()
     geo = voxel_solid(bed.centers, bed.radii, voxel_size, inp.box if options.bc == "periodic"
-                      else None, size=bed.attrs.get("size"), max_memory=options.max_memory,
+                      else None, size=given_size(bed, options), max_memory=options.max_memory,
                       ranks=mpi.size, even=operator == "matrix-free")
+    geo.warnings.extend(unit_warnings(bed.radii, geo.grid.n * geo.grid.h))
     for line in geo.warnings if mpi.rank == 0 else ():
         LOG.warning(line)
     t_geo = time.perf_counter() - t0
@@ -152,6 +154,7 @@ def _result(bed, geo, solved, record, ranks, t_geo):
     out.update({
         "properties": {k: float(v) for k, v in props.items()},
         "C": C.tolist(), "S": S.tolist(), "volume": geo.grid.volume,
+        "volume_box": volume_box_record(geo.grid.lo, geo.grid.n * geo.grid.h, geo.box_source),
         "n_particles": n, "n_removed": n - int(len(geo.kept)), "removed": geo.removed,
         "n_bonds": geo.n_bonds, "bc": "periodic" if mesh.periodic else "kubc", "ranks": ranks,
         "solver": {**_method(sol["operator"]), "ksp_type": sol["ksp_type"],

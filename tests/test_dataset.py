@@ -302,9 +302,15 @@ def test_rerun_of_a_complete_file_does_nothing(runs, capsys):
                  "--scale", "tiny", "--no-progress", "--max-failed-share", "1"]) == 0
     assert "already complete" in capsys.readouterr().out
     assert os.stat(path).st_mtime_ns == before
-    assert main(["dataset", "-o", str(path), "--count", str(COUNT + 1), "--seed", str(SEED),
+    # a larger count grows it (tests/test_dataset_grow.py), unless another parameter differs
+    assert main(["dataset", "-o", str(path), "--count", str(COUNT + 1), "--seed", str(SEED + 1),
                  "--scale", "tiny", "--no-progress"]) == 2
-    assert "other parameters" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "other parameters" in err and f"seed {SEED} (asked {SEED + 1})" in err
+    assert main(["dataset", "-o", str(path), "--count", str(COUNT - 1), "--seed", str(SEED),
+                 "--scale", "tiny", "--no-progress"]) == 2
+    assert "--prefix-of" in capsys.readouterr().err
+    assert os.stat(path).st_mtime_ns == before
 
 
 def test_parts_of_another_run_are_refused(tmp_path, capsys):

@@ -68,8 +68,8 @@ def test_prefix_refuses_what_it_cannot_give(runs, tmp_path, capsys):
     direct, big, running = runs
     with pytest.raises(AmfeError, match=r"only records 0..3 .* in a row \(4\)"):
         write_prefix(running, tmp_path / "x.h5", FIRST + 2)
-    with pytest.raises(AmfeError, match="is finished .*--max-train"):
-        write_prefix(big, tmp_path / "x.h5")
+    with pytest.raises(AmfeError, match=rf"only records 0..{BIG - 1} of .* in a row \({BIG}\)"):
+        write_prefix(big, tmp_path / "x.h5", BIG + 1)   # a finished file gives its own
     with pytest.raises(AmfeError, match="no data set being made"):
         write_prefix(tmp_path / "nothing.h5", tmp_path / "x.h5")
     assert main(["dataset", "--prefix-of", str(running)]) == 2

@@ -156,3 +156,39 @@ def test_the_surrogate_rows_and_the_fallback(tmp_path):
             assert f["Ex [Pa]"] == a["Ex [Pa]"]
     points = read_csv(tmp_path / "f" / "points.csv")
     assert sum(int(p["solved"]) for p in points) == sum(r["source"] == "solver" for r in fall)
+    # a surrogate row's solid fraction is its image's mean: within the stated 1e-3 of the
+    # one a solver sweep computes for the same beds (amfe.dataset.density)
+    solver_grid = [g for g in grid if g not in ("--method", "surrogate")]
+    code, _, err = run_main(["sweep", "-o", tmp_path / "v", *solver_grid])
+    assert code == 0, err
+    for a, v in zip(alone, read_csv(tmp_path / "v" / "beds.csv")):
+        assert a["seed"] == v["seed"]
+        assert abs(float(a["solid_fraction [-]"]) - float(v["solid_fraction [-]"])) <= 1e-3
+
+
+def test_every_method_writes_the_same_layout(tmp_path):
+    """A solver sweep's beds table and a surrogate sweep's have the same columns in the same
+    order (issue 48): a solver row's intervals and flag are empty cells, a surrogate row's
+    shear moduli too; the values themselves land in their columns."""
+    from amfe.study.table import tables, write_tables
+
+    spec = {"points": [{"hatch_spacing": 1e-4}]}
+    base = {"index": 0, "point": 0, "seed": 0, "hatch_spacing": 1e-4, "n_particles": 10,
+            "solid_fraction": 0.5, "seconds": 1.0}
+    consts = {n: 1e9 * (k + 1) for k, n in enumerate(CONSTANTS)}
+    solver = {**base, **consts, "n_removed": 0, "warnings": "", "source": "solver"}
+    surrogate = {**base, **{n: consts[n] for n in CONSTANTS[:6]}, "Ex_lo": 0.9e9,
+                 "Ex_hi": 1.1e9, "source": "surrogate", "flagged": True,
+                 "flag_reasons": "fill"}
+    heads = []
+    for name, row in (("v", solver), ("s", surrogate)):
+        (tmp_path / name).mkdir()
+        write_tables(tables([row], spec), tmp_path / name)
+        with open(tmp_path / name / "beds.csv") as f:
+            heads.append(f.readline())
+    assert heads[0] == heads[1]
+    assert "G_yz [Pa]" in heads[0] and "Ex_lo [Pa]" in heads[0] and "flagged" in heads[0]
+    v, s = read_csv(tmp_path / "v" / "beds.csv")[0], read_csv(tmp_path / "s" / "beds.csv")[0]
+    assert (v["Ex_lo [Pa]"], v["flagged"], s["G_yz [Pa]"]) == ("", "", "")
+    assert float(s["Ex_lo [Pa]"]) == 0.9e9 and s["flagged"] == "true"
+    assert float(v["G_xy [Pa]"]) == consts["G_xy"]

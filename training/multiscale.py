@@ -30,13 +30,18 @@ class MultiScaleNet(nn.Module):
 
     image_shape: (layers, H, W); channels: per-stage widths (times ``width``);
     n_fill: how many leading layers are volume fractions (default: all); outputs: the
-    last layer's width (6 constants; 21 for a stiffness head, amfe.training.stiffness).
+    last layer's width (6 constants; 21 for a stiffness head, amfe.training.stiffness);
+    features: how many numbers per bed the head reads beside the image's summaries: the
+    last ``features`` layers of the input are constant planes holding them (so flips,
+    batching and every image path carry them unchanged; amfe.training.anybed's bed
+    descriptors), read as their means; image_shape counts them.
     """
 
     def __init__(self, image_shape, width=1.0, channels=(32, 64, 128, 256),
-                 hidden=(512, 256, 128), n_fill=None, outputs=6):
+                 hidden=(512, 256, 128), n_fill=None, outputs=6, features=0):
         super().__init__()
         layers_in, H, W = (int(s) for s in image_shape)
+        layers_in -= int(features)   # the descriptor planes go to the head, not the encoder
         if min(H, W) < 1 or layers_in < 1:
             raise AmfeError(f"multiscale needs a (layers, H, W) image, got {tuple(image_shape)}")
         self.n_fill = layers_in if n_fill is None else int(n_fill)
@@ -57,7 +62,8 @@ class MultiScaleNet(nn.Module):
             if pool:
                 hw = (hw[0] // 2, hw[1] // 2)
             c = out
-        layers, w = [], summary
+        self.features = int(features)
+        layers, w = [], summary + self.features
         for h in hidden:
             layers += [nn.Linear(w, int(h)), nn.ReLU(inplace=True)]
             w = int(h)
@@ -65,6 +71,13 @@ class MultiScaleNet(nn.Module):
         self.head = nn.Sequential(*layers)
 
     def forward(self, x):
+        if not self.features:
+            return self.head(self.encode(x))
+        z = x[:, -self.features:].mean(dim=(2, 3))
+        return self.head(torch.cat([self.encode(x[:, :-self.features]), z], dim=1))
+
+    def encode(self, x):
+        """The per-stage summaries (n, sum of 2 x stage widths) of images x (n, layers, H, W)."""
         # The emptiest fill layer under each cell; 1 - it is the hole map.
         holes = 1.0 - x[:, :self.n_fill].amin(dim=1, keepdim=True)
         summaries = []
@@ -81,4 +94,4 @@ class MultiScaleNet(nn.Module):
                     # "Speed of the eight passes").
                     top = x
             summaries += [mean, top.amax(dim=(2, 3))]
-        return self.head(torch.cat(summaries, dim=1))
+        return torch.cat(summaries, dim=1)

@@ -229,7 +229,8 @@ ARCH_ARGS = {"custom": {"padding": str, "width": float, "convs": int},
              "lenet5": {},
              "alexnet": {"width": float, "hidden": list, "dropout": float},
              "vgg": {"width": float, "hidden": list, "dropout": float, "batch_norm": bool},
-             "multiscale": {"width": float, "hidden": list, "n_fill": int, "outputs": int}}
+             "multiscale": {"width": float, "hidden": list, "n_fill": int, "outputs": int,
+                            "features": int}}
 
 
 def build_net(arch, image_shape, arch_args=None):

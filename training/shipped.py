@@ -47,11 +47,12 @@ def shipped_sizes(stiffness=False):
 
 def unrecorded_size(bed, cell, height):
     """The size (x, y, z) [m] a bed file without a recorded size is imaged at: its spheres'
-    bounding box from the origin (max of centre + radius) cut to whole ``cell``s in x and y
-    (amfe.training.anysize, the whole-cell rule), and ``height``."""
+    bounding box from the origin (max of centre + radius) to the nearest whole ``cell`` in x
+    and y (at least one; a generated 0.6 mm bed's spheres reach 0.595-0.601 mm, which are
+    20 cells), and ``height``."""
     far = np.max(np.asarray(bed.centers) + np.asarray(bed.radii)[:, None], axis=0)
-    return (whole_cells(far[0], cell[0]) * float(cell[0]),
-            whole_cells(far[1], cell[1]) * float(cell[1]), float(height))
+    return (max(1, round(far[0] / float(cell[0]))) * float(cell[0]),
+            max(1, round(far[1] / float(cell[1]))) * float(cell[1]), float(height))
 
 
 def shipped_model_for(bed, stiffness=False):

@@ -16,7 +16,8 @@ distribution (amfe.model.scales), its image (amfe.dataset.images), the six label
 pure function of (S, k), whatever N and k. Rank groups of k ranks take beds
 from a shared counter (amfe.dataset.driver). Killing the job loses only the beds in
 flight: the same command resumes it (after removing the stale lock
-DATA.h5.lock that the kill left; the message says how). One run at a time
+DATA.h5.lock that the kill left; the message says how). The same command
+with a larger M grows a finished or unfinished data set, keeping its records. One run at a time
 writes an output (amfe.dataset.lock). A bed that fails is recorded as failed
 with its reason; more than F of them failed makes the exit status 2. File
 layout: amfe.dataset.datafile.
@@ -40,8 +41,10 @@ def register(sub):
                "--size X Y Z: small's distribution at any box (docs/datasets.md, Box scales).")
     p.add_argument("-o", "--output", metavar="DATA.h5", help="data-set file to make (HDF5)")
     p.add_argument("--count", type=int, metavar="M",
-                   help="number of records; a larger M grows an unfinished run, keeping its "
-                        "records")
+                   help="number of records; a larger M grows a finished data set or an "
+                        "unfinished run, keeping its records and solving only the new ones (the "
+                        "other options must be the run's); a smaller one is refused: see "
+                        "--prefix-of")
     p.add_argument("--seed", type=int, default=0, metavar="S",
                    help="data-set seed, integer, 0 <= S < 2**64 (default 0)")
     p.add_argument("--scale", default="small", choices=list(SCALES),
@@ -73,8 +76,8 @@ def register(sub):
                         "before they existed; regenerates each bed from its seed, no solve")
     p.add_argument("--prefix-of", metavar="DATA.h5",
                    help="write the first --count records (default: all finished in a row) of a "
-                        "data set still being made (or killed) to -o, as that data set with "
-                        "--count would be; the run is not disturbed")
+                        "data set (finished, still being made, or killed) to -o, as that data "
+                        "set with --count would be; the run is not disturbed")
     p.add_argument("--export-labels", metavar="DATA.h5",
                    help="write the label table of a data set to -o LABELS.h5 (or, -o an existing "
                         "directory, a new shard of the records its shards lack); see "

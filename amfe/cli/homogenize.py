@@ -29,6 +29,11 @@ def register(sub):
     p.add_argument("--vtu", metavar="DIR", help="write the ParaView files here: case_<name>.vtu "
                    "per load case, cases.json and cases.pvd (view them: amfe view DIR)")
     add_solver_args(p)
+    p.add_argument("--box", nargs=3, type=length("m"), default=None, metavar=("LX", "LY", "LZ"),
+                   help="V's box, m when bare, or with a unit (0.6mm 0.6mm 0.3mm): checked to "
+                        "hold the load-carrying centres, centred on them (default: the bed "
+                        "file's recorded size, else the load-carrying spheres' bounding box; "
+                        "the result's volume_box says which)")
     p.add_argument("--cap-a-star", type=float, default=None, metavar="A",
                    help="evaluate bonds with a* > A at a* = A (A below the critical a*) "
                         "instead of refusing them; the JSON reports n_capped")
@@ -122,7 +127,7 @@ def run(args):
     bed = on_root(comm, read_bed, args.bed, max_memory=max_memory)
     options = dict(accept_unconverged=args.accept_unconverged, max_memory=max_memory,
                    material=given_material(args) or None, material_source="command line",
-                   solver=args.solver)
+                   solver=args.solver, **({} if args.box is None else {"box": tuple(args.box)}))
     if args.model != "frame" or args.voxel_size is not None or args.voxel_operator:
         options.update(model=args.model, voxel_size=args.voxel_size,   # voxel model (issue 35)
                        voxel_operator=args.voxel_operator or "assembled")
@@ -160,8 +165,8 @@ def summary(result, bed_path, output=None, vtu=None):
     """A short human-readable table of a homogenization result."""
     s = result["solver"]
     lines = [f"{bed_path}: {result['n_particles']} particles ({result['n_removed']} removed, "
-             f"not load-carrying), {result['n_bonds']} bonds, V = {result['volume']:.4g} m^3, "
-             f"{result['ranks']} rank(s)",
+             f"not load-carrying), {result['n_bonds']} bonds, {result['ranks']} rank(s)",
+             volume_line(result),
              f"solver: {s['ksp_type']}+{s['pc_type']} rtol {s['rtol']:g}, iterations "
              f"{s['iterations']}, set-up {s['setup_seconds']:.3g} s, "
              f"solves {s['solve_seconds']:.3g} s",
@@ -195,6 +200,20 @@ def summary(result, bed_path, output=None, vtu=None):
         lines.append(f"wrote {os.path.join(vtu, 'cases.pvd')} "
                      "(6 load cases, per unit macro-strain)")
     return "\n".join(lines)
+
+
+def volume_line(result):
+    """V, its box and source, and the solid fraction of that box, as one line."""
+    line = f"V = {result['volume']:.4g} m^3"
+    box = result.get("volume_box")
+    if box:
+        line += (f", the {box['source']} " + " x ".join(f"{v * 1e3:.4g}" for v in box["size"])
+                 + " mm")
+    if "density" in result:
+        d = result["density"]
+        line += (f"; solid fraction (relative density) {d['solid_fraction']:.4f}, "
+                 f"{d['density']:.4g} kg/m^3")
+    return line
 
 
 def diagnostics_table(diag):

@@ -197,12 +197,22 @@ def summary(out, output=None):
         inside = lo <= out["fill"] <= hi
         lines.append(f"fill of the fullest cells {out['fill']:.3f} (training beds {lo:.3f} - "
                      f"{hi:.3f}){'' if inside else ': outside, another enlargement?'}")
+    if out.get("risk"):
+        r = out["risk"]
+        lines.append(f"risk of a constant more than 10 % off: {r['risk']:.3g} (logit; flagged "
+                     f"above {r['threshold']:.3g}), interval bin {r['bin']}")
     lines += [f"note: {note}" for note in out.get("notes") or ()]
     reasons = out.get("flag_reasons", [])
     if "non-finite" in reasons:
         lines.append("FLAGGED: the surrogate's prediction is not finite (a damaged model?)")
+    elif "risk" in reasons:
+        lines.append("FLAGGED: a bed of the kind the surrogate gets wrong (its risk is above the "
+                     "flag's threshold; docs/surrogate.md, \"The flag\"): solve it (--fallback)")
     elif reasons == ["interval"]:
         lines.append("FLAGGED: an interval is wider than the model's limit")
+    elif "uncalibrated" in reasons:
+        lines.append("FLAGGED: another size and another thickness or material at once: no "
+                      "held-out beds of such a combination (solve it to trust it: --fallback)")
     elif out["flagged"]:
         lines.append("FLAGGED: unlike the training beds")
     else:

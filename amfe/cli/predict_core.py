@@ -14,34 +14,44 @@ import os
 import time
 
 from amfe.cli.interrupt import launcher_rank
+from amfe.cli.predict_any import Models, needs_route, route_record
+from amfe.cli.predict_common import finish, finite_or_none, solve_for
 from amfe.errors import AmfeError
-from amfe.io.result_meta import header, predict_block
+from amfe.io.result_meta import header
 from amfe.model.material import resolve_material
 from amfe.vocab import LABEL_NAMES as SIX
 
 NINE = SIX + ("G_yz", "G_xz", "G_xy")
 
 
-def predict_records(args, items, times, t_start):
+def predict_records(args, items, times, t_start, cache=None):
     """(records, number of failed beds) of ``items`` (bed paths or Beds), in their order.
 
     args: the options of amfe predict (model, stiffness, fallback, check, threshold,
-    petsc_args); times: seconds spent before (start-up) shared by every record."""
+    petsc_args); times: seconds spent before (start-up) shared by every record; cache: a
+    dict that keeps the loaded models between calls (a sweep's batches)."""
     from amfe.training.predict import Surrogate, check_material
     from amfe.training.prediction import scale_moduli
     from amfe.training.shipped import shipped_model_for
 
     records, beds, chosen = [None] * len(items), [None] * len(items), [None] * len(items)
+    cache = {} if cache is None else cache
+    models = cache.setdefault("routes", Models())
     for k, item in enumerate(items):
         path = os.fspath(item) if isinstance(item, (str, os.PathLike)) else None
         try:
             beds[k] = _read(item, path)
+            if not (args.model or args.stiffness) and needs_route(beds[k][1]):
+                records[k] = route_record(args, models, beds[k], times, t_start)
+                continue
             chosen[k] = args.model or shipped_model_for(beds[k][1], args.stiffness)
         except AmfeError as exc:
             records[k] = _failed(args, (path, beds[k] and beds[k][1]), exc, times, t_start)
     for model in dict.fromkeys(m for m in chosen if m is not None):
         t = time.perf_counter()
-        sur = Surrogate.load(model)
+        if model not in cache:
+            cache[model] = Surrogate.load(model)
+        sur = cache[model]
         times["load_model"] = time.perf_counter() - t
         threshold = args.threshold if args.threshold is not None else sur.threshold
         if args.fallback and threshold is None and not sur.fill_range \
@@ -150,39 +160,29 @@ def _one_bed(args, sur, threshold, item, prediction, times, t_start, extra):
 
     score = float(res["score"][0])
     reasons = flag_reasons(res, threshold, sur.n_members)
-    bars = interval_of(sur, bed, res, extra["factor"]) if "non-finite" not in reasons else None
-    if bars is not None and bars["interval_flag"]:
-        reasons.append("interval")
-    comm = None
-    if args.check or args.fallback:
-        from mpi4py import MPI
-        comm = MPI.COMM_WORLD
-        reasons = comm.bcast(reasons, root=0)   # every rank takes the same branch
+    risk = _risk(sur, bed, res, image, extra["factor"]) if "non-finite" not in reasons else None
+    if risk is not None:   # the one flag (issue 46): the risk, its bin's intervals
+        reasons = (["risk"] if risk["flagged"] else []) + [
+            r for r in reasons if r == "non-finite" or (r == "spread" and args.threshold)]
+        conformal = {"coverage": risk.pop("coverage"), "names": list(SIX),
+                     "sizes": {"risk bin": risk.pop("calibration")}}
+        bars = interval_of(sur, bed, res, extra["factor"], conformal)
+    else:
+        bars = interval_of(sur, bed, res, extra["factor"]) if "non-finite" not in reasons \
+            else None
+        if bars is not None and bars["interval_flag"]:
+            reasons.append("interval")
+    bad = [k for k, v in zip(SIX, res["mean"][0]) if not math.isfinite(v)]
+    solver, rank = solve_for(args, bed, reasons, times, f"the model {sur.path} is damaged or "
+                             f"overflows on this bed ({', '.join(bad) or 'spread'})")
     flagged = bool(reasons)
-    if "non-finite" in reasons and not args.fallback:
-        bad = [k for k, v in zip(SIX, res["mean"][0]) if not math.isfinite(v)]
-        raise AmfeError(f"the surrogate's prediction is not finite ({', '.join(bad) or 'spread'}"
-                        f"): the model {sur.path} is damaged or overflows on this bed; run with "
-                        "--fallback to solve with PETSc instead, or use amfe homogenize")
-
-    solver = None
-    if comm is not None and (args.check or flagged):
-        from amfe.model.options import SolveOptions
-        from amfe.solvers.driver import homogenize_bed
-        from amfe.solvers.petsc import init_petsc
-        init_petsc(args.petsc_args)
-        t = time.perf_counter()
-        solver = homogenize_bed(bed, SolveOptions(material=bed.material(),
-                                                  solver="gamg")).to_dict()
-        times["solve"] = time.perf_counter() - t
-    rank = comm.rank if comm is not None else launcher_rank()
 
     surrogate_props = _properties(res)
     out = {
         "bed": None if path is None else os.fspath(path),
         "bc": "kubc",   # the labels' boundary condition (docs/model.md, section 5)
         "properties": surrogate_props,
-        "spread": _finite_or_none(as_properties(res["spread"][0])),
+        "spread": finite_or_none(as_properties(res["spread"][0])),
         "spread_score": score if math.isfinite(score) else None,
         "threshold": threshold,
         # Split conformal intervals at the model's nominal coverage, None where the model
@@ -195,6 +195,7 @@ def _one_bed(args, sur, threshold, item, prediction, times, t_start, extra):
                        else None),
         "flagged": flagged,
         "flag_reasons": reasons,
+        **({"risk": risk} if risk is not None else {}),
         "source": "surrogate", "error": None, "notes": list(extra["notes"]),
         "size": list(_image_size(bed, sur.ckpt)),   # the imaged box [m]
         "model": os.fspath(sur.path),
@@ -207,7 +208,7 @@ def _one_bed(args, sur, threshold, item, prediction, times, t_start, extra):
     }
     if "stiffness" in res:   # a stiffness head: C and the nine constants derived from it
         out["stiffness"] = {"C": [[float(v) for v in row] for row in res["stiffness"][0]],
-                            "constants": _finite_or_none(dict(zip(NINE, map(float,
+                            "constants": finite_or_none(dict(zip(NINE, map(float,
                                                                             res["constants9"][0])))),
                             "voigt": "xx, yy, zz, yz, xz, xy; Pa"}
     if solver is not None:
@@ -221,29 +222,22 @@ def _one_bed(args, sur, threshold, item, prediction, times, t_start, extra):
                             "relative_difference": {k: _relative(surrogate_props[k],
                                                                  solver_props[k]) for k in SIX}}
         out["solver"] = solver["solver"]
-    return _finish(out, (path, bed), times, t_start), rank
+    return finish(out, (path, bed), times, t_start), rank
 
 
-def _finish(out, item, times, t_start):
-    """The record with its header, predict block and timings."""
-    path, bed = item
-    out = {**header("predict", bed.centers, bed.radii, resolve_material(bed.attrs)[1],
-                    input_path=path), **out, "predict": predict_block(out)}
-    times["total"] = time.perf_counter() - t_start
-    out["seconds"] = times["total"]
-    out["timings"] = times
-    return out
-
-
-def interval_of(sur, bed, res, factor=1.0):
-    """The bed's interval block (amfe.training.conformal.interval_block) at its imaged size;
+def interval_of(sur, bed, res, factor=1.0, conformal=None):
+    """The bed's interval block (amfe.training.conformal.interval_block) at its imaged size
+    (``conformal`` with one entry, "risk bin": that calibration whatever the size);
     ``res``'s moduli scaled by ``factor`` (E_bed / E_model) are unscaled for the model's
     calibration and the intervals scaled back."""
-    from amfe.training.conformal import interval_block
+    from amfe.training.conformal import interval_block, size_key
     from amfe.training.predict import _image_size
     from amfe.training.prediction import scale_intervals
-    conformal = sur.ckpt.get("conformal")
     size = _image_size(bed, sur.ckpt)
+    if conformal is None:
+        conformal = sur.ckpt.get("conformal")
+    else:
+        conformal = {**conformal, "sizes": {size_key(size): conformal["sizes"]["risk bin"]}}
     if "constants9" in res and conformal and len(conformal.get("names", ())) == 9:
         row, names, spread = res["constants9"][0].copy(), NINE, res["spread9"][0]
         row[[0, 1, 2, 6, 7, 8]] /= factor   # a stiffness head calibrated on all nine
@@ -251,6 +245,23 @@ def interval_of(sur, bed, res, factor=1.0):
         row, names, spread = res["mean"][0].copy(), SIX, res["spread"][0]
         row[:3] /= factor
     return scale_intervals(interval_block(row, names, conformal, size, spread), factor)
+
+
+def _risk(sur, bed, res, image, factor):
+    """The bed's risk block (amfe.training.flagrisk.bed_risk, with the bin's "coverage") when
+    ``sur`` is a shipped model with a flag model and the bed is of its size, else None."""
+    from amfe.training.flagrisk import bed_risk, shipped_flag
+    from amfe.training.predict import bond_image_like_training
+    from amfe.training.shipped import SHIPPED, models_dir
+    model = shipped_flag(sur.path, models_dir(), SHIPPED)
+    if model is None or tuple(image.shape[1:]) != tuple(sur.ckpt["image_shape"][1:]) \
+            or image.shape[0] * 2 != sur.ckpt["image_shape"][0]:
+        return None
+    bonds = bond_image_like_training(bed, sur.ckpt) / factor   # at the model's E
+    mean = res["mean"][0].copy()
+    mean[:3] /= factor
+    return {**bed_risk(model, image, bonds, mean, res["spread"][0]),
+            "coverage": model["coverage"]}
 
 
 def flag_reasons(res, threshold, n_members):
@@ -277,16 +288,9 @@ def _properties(res):
     props = as_properties(res["mean"][0])
     if "constants9" in res:
         props.update(zip(NINE[6:], map(float, res["constants9"][0, 6:])))
-    return _finite_or_none(props)
+    return finite_or_none(props)
 
 
 def _relative(value, reference):
     """(value - reference) / |reference|, None when the value is None (not finite)."""
     return None if value is None else (value - reference) / abs(reference)
-
-
-def _finite_or_none(props):
-    """{name: value}, a non-finite value as None (JSON null: JSON has no NaN)."""
-    return {k: (v if math.isfinite(v) else None) for k, v in props.items()}
-
-

@@ -85,7 +85,8 @@ def run(args):
     from amfe.study.table import tables, write_tables
 
     spec = spec_of(args)
-    init_petsc(args.petsc_args)
+    if spec.method == "solver" or spec.fallback:   # PETSc only when a bed may be solved
+        init_petsc(args.petsc_args)
     rows = run_sweep(spec, args.output, comm=MPI.COMM_WORLD,
                      progress=not args.no_progress and launcher_rank() == 0,
                      petsc_args=args.petsc_args)

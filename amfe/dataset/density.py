@@ -71,3 +71,38 @@ def density_record(fraction, error, material_density) -> dict:
     and the bed's density [kg/m^3] for the particles' material density [kg/m^3]."""
     return {"solid_fraction": float(fraction), "relative_density": float(fraction),
             "solid_fraction_error": float(error), "density": float(fraction * material_density)}
+
+
+def periodic_images(centers, radii, lo, size):
+    """(centers (M, 3), radii (M,)): the spheres wrapped into the period box [lo, lo + size)
+    [m], with the images of those that cross its faces, so that the box holds all of the
+    torus's solid (each sphere's volume once, cut at the faces)."""
+    lo, L = np.asarray(lo, float), np.asarray(size, float)
+    x = lo + np.mod(np.asarray(centers, float) - lo, L)
+    r = np.asarray(radii, float)
+    xs, rs = [x], [r]
+    for shift in np.array(np.meshgrid(*[(-1, 0, 1)] * 3, indexing="ij")).reshape(3, -1).T:
+        if not shift.any():
+            continue
+        y = x + shift * L
+        near = np.all((y + r[:, None] > lo) & (y - r[:, None] < lo + L), axis=1)
+        xs.append(y[near])
+        rs.append(r[near])
+    return np.concatenate(xs), np.concatenate(rs)
+
+
+def result_density(centers, radii, volume_box, material_density) -> dict:
+    """The result's ``density`` block (:func:`density_record`) of a bed in V's box.
+
+    centers (N, 3) [m], radii (N,) [m]: every input sphere (floating ones
+    included: the bed's mass); volume_box: the result's record
+    (:func:`amfe.model.volumebox.volume_box_record`: lo, size [m], source); a
+    periodic box counts the spheres' images across its faces.
+    """
+    lo, size = np.asarray(volume_box["lo"], float), np.asarray(volume_box["size"], float)
+    if volume_box["source"] == "periodic box":
+        centers, radii = periodic_images(centers, radii, lo, size)
+    fraction, error = solid_fraction(centers, radii, lo, lo + size)
+    return {**density_record(fraction, error, material_density),
+            "of": "the union of the input spheres inside volume_box, over V",
+            "precision": PRECISION}

@@ -47,7 +47,11 @@ Kill-safety. Each leader writes its record as its own part file
 (:mod:`amfe.dataset.parts`, tmp + fsync + os.replace) before it asks for more
 work; a kill (any rank, any moment) loses only the beds in flight. Rerunning
 the same command (after removing the stale lock the kill left) skips every
-record whose part exists. A part that cannot be written (a full disk) stops
+record whose part exists. A finished DATA.h5 run again with a larger count
+grows: its rows are kept as they are (records 0..N-1), the parts hold
+records N..M-1, and the merge copies both into the new file, which replaces
+the old one only when it is whole (a kill before leaves the old file and the
+parts, and the same command resumes). A part that cannot be written (a full disk) stops
 the hand-out: the groups finish the beds they hold and every rank raises the
 same AmfeError; the parts written are kept. When all exist, world rank 0
 merges them into a temporary file, checks it, renames it onto DATA.h5 and
@@ -221,7 +225,8 @@ def _locked_run(MPI, job):
         raise AmfeError(errors[0])
 
     def finish():
-        data, attrs = merge_parts(output, parts, params)
+        data, attrs = merge_parts(output, parts, params,
+                                  base=(output, plan["base"]) if plan["base"] else None)
         run = {k: sum(s[k] for s in all_stats)
                for k in ("done", "failed", "generate", "image", "solve", "busy")}
         run["work_seconds"] = t_work
@@ -236,7 +241,12 @@ def _announce(job, plan, ranks_per_bed):
     """World rank 0: the lines that say what this run does, before it does it."""
     if plan["rejected"]:
         print("\n".join(rejected_lines(plan["rejected"])), file=sys.stderr, flush=True)
-    if plan["grown_from"] is not None:
+    if plan["base"]:
+        print(f"amfe dataset: {job.output} holds {plan['base']} records and grows to "
+              f"{job.params['count']}; its records are kept, the file is replaced only when "
+              f"every new one is done (they wait in {plan['parts']})", file=sys.stderr,
+              flush=True)
+    elif plan["grown_from"] is not None:
         print(f"amfe dataset: the run of {plan['grown_from']} records in {plan['parts']} grows "
               f"to {job.params['count']}; the records it has are kept", file=sys.stderr,
               flush=True)

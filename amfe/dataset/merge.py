@@ -2,6 +2,7 @@
 (docs/model.md, section 6). Split from amfe.dataset.datafile, which lays out and reads the
 files, and amfe.dataset.datacheck, which checks them."""
 import datetime
+import os
 
 import numpy as np
 
@@ -52,16 +53,40 @@ def _create_rows(f, count, shape):
     return d
 
 
-def _copy_parts(rows, bonds, output, parts, params):
-    """Copy part k into row k of ``rows`` for k < len(rows['index']), each checked first.
+#: Records copied from a finished file at a time (bounded memory for large data sets).
+_BLOCK = 256
 
-    Returns (every part had a bond image, params (count, len(PARAM_NAMES))).
-    A part that is not its record is moved aside and the merge refused
-    (:func:`merge_parts`).
+
+def _copy_base(rows, bonds, pdata, base, n):
+    """Copy rows 0..n-1 of the finished data-set file ``base`` into ``rows``, ``bonds`` and
+    ``pdata`` unchanged; returns whether it has bond images (files made before them lack
+    them, and so does the merged file)."""
+    import h5py
+
+    steel = {"E": STEEL.E, "nu": STEEL.nu, "psi": STEEL.psi}   # files before these columns
+    with h5py.File(base, "r") as src:
+        has_bonds = "bond_images" in src and src["bond_images"].shape[1:] == bonds.shape[1:]
+        pairs = [(ds, src[name]) for name, ds in rows.items()]
+        pairs += [(bonds, src["bond_images"])] if has_bonds else []
+        for a in range(0, n, _BLOCK):
+            b = min(n, a + _BLOCK)
+            for ds, s in pairs:
+                ds[a:b] = s.asstr()[a:b] if s.dtype.kind == "O" else s[a:b]
+        for j, name in enumerate(PARAM_NAMES):
+            pdata[:n, j] = src["params"][name][:n] if name in src["params"] else steel[name]
+    return has_bonds
+
+
+def _copy_parts(rows, bonds, output, parts, params, pdata, start=0):
+    """Copy part k into row k of ``rows`` for start <= k < len(rows['index']), each checked
+    first, and its generation parameters into ``pdata[k]``.
+
+    Returns whether every part had a bond image. A part that is not its
+    record is moved aside and the merge refused (:func:`merge_parts`).
     """
     count, shape = rows["index"].shape[0], bonds.shape[1:]
-    all_bonds, pdata = True, np.empty((count, len(PARAM_NAMES)))
-    for k in range(count):
+    all_bonds = True
+    for k in range(start, count):
         path = part_path(parts, k)
         try:
             rec = read_part(path)
@@ -79,7 +104,7 @@ def _copy_parts(rows, bonds, output, parts, params):
         else:
             all_bonds = False
         pdata[k] = _padded(rec["params"])
-    return all_bonds, pdata
+    return all_bonds
 
 
 def _padded(params):
@@ -117,14 +142,18 @@ def _material_spec(sc):
 
 # ---------------------------------------------------------------- merge
 
-def merge_parts(output, parts, params, first=None):
+def merge_parts(output, parts, params, first=None, base=None):
     """Merge the records 0..count-1 of ``parts`` into the HDF5 file ``output``: (data, attrs).
 
     ``first``: merge only records 0..first-1, into a data set of ``first``
     records, and keep the parts (a prefix of a running data set: what
     ``amfe dataset --count first`` with the same seed would make; attribute
     prefix_of names the source). ``params`` stay those of the run that wrote
-    the parts, against which every part is checked.
+    the parts, against which every part is checked. ``base``: (path, n):
+    records 0..n-1 are the rows of the finished data-set file ``path`` of
+    the same run (checked by :func:`amfe.dataset.plan.prepare`), copied
+    unchanged; the parts hold the rest (a finished data set grown by a
+    larger count, or a prefix of one).
 
     Order, so that nothing good is lost: the file is written under a
     temporary name, checked (:func:`check_dataset`), renamed onto ``output``,
@@ -137,7 +166,8 @@ def merge_parts(output, parts, params, first=None):
     """
     count = int(params["count"]) if first is None else int(first)
     sc = get_scale(params["scale"])
-    missing = sorted(set(range(count)) - set(done_indices(parts, count)))
+    source, base = (None, 0) if base is None else (os.fspath(base[0]), min(int(base[1]), count))
+    missing = sorted(set(range(base, count)) - set(done_indices(parts, count)))
     if missing:
         raise AmfeError(f"cannot merge {output}: {len(missing)} record(s) missing in {parts} "
                         f"({_list_items(missing)}); run the same command again")
@@ -146,7 +176,9 @@ def merge_parts(output, parts, params, first=None):
     def write(f):
         rows = _create_rows(f, count, shape)
         bonds = _image_dataset(f, "bond_images", count, shape)
-        all_bonds, pdata = _copy_parts(rows, bonds, output, parts, params)
+        pdata = np.empty((count, len(PARAM_NAMES)))
+        all_bonds = _copy_base(rows, bonds, pdata, source, base) if base else True
+        all_bonds &= _copy_parts(rows, bonds, output, parts, params, pdata, start=base)
         if not all_bonds:   # parts written before bond images existed have none
             del f["bond_images"]
         pg = f.create_group("params")
@@ -155,7 +187,8 @@ def merge_parts(output, parts, params, first=None):
             ds.attrs["units"] = PARAM_UNITS[name]
         f.attrs.update({k: v for k, v in params.items()})
         if first is not None:
-            f.attrs.update({"count": count, "prefix_of": f"{parts} (count {params['count']})"})
+            whole = source if count <= base else parts
+            f.attrs.update({"count": count, "prefix_of": f"{whole} (count {params['count']})"})
         f.attrs.update(_layout_attrs(sc))
 
     checked = {}

@@ -183,6 +183,43 @@ def describe_params(p):
 
 
 
+#: The root attributes of a data-set file that are its run parameters (:func:`run_params`,
+#: and those of a run from label tables); :func:`file_params` reads them back.
+RUN_KEYS = ("format", "format_version", "scale", "seed", "count", "rtol", "amfe_version",
+            "solver", "bc", "from_labels", "solved_from")
+
+
+def _plain(value):
+    """An HDF5 attribute as the JSON value params.json would hold (numpy scalars, bytes)."""
+    if isinstance(value, bytes):
+        return value.decode()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    return value.item() if isinstance(value, np.generic) else value
+
+
+def file_params(attrs, extra=()):
+    """The run parameters of a finished data-set file, from its root attributes ``attrs``:
+    the :data:`RUN_KEYS` (and ``extra``) it has, as :func:`run_params` makes them."""
+    return {k: _plain(attrs[k]) for k in (*RUN_KEYS, *extra) if k in attrs}
+
+
+def _count_like(a, b):
+    """The parameters that may differ between two runs of the same records (see below)."""
+    skip = {"count"}
+    if "from_labels" in a and "from_labels" in b:
+        skip |= {"from_labels", "solved_from"}
+    return skip
+
+
+def param_differences(a, b):
+    """What differs between run parameters ``a`` (a file's or a run's) and ``b`` (asked),
+    beside what :func:`same_but_count` allows, in words: ["seed 5 (asked 6)", ...]."""
+    skip, default = _count_like(a, b), {"solver": "gamg", "bc": "kubc"}   # run_params omits
+    return [f"{n} {a.get(n, default.get(n, '(none)'))} (asked {b.get(n, default.get(n, '(none)'))})"
+            for n in sorted((set(a) | set(b)) - skip) if a.get(n) != b.get(n)]
+
+
 def same_but_count(a, b):
     """Whether run parameters ``a`` and ``b`` differ at most in the run's length.
 
@@ -194,9 +231,7 @@ def same_but_count(a, b):
     with ``--solve-rest`` keeps its parts when a shard exported meanwhile
     joins its tables.
     """
-    skip = {"count"}
-    if "from_labels" in a and "from_labels" in b:
-        skip |= {"from_labels", "solved_from"}
+    skip = _count_like(a, b)
     return {n: v for n, v in a.items() if n not in skip} == \
         {n: v for n, v in b.items() if n not in skip}
 

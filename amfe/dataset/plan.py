@@ -2,9 +2,11 @@
 
 :func:`check_arguments` refuses bad options on every rank alike, before any
 file is touched. :func:`prepare` (world rank 0, with the output's lock held,
-:mod:`amfe.dataset.lock`) decides what to do: nothing for a finished file,
-else the records still missing from the parts directory, after moving any
-part that is not the record it claims to be to ``OUTPUT.rejected/``.
+:mod:`amfe.dataset.lock`) decides what to do: nothing for a finished file of
+the count asked; for a larger count, the records beyond the finished file's
+(it grows: its records are kept); else the records still missing from the
+parts directory; each time after moving any part that is not the record it
+claims to be to ``OUTPUT.rejected/``.
 :func:`failed_share_error` is the verdict on the finished file.
 """
 import math
@@ -14,10 +16,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from amfe.dataset.datacheck import check_dataset
+from amfe.dataset.images import IMAGING_VERSION
 from amfe.dataset.parts import (
+    LABEL_RULE_VERSION,
     STATUS_OK,
     describe_params,
     done_indices,
+    file_params,
+    param_differences,
     part_path,
     part_problem,
     parts_dir,
@@ -101,21 +107,46 @@ def _same_run(attrs, params):
 
 
 def _finished_file(output, params):
-    """The plan for an existing ``output``: complete (and checked) or an AmfeError."""
+    """The plan for an existing ``output``: complete (and checked), grown, or an AmfeError."""
     try:
         problems, data, attrs = check_dataset(output)
     except AmfeError as exc:
         raise AmfeError(f"{output} exists and is not a data set ({exc}); remove it or "
                         "choose another -o") from None
-    if not _same_run(attrs, params):
-        raise AmfeError(f"{output} exists and was made with other parameters "
-                        f"({describe_params(attrs)}; asked: {describe_params(params)}); "
-                        "remove it or choose another -o")
     if problems:
         raise AmfeError(f"{output} exists but fails its check ({'; '.join(problems)}); "
                         "remove it to make it again")
-    remove_parts(parts_dir(output))  # left by a kill between the merge's rename and this
-    return {"complete": True, "data": data, "attrs": attrs}
+    if _same_run(attrs, params):
+        parts = parts_dir(output)
+        pending = read_params_json(parts) if os.path.isdir(parts) else None
+        if not isinstance(pending, dict) or int(pending.get("count", 0)) <= int(attrs["count"]):
+            remove_parts(parts)  # left by a kill between the merge's rename and this
+        # else: the new records of a grow to more, kept for the run that resumes it
+        return {"complete": True, "data": data, "attrs": attrs}
+    return _unfinished(output, params, base=_growable(output, attrs, params))
+
+
+def _growable(output, attrs, params):
+    """The records of finished file ``output`` that a run of ``params`` keeps (its count),
+    or an AmfeError: fewer records asked, or any other parameter, label rule or imaging
+    version differs (record k is a function of those, the seed and k alone)."""
+    old = file_params(attrs, ("label_rule_version",) if "label_rule_version" in params else ())
+    n = int(attrs["count"])
+    differ = param_differences(old, params)
+    for name, now in (("label_rule_version", LABEL_RULE_VERSION),
+                      ("imaging_version", IMAGING_VERSION)):
+        made = int(attrs.get(name, 1))   # files made before the attribute existed: 1
+        if made != now and name not in params:
+            differ.append(f"{name} {made} (this amfe makes {now})")
+    if differ:
+        raise AmfeError(f"{output} exists and was made with other parameters: "
+                        f"{'; '.join(differ)}; rerun with those to grow it, or remove it or "
+                        "choose another -o")
+    if params["count"] < n:
+        raise AmfeError(f"{output} holds {n} records, more than the {params['count']} asked; "
+                        f"take its first records with `amfe dataset --prefix-of {output} -o "
+                        f"FIRST.h5 --count {params['count']}`")
+    return n
 
 
 def prepare(output, params):
@@ -124,7 +155,9 @@ def prepare(output, params):
     For an unfinished run: todo (sorted record indices without a valid
     part), n_done, parts, rejected [(k, why, new path)] for the parts moved
     aside to ``OUTPUT.rejected/``, grown_from (the run's earlier count when
-    this call grows it: same parameters, more records; else None).
+    this call grows it: same parameters, more records; else None), base (the
+    records 0..base-1 that a finished ``output`` grown by this run keeps, 0
+    for none: the parts hold only records from base on).
     """
     output = os.fspath(output)
     try:
@@ -137,12 +170,12 @@ def prepare(output, params):
         raise AmfeError(f"cannot prepare {output}: {exc.strerror or exc}") from None
 
 
-def _unfinished(output, params):
+def _unfinished(output, params, base=0):
     parts = parts_dir(output)
     os.makedirs(parts, exist_ok=True)
     old = read_params_json(parts)
-    grown_from = None
-    done = done_indices(parts, params["count"])
+    grown_from = base or None
+    done = [k for k in done_indices(parts, params["count"]) if k >= base]
     if old is None:
         if done:
             raise AmfeError(f"{parts} holds records but no {os.path.basename(parts)}/params.json; "
@@ -159,9 +192,9 @@ def _unfinished(output, params):
             rejected.append((k, why, reject_part(path, output)))
     bad = {k for k, _, _ in rejected}
     good = [k for k in done if k not in bad]
-    todo = sorted(set(range(params["count"])) - set(good))
-    return {"complete": False, "todo": todo, "n_done": len(good), "parts": parts,
-            "rejected": rejected, "grown_from": grown_from}
+    todo = sorted(set(range(base, params["count"])) - set(good))
+    return {"complete": False, "todo": todo, "n_done": base + len(good), "parts": parts,
+            "rejected": rejected, "grown_from": grown_from, "base": base}
 
 
 def _grow(parts, old, params):

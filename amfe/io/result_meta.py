@@ -20,8 +20,9 @@ from amfe.vocab import CASE_NAMES
 
 #: Version of the JSON layout; bumped when a key changes meaning or goes away, or a
 #: required key is added (3: the self-describing header of this module; 4: volume is the
-#: bed's box and n_removed counts the pieces the condition does not load, issue 30).
-SCHEMA_VERSION = 4
+#: bed's box and n_removed counts the pieces the condition does not load, issue 30; 5:
+#: homogenize's volume_box and density, issue 48).
+SCHEMA_VERSION = 5
 SCHEMA_FILE = "result_schema.json"
 POISSON_CONVENTION = ("nu_ij = -S_ji / S_ii: lateral strain in j over axial strain in i under "
                       "uniaxial stress in i (nu_yz = -S_zy / S_yy, nu_xz = -S_zx / S_xx, "
@@ -123,7 +124,8 @@ def predict_block(out):
             "spread": {"relative": out["spread"], "score": score, "threshold": threshold},
             "flags": {"flagged": bool(out["flagged"]), "spread": "spread" in reasons,
                       "fill": "fill" in reasons, "non_finite": "non-finite" in reasons,
-                      "interval": "interval" in reasons,
+                      "interval": "interval" in reasons, "risk": "risk" in reasons,
+                      "uncalibrated": "uncalibrated" in reasons,
                       "reasons": list(reasons), "fill_value": out["fill"],
                       "fill_range": fill_range},
             "source": out["source"]}

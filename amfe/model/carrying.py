@@ -237,10 +237,10 @@ def box_rule(centers, radii, size=None, kept=None, given=None):
         L = _three_lengths(given, "the given box")
         if np.any(extent > L * (1 + 1e-9)):
             axis = "xyz"[int(np.argmax(extent / L))]
-            raise AmfeError(f"the given box {tuple(float(v) for v in L)} does not hold the "
-                            f"load-carrying centres: they span {float(np.max(extent / L)):.4g} "
-                            f"times its length along {axis}; give at least "
-                            f"{tuple(float(v) for v in extent)}")
+            raise AmfeError(f"the given box {' x '.join(f'{v:.4g}' for v in L)} m does not "
+                            f"hold the load-carrying centres: they span "
+                            f"{float(np.max(extent / L)):.4g} times its length along {axis}; "
+                            f"give at least {' x '.join(f'{v:.4g}' for v in extent)} m")
         return L, None, "given box"
     if size is None:
         return spheres, None, "spheres' box"

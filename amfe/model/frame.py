@@ -18,10 +18,11 @@ import numpy as np
 
 from amfe.errors import AmfeError
 from amfe.model.bonds import Bonds, bond_springs, contact_geometry, find_pairs
-from amfe.model.carrying import box_rule, component_labels, periodic_carrying, removed_report
+from amfe.model.carrying import component_labels, periodic_carrying, removed_report
 from amfe.model.conditions import get_condition
 from amfe.model.material import STEEL, Material
 from amfe.model.torus import check_box, find_periodic_pairs, wrap
+from amfe.model.volumebox import placed_box
 
 
 @dataclass
@@ -43,7 +44,9 @@ class Frame:
     parts (n,) int: the kept component (0..k-1) of each particle; removed: the
     report of :func:`amfe.model.carrying.removed_report`; box_note: why the
     recorded size was not V's box (None when it was, or there was none);
-    box_source: where V's box came from (:data:`amfe.model.carrying.BOX_SOURCES`).
+    box_source: where V's box came from (:data:`amfe.model.carrying.BOX_SOURCES`);
+    box_lo (3,) [m]: the lower corner of V's box in the input's coordinates
+    (:func:`amfe.model.volumebox.placed_box`; a periodic box's is ``origin``).
     """
 
     centers: np.ndarray
@@ -67,6 +70,7 @@ class Frame:
     removed: dict = None
     box_note: str = None
     box_source: str = None
+    box_lo: np.ndarray = None
 
     @property
     def volume(self):
@@ -180,11 +184,11 @@ def build_frame(centers, radii, material: Material = STEEL, a_star_cap=None, non
     kept = kept[morton_order(x[kept])]
     parts = np.searchsorted(ids, labels[kept])
     removed = removed_report(x, r, labels, ids, n_input)
-    size_f, box_note, box_source = L, None, "periodic box"  # periodic: the periods
+    size_f, box_note, box_source, box_lo = L, None, "periodic box", origin  # the periods
     if box is None:                                  # in SI, then in frame units
-        size_f, box_note, box_source = box_rule(centers - origin, radii, size,
-                                                kept)  # exact (frame_origin)
-        size_f = size_f / length
+        box_lo, size_f, box_note, box_source = placed_box(centers - origin, radii, size,
+                                                          kept)  # exact (frame_origin)
+        size_f, box_lo = size_f / length, box_lo + origin
     new_index = np.full(n_input, -1, np.int64)
     new_index[kept] = np.arange(kept.size)
     both = keep[i]  # a bond lies in the component iff either end does
@@ -215,7 +219,7 @@ def build_frame(centers, radii, material: Material = STEEL, a_star_cap=None, non
                  kappa_n=kappa_n, kappa_t=kappa_t, n_input=n_input, n_capped=n_capped,
                  length_scale=length, force_scale=material.E / E * length**2, material=material,
                  box=L, shift=shift, size=size_f, parts=parts, removed=removed,
-                 box_note=box_note, box_source=box_source, origin=origin)
+                 box_note=box_note, box_source=box_source, origin=origin, box_lo=box_lo)
 
 
 FAR = 4.0

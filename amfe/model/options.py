@@ -133,7 +133,8 @@ class SolveOptions:
     a_star_cap: cap every bond's a* at this value (None: refuse near-critical
     bonds); material: the particles' :class:`Material` (None: the bed's, else
     steel) and material_source, what to call its origin in the result;
-    nondimensional: False assembles in SI units (a benchmark's).
+    nondimensional: False assembles in SI units (a benchmark's); box: V's box (Lx, Ly, Lz)
+    [m] as the user states it (``--box``; None: the box rule of docs/model.md, section 5).
     """
 
     bc: str = "kubc"
@@ -150,6 +151,7 @@ class SolveOptions:
     material: Material = None
     material_source: str = None
     nondimensional: bool = True
+    box: tuple = None
 
     def __post_init__(self):
         checked = {
@@ -161,6 +163,7 @@ class SolveOptions:
             "petsc_args": check_petsc_args("petsc_args", self.petsc_args),
             "max_memory": check_max_memory(self.max_memory),
             "a_star_cap": check_a_star_cap_type(self.a_star_cap),
+            "box": check_box_lengths(self.box),
         }
         for name in ("accept_unconverged", "diagnose", "nondimensional"):
             checked[name] = check_flag(name, getattr(self, name))
@@ -173,3 +176,17 @@ class SolveOptions:
             raise AmfeError(f"material_source must be a str, got {self.material_source!r}")
         for name, value in checked.items():  # frozen: set the normalised values once
             object.__setattr__(self, name, value)
+
+
+def check_box_lengths(box):
+    """(Lx, Ly, Lz) floats [m] of a given box, or None; AmfeError for anything but three
+    positive finite lengths."""
+    if box is None:
+        return None
+    try:
+        L = tuple(float(v) for v in box)
+    except (TypeError, ValueError):
+        L = ()
+    if len(L) != 3 or not all(math.isfinite(v) and v > 0 for v in L):
+        raise AmfeError(f"box must be three positive lengths (Lx, Ly, Lz) in m, got {box!r}")
+    return L

@@ -16,7 +16,6 @@ from scipy.sparse.csgraph import connected_components
 from amfe.errors import AmfeError
 from amfe.model.bonds import contact_geometry, find_pairs
 from amfe.model.carrying import (
-    bed_box,
     component_labels,
     kubc_held,
     periodic_winding,
@@ -27,6 +26,7 @@ from amfe.model.hex8 import VERTICES
 from amfe.model.kubc import boundary_particles
 from amfe.model.memory import check_memory
 from amfe.model.torus import check_box, find_periodic_pairs, wrap
+from amfe.model.volumebox import placed_box
 from amfe.model.voxelgrid import (  # noqa: F401 (the grid's names, re-exported)
     DEFAULT_VOXELS_PER_RADIUS,
     FREE_NODE_BYTES,
@@ -188,7 +188,8 @@ class VoxelSolid:
     grip: KUBC's gripped grid nodes ((nz + 1, ny + 1, nx + 1) bool, those inside
     the frame's boundary particles, :func:`grip_nodes`), or None: the box's faces
     (a solid built by hand, e.g. a box cut through a pair's centres);
-    grip_particles: indices of the boundary particles (into the bed), or None.
+    grip_particles: indices of the boundary particles (into the bed), or None;
+    box_source: where V's box came from (:data:`amfe.model.carrying.BOX_SOURCES`).
     """
 
     grid: Grid
@@ -204,28 +205,7 @@ class VoxelSolid:
     removed: dict = None
     grip: np.ndarray = None
     grip_particles: np.ndarray = None
-
-
-def kubc_box(centers, radii, size=None, kept=None):
-    """(lo (3,), hi (3,), note) [m]: the frame's box of a bed under KUBC, placed in space.
-
-    Its lengths are :func:`amfe.model.carrying.bed_box`'s (V of the frame,
-    docs/model.md, section 5): the recorded ``size`` (3,) [m] where it holds
-    the load-carrying centres (``kept``, indices; default all), as [0, L] where
-    they lie in it (a generated bed) or else centred on their extent; otherwise
-    the load-carrying spheres' bounding box. note: bed_box's (why the recorded
-    size was not used), else None.
-    """
-    L, note = bed_box(centers, radii, size, kept)
-    x = centers if kept is None else centers[kept]
-    r = radii if kept is None else radii[kept]
-    if size is None or note is not None:
-        lo = (x - r[:, None]).min(axis=0)
-    elif np.all((x >= -1e-9 * L) & (x <= L * (1 + 1e-9))):
-        lo = np.zeros(3)
-    else:
-        lo = 0.5 * (x.min(axis=0) + x.max(axis=0) - L)
-    return lo, lo + L, note
+    box_source: str = None
 
 
 def voxel_solid(centers, radii, voxel_size=None, period=None, size=None, max_memory=None,
@@ -235,9 +215,10 @@ def voxel_solid(centers, radii, voxel_size=None, period=None, size=None, max_mem
     The particles kept are the frame's under the same condition (docs/model.md,
     section 5, :mod:`amfe.model.carrying`): under KUBC every bonded piece its
     prescribed boundary particles hold; on the torus (``period`` (3,) [m]) the
-    pieces that wind round it. The box is the frame's (:func:`kubc_box`: the
-    bed's recorded ``size`` (3,) [m], else the kept spheres' bounding box; the
-    spheres are clipped to it), or the period box [0, L). ``voxel_size`` [m]
+    pieces that wind round it. The box is the frame's
+    (:func:`amfe.model.volumebox.placed_box`: the bed's recorded ``size`` (3,)
+    [m] or a GivenBox, else the kept spheres' bounding box; the spheres are
+    clipped to it), or the period box [0, L). ``voxel_size`` [m]
     defaults to the mean radius / :data:`DEFAULT_VOXELS_PER_RADIUS`.
     ``max_memory`` [bytes] (default: half the machine's): a grid whose estimate
     (:func:`voxel_bytes`) exceeds it is refused before it is allocated. ``even``: a
@@ -267,12 +248,12 @@ def voxel_solid(centers, radii, voxel_size=None, period=None, size=None, max_mem
     keep = np.isin(labels, ids)
     removed = removed_report(centers, radii, labels, ids, len(radii))
     kept = np.flatnonzero(keep)
-    note = None
+    note, source = None, "periodic box"
     if period is not None:
         grid = grid_over(np.zeros(3), L, voxel_size, even=even)
     else:
-        lo, hi, note = kubc_box(centers, radii, size, kept)
-        grid = grid_over(lo, hi, voxel_size)
+        lo, L, note, source = placed_box(centers, radii, size, kept)
+        grid = grid_over(lo, lo + L, voxel_size)
     voxels = float(np.prod(grid.n.astype(float)))
     check_memory(voxel_bytes(voxels, 0, ranks), max_memory,
                  f"a voxel model of {voxels:.3g} voxels ({'x'.join(map(str, grid.n))}) on "
@@ -295,4 +276,4 @@ def voxel_solid(centers, radii, voxel_size=None, period=None, size=None, max_mem
                       n_bonds_input=int(i.size), neck_share=share,
                       solid_fraction=float(kept_solid.mean()), pieces_removed=pieces,
                       voxels_removed=n_gone, warnings=warnings, removed=removed, grip=grip,
-                      grip_particles=grip_ids)
+                      grip_particles=grip_ids, box_source=source)

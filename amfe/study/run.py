@@ -181,8 +181,9 @@ class _Worker:
             try:
                 bed = bed_of(self.spec, k)[0]
                 row["n_particles"] = int(bed.n)
-                lo, hi = np.zeros(3), np.asarray(bed.attrs["size"], dtype=float)
-                row["solid_fraction"] = solid_fraction(bed.centers, bed.radii, lo, hi)[0]
+                if self.spec.method != "surrogate":   # the surrogate's: its image's mean
+                    lo, hi = np.zeros(3), np.asarray(bed.attrs["size"], dtype=float)
+                    row["solid_fraction"] = solid_fraction(bed.centers, bed.radii, lo, hi)[0]
                 beds.append(bed)
             except AmfeError as exc:
                 row.update(source="failed", error=str(exc))
@@ -199,6 +200,10 @@ class _Worker:
                                                          and self.spec.fallback):
                 continue
             try:
+                if "solid_fraction" not in rows[i]:   # a surrogate row solved after all
+                    lo, hi = np.zeros(3), np.asarray(beds[i].attrs["size"], dtype=float)
+                    rows[i]["solid_fraction"] = solid_fraction(beds[i].centers, beds[i].radii,
+                                                               lo, hi)[0]
                 rows[i].update(self._solve(beds[i]), source="solver")
             except AmfeError as exc:
                 rows[i].update(source="failed", error=str(exc))

@@ -1,41 +1,41 @@
 """A sweep row from the surrogate: the six constants, their intervals and the flag.
 
-The model is the shipped one for the bed's size (amfe.training.shipped), loaded
-once per size; the flag and the intervals are those ``amfe predict`` reports
-(amfe.cli.predict: spread, fill, non-finite, and an interval wider than the
-model's limit).
+The rows are ``amfe predict``'s own records (amfe.cli.predict_core.predict_records:
+the shipped model or the route for the bed's size, thickness and material, the
+flag and the intervals), so a sweep's surrogate row says what ``amfe predict``
+says of the same bed. Its solid fraction is the mean of the bed's fill image:
+the volume fraction of the imaged box, which is V's box for a generated bed,
+measured as amfe.dataset.density measures it.
 """
 import math
+import time
+from types import SimpleNamespace
 
-from amfe.cli.predict import flag_reasons, interval_of
+from amfe.cli.predict_core import predict_records
 from amfe.dataset.pixelkernel import warm
-from amfe.training.predict import Surrogate, as_properties
-from amfe.training.shipped import shipped_model_for
+
+#: predict_records' options for a sweep: no solve (the sweep solves its flagged beds itself).
+_ARGS = SimpleNamespace(model=None, stiffness=False, fallback=False, check=False,
+                        threshold=None, petsc_args=[])
 
 
 def predict_rows(cache, beds):
-    """[{constants, source, flagged, flag_reasons, <name>_lo/_hi}] of ``beds`` (one network
-    pass per model); ``cache``: {model path: Surrogate}, filled as models are loaded."""
-    paths = [shipped_model_for(bed) for bed in beds]
-    out = [None] * len(beds)
-    for path in dict.fromkeys(paths):
-        if path not in cache:
-            warm()   # the compiled imaging for every bed of the sweep: 10x faster on small ones
-            cache[path] = Surrogate.load(path)
-        sur = cache[path]
-        mine = [i for i, p in enumerate(paths) if p == path]
-        for i, (res, _, _) in zip(mine, sur.predict_beds([beds[i] for i in mine])):
-            out[i] = _row(sur, beds[i], res)
-    return out
+    """[{constants, source, flagged, flag_reasons, route, <name>_lo/_hi, solid_fraction}] of
+    ``beds``; ``cache``: kept between calls (the loaded models)."""
+    if not cache:
+        warm()   # the compiled imaging for every bed of the sweep: 10x faster on small ones
+    records, _ = predict_records(_ARGS, beds, {}, time.perf_counter(), cache)
+    return [_row(out) for out, _ in records]
 
 
-def _row(sur, bed, res):
-    reasons = flag_reasons(res, sur.threshold, sur.n_members)
-    bars = interval_of(sur, bed, res) if "non-finite" not in reasons else None
-    if bars is not None and bars["interval_flag"]:
-        reasons.append("interval")
-    row = {k: (v if math.isfinite(v) else None) for k, v in as_properties(res["mean"][0]).items()}
-    for name, (lo, hi) in ((bars or {}).get("intervals") or {}).items():
+def _row(out):
+    if out["source"] == "failed":
+        return {"source": "failed", "error": out["error"], "flagged": True,
+                "flag_reasons": "failed"}
+    row = {k: (v if v is not None and math.isfinite(v) else None)
+           for k, v in out["properties"].items()}
+    for name, (lo, hi) in (out.get("intervals") or {}).items():
         row[f"{name}_lo"], row[f"{name}_hi"] = lo, hi
-    return {**row, "source": "surrogate", "flagged": bool(reasons),
-            "flag_reasons": ",".join(reasons)}
+    return {**row, "source": "surrogate", "flagged": bool(out["flagged"]),
+            "flag_reasons": ",".join(out["flag_reasons"]),
+            "solid_fraction": float(out["density"])}

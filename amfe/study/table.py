@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from amfe.io.atomic import atomic_write, atomic_write_h5
-from amfe.vocab import CONSTANT_NAMES
+from amfe.vocab import CONSTANT_NAMES, LABEL_NAMES
 
 #: Constants and the other per-bed numbers averaged over the seeds of a point.
 AVERAGED = tuple(CONSTANT_NAMES) + ("solid_fraction", "n_particles")
@@ -50,7 +50,7 @@ class SweepTable:
 def tables(rows, spec):
     """The :class:`SweepTable` of a sweep's rows (list of dicts, in bed order)."""
     names = list(spec["points"][0])
-    columns = _columns(rows)
+    columns = _columns(rows, names)
     beds = {k: _array([r.get(k) for r in rows]) for k in columns}
     points = {"point": np.arange(len(spec["points"]))}
     for n in names:
@@ -73,8 +73,14 @@ def tables(rows, spec):
     return SweepTable(beds, points, spec)
 
 
-def _columns(rows):
-    seen = {}
+def _columns(rows, names):
+    """The beds table's columns: one layout for every method (solver, surrogate, surrogate
+    with --fallback), a cell empty where its row has no value (a solver row has no interval,
+    a surrogate row no shear modulus), then any other key a row carries."""
+    layout = ["index", "point", "seed", *names, "n_particles", "solid_fraction",
+              *CONSTANT_NAMES, *(f"{n}_{end}" for n in LABEL_NAMES for end in ("lo", "hi")),
+              "n_removed", "warnings", "source", "flagged", "flag_reasons", "error", "seconds"]
+    seen = dict.fromkeys(layout)
     for r in rows:
         for k in r:
             seen.setdefault(k, None)

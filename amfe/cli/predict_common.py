@@ -1,0 +1,49 @@
+"""What every record of ``amfe predict`` shares: the solve of --check and --fallback, the
+header and timings, JSON-safe numbers (amfe.cli.predict_core, amfe.cli.predict_any)."""
+import math
+import time
+
+from amfe.cli.interrupt import launcher_rank
+from amfe.errors import AmfeError
+from amfe.io.result_meta import header, predict_block
+from amfe.model.material import resolve_material
+
+
+def solve_for(args, bed, reasons, times, why="the model overflows on this bed"):
+    """(solver record or None, rank): the bed solved (PETSc, every rank) with --check, or with
+    --fallback when flagged. ``reasons`` (the flag's, rank 0's) is made every rank's in place
+    (every rank takes the same branch); a non-finite prediction without --fallback is an
+    AmfeError (``why`` says which model and constants)."""
+    comm = None
+    if args.check or args.fallback:
+        from mpi4py import MPI
+        comm = MPI.COMM_WORLD
+        reasons[:] = comm.bcast(reasons, root=0)
+    if "non-finite" in reasons and not args.fallback:
+        raise AmfeError(f"the surrogate's prediction is not finite: {why}; run with "
+                        "--fallback to solve with PETSc instead, or use amfe homogenize")
+    solver = None
+    if comm is not None and (args.check or reasons):
+        from amfe.model.options import SolveOptions
+        from amfe.solvers.driver import homogenize_bed
+        from amfe.solvers.petsc import init_petsc
+        init_petsc(args.petsc_args)
+        t = time.perf_counter()
+        solver = homogenize_bed(bed, SolveOptions(material=bed.material(),
+                                                  solver="gamg")).to_dict()
+        times["solve"] = time.perf_counter() - t
+    return solver, (comm.rank if comm is not None else launcher_rank())
+
+def finish(out, item, times, t_start):
+    """The record with its header, predict block and timings."""
+    path, bed = item
+    out = {**header("predict", bed.centers, bed.radii, resolve_material(bed.attrs)[1],
+                    input_path=path), **out, "predict": predict_block(out)}
+    times["total"] = time.perf_counter() - t_start
+    out["seconds"] = times["total"]
+    out["timings"] = times
+    return out
+
+def finite_or_none(props):
+    """{name: value}, a non-finite value as None (JSON null: JSON has no NaN)."""
+    return {k: (v if math.isfinite(v) else None) for k, v in props.items()}

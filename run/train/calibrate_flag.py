@@ -1,0 +1,122 @@
+"""Fit the small model's flag and risk-binned intervals (issue 46), and test them.
+
+On calibration data sets (held out of training; `small` beds rebuilt from their
+label tables), the shipped small model's predictions and the risk features
+(amfe.training.flagrisk) fit the risk model; the threshold flags
+``--flag-share`` of the calibration beds; each risk bin gets its own conformal
+quantiles. On each test set: the share flagged, the recall of the bad beds (a
+constant more than 10 % off), the share bad and unflagged, the whole
+precision-recall curve, and the intervals' coverage on the beds with skipped
+scan pieces and on the others, each against its binomial band.
+
+    python -m run.train.calibrate_flag --calibration s8.h5 s9.h5 s16.h5 --test s17.h5 \
+        -o amfe/models/flag_small.json --json flag_report.json
+"""
+import h5py
+import numpy as np
+import torch
+from scipy.stats import binom
+
+from amfe.training.data import dataset_info, read_rows
+from amfe.training.flagrisk import bad_beds, bins_of, features, fit, risk
+from amfe.training.predict import Surrogate
+from amfe.vocab import LABEL_NAMES
+from run.common import ROOT, md_table, parser, write_json
+
+
+def predicted(sur, path):
+    """(fill, bonds, mean, spread, labels, skipped (n,) bool) of a data set's ok beds."""
+    rows = dataset_info(path, sur.inputs)["ok"]
+    images, labels = read_rows(path, rows, sur.inputs)
+    res = sur.predict(images)
+    with h5py.File(path, "r") as f:
+        skipped = f["params"]["skip_fraction"][()][rows] > 0
+    n_fill = sur.n_fill
+    return (images[:, :n_fill], images[:, n_fill:], res["mean"], res["spread"], labels,
+            skipped)
+
+
+def band(n, p=0.9, level=0.99):
+    """The central ``level`` binomial band of the covered share of n beds at coverage p."""
+    lo, hi = binom.interval(level, n, p)
+    return lo / n, hi / n
+
+
+def evaluate(model, data):
+    """Flag and coverage figures of one test set (``data``: :func:`predicted`'s)."""
+    fill, bonds, mean, spread, labels, skipped = data
+    X = features(fill, bonds, mean, spread, model["bond_scale"])
+    score = risk(model, X)
+    flagged, bad = score > model["threshold"], bad_beds(mean, labels)
+    bins = bins_of(model, X)
+    covered = np.zeros(labels.shape, bool)
+    for b, cal in enumerate(model["bins"]):
+        rows = bins == b
+        q = np.array([cal["quantile"][k] for k in LABEL_NAMES])
+        s0 = np.array([cal["spread_scale"][k] for k in LABEL_NAMES])
+        half = q * np.abs(mean[rows]) * (spread[rows] + s0)
+        covered[rows] = np.abs(labels[rows] - mean[rows]) <= half
+    groups = {}
+    for name, rows in (("skipped pieces", skipped), ("no skipped pieces", ~skipped),
+                       ("all", np.ones(len(bad), bool))):
+        lo, hi = band(int(rows.sum()))
+        cov = covered[rows].mean(axis=0)
+        groups[name] = {"n": int(rows.sum()), "coverage": dict(zip(LABEL_NAMES, map(float, cov))),
+                        "band": [lo, hi], "inside": bool(np.all((cov >= lo) & (cov <= hi)))}
+    curve = []
+    for share in np.linspace(0.0, 0.5, 26):
+        t = np.quantile(score, 1 - share) if share > 0 else np.inf
+        f = score > t
+        curve.append({"flagged": float(f.mean()),
+                      "recall": float(bad[f].sum() / max(bad.sum(), 1)),
+                      "precision": float(bad[f].sum() / max(f.sum(), 1)),
+                      "bad_unflagged": float((bad & ~f).mean())})
+    return {"n": int(len(bad)), "bad": float(bad.mean()), "flagged": float(flagged.mean()),
+            "recall": float(bad[flagged].sum() / max(bad.sum(), 1)),
+            "bad_unflagged": float((bad & ~flagged).mean()), "coverage": groups,
+            "curve": curve}
+
+
+def main():
+    p = parser(__doc__)
+    p.add_argument("--calibration", nargs="+", required=True)
+    p.add_argument("--test", nargs="*", default=[])
+    p.add_argument("--flag-share", type=float, default=0.19)
+    p.add_argument("--lam", type=float, default=0.1)
+    p.add_argument("-o", "--output", default=None, help="the flag model (JSON) to write")
+    p.add_argument("--json", default=None, help="the test figures (JSON)")
+    args = p.parse_args()
+    torch.set_num_threads(1)
+    sur = Surrogate.load(f"{ROOT}/amfe/models/multiscale_small.pt")
+    parts = [predicted(sur, path) for path in args.calibration]
+    fill, bonds, mean, spread, labels, skipped = (np.concatenate([q[k] for q in parts])
+                                                  for k in range(6))
+    bond_scale = float(bonds.mean())
+    model = fit(features(fill, bonds, mean, spread, bond_scale), (mean, labels, spread, skipped),
+                bond_scale, flag_share=args.flag_share, lam=args.lam)
+    model["calibration"] = [str(p) for p in args.calibration]
+    if args.output:
+        write_json(args.output, model)
+    report, rows = {}, []
+    for path in args.test:
+        r = evaluate(model, predicted(sur, path))
+        report[path] = r
+        cov = r["coverage"]
+        rows.append([path.rsplit("/", 1)[-1], r["n"], f"{100 * r['bad']:.1f}",
+                     f"{100 * r['flagged']:.1f}", f"{r['recall']:.2f}",
+                     f"{100 * r['bad_unflagged']:.2f}"]
+                    + [("yes" if cov[g]["inside"] else "no") + f" ({cov[g]['n']})"
+                       for g in ("skipped pieces", "no skipped pieces")])
+    print(md_table(["test set", "beds", "bad (%)", "flagged (%)", "recall",
+                    "bad and unflagged (%)", "coverage in band: skipped", "not skipped"], rows))
+    for path, r in report.items():
+        for g, c in r["coverage"].items():
+            print(f"  {path.rsplit('/', 1)[-1]} {g}: " + ", ".join(
+                f"{k} {100 * v:.1f}" for k, v in c["coverage"].items())
+                + f" (band {100 * c['band'][0]:.1f}-{100 * c['band'][1]:.1f} %)")
+    if args.json:
+        write_json(args.json, {"model": args.output, "tests": report})
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,155 @@
+"""Which network predicts a bed, and its members' outputs: any size, thickness and alloy.
+
+The route (docs/surrogate.md, "Any bed"), decided by the bed's kind:
+
+- 3 layers of the paper's nu and psi (any E): the size rule
+  (amfe.training.sizerule) over the shipped 0.6, 1.2 and 3 mm models;
+- other thicknesses (2-6 layers) or nu, psi (amfe.training.anybed's ranges),
+  0.6 x 0.6 mm: the ``anybed`` network;
+- other thicknesses or materials at another size: anybed, times the size
+  rule's factor measured on the bed's 3-layer view (its lowest three layers;
+  a 2-layer bed's upper layer repeated), a combination with no held-out beds
+  of its own: always flagged (solve it to trust it).
+
+E enters by scaling: every network works at 210 GPa and the moduli are
+multiplied by E / 210 GPa (the Poisson ratios do not depend on E).
+"""
+import time
+
+import numpy as np
+import torch
+
+from amfe.dataset.bondimage import bond_image
+from amfe.dataset.images import pixelate
+from amfe.errors import AmfeError
+from amfe.training.anybed import E_TRAINED, anybed_inputs, check_bed_kind
+from amfe.training.anysize import HEIGHT_TOL, cropped_box
+from amfe.training.conformal import DEFAULT_COVERAGE, DEFAULT_FLAG_HALF_WIDTH, size_key
+from amfe.training.ensemble import predict_raw, relative_spread
+from amfe.training.sizerule import size_weights
+from amfe.vocab import LABEL_NAMES
+
+#: nu and psi this close to the paper's are the shipped models' material.
+PAPER_NU, PAPER_PSI, MATERIAL_TOL = 0.28, 0.08, 1e-9
+#: The route names.
+ROUTES = ("size rule", "anybed", "anybed x size rule")
+
+
+def route_of(layers, lx_mm, ly_mm, nu, psi):
+    """The route (one of :data:`ROUTES`) of a bed; AmfeError for one outside every range."""
+    check_bed_kind(layers, nu, psi)
+    size_weights(lx_mm, ly_mm)        # the size range
+    paper = (int(layers) == 3 and abs(nu - PAPER_NU) < MATERIAL_TOL
+             and abs(psi - PAPER_PSI) < MATERIAL_TOL)
+    if paper:
+        return "size rule"
+    small = abs(lx_mm - 0.6) < 1e-6 and abs(ly_mm - 0.6) < 1e-6
+    return "anybed" if small else "anybed x size rule"
+
+
+def _members(sur, x):
+    """(members, n, 6) raw outputs of a Surrogate's networks on inputs x (n, c, H, W)."""
+    xt = torch.as_tensor(np.ascontiguousarray(x, np.float32))
+    return np.stack([predict_raw(net, xt, sur.norm, sur.tta).numpy() for net in sur.nets])
+
+
+def rule_members(shipped, fill, bonds, lx_mm, ly_mm):
+    """(members, n, 6): the size rule's combination of the shipped models' members.
+
+    shipped: {size [mm]: Surrogate}; fill, bonds (n, 3, H, W): 3-layer images.
+    """
+    x = np.concatenate([fill, bonds], axis=1)
+    return sum(w * _members(shipped[s], x) for s, w in size_weights(lx_mm, ly_mm))
+
+
+def three_layer_view(fill, bonds):
+    """(fill, bonds) (n, 3, H, W): a bed's lowest three layers (a 2-layer bed's upper one
+    repeated), for the size rule's factor."""
+    idx = [0, 1, 2] if fill.shape[1] >= 3 else [0, 1, 1]
+    return fill[:, idx], bonds[:, idx]
+
+
+def any_members(models, fill, bonds, kind):
+    """(members (m, n, 6) raw at the bed's E, route) of n beds of one kind.
+
+    models: {"shipped": {size: Surrogate}, "anybed": Surrogate}; fill, bonds
+    (n, layers, H, W); kind: dict layers, lx_mm, ly_mm, nu, psi, E [Pa].
+    """
+    route = route_of(kind["layers"], kind["lx_mm"], kind["ly_mm"], kind["nu"], kind["psi"])
+    n = fill.shape[0]
+    if route == "size rule":
+        out = rule_members(models["shipped"], fill, bonds, kind["lx_mm"], kind["ly_mm"])
+    else:
+        x = anybed_inputs(fill, bonds, np.full(n, kind["nu"]), np.full(n, kind["psi"]))
+        out = _members(models["anybed"], x)
+        if route == "anybed x size rule":
+            f3, b3 = three_layer_view(fill, bonds)
+            at_size = rule_members(models["shipped"], f3, b3, kind["lx_mm"], kind["ly_mm"])
+            at_small = _members(models["shipped"][0.6], np.concatenate([f3, b3], axis=1))
+            out = out * (at_size.mean(axis=0) / at_small.mean(axis=0))[None]
+    out = np.array(out, np.float64)
+    out[..., :3] *= float(kind["E"]) / E_TRAINED
+    return out, route
+
+
+# ------------------------------------------------------------------ one bed, end to end
+
+#: The imaging of every network here (the data sets' : docs/datasets.md, box scales).
+CELL, LAYER, SPACING = (30e-6, 30e-6), 100e-6, 2.5e-6
+
+
+def bed_images(bed, size):
+    """(fill, bonds) (layers, H, W) float32 and the imaged box (3,) [m] of a bed of size
+    ``size`` (3,) [m]: whole cells from the origin (amfe.training.anysize), whole layers."""
+    layers = int(round(float(size[2]) / LAYER))
+    if layers < 1 or abs(float(size[2]) / LAYER - layers) > HEIGHT_TOL:
+        raise AmfeError(f"the bed is {float(size[2]) * 1e3:g} mm high, not a whole number of "
+                        f"{LAYER * 1e3:g} mm powder layers: the surrogate images whole layers "
+                        "(solve it: amfe homogenize)")
+    box = cropped_box((size[0], size[1], layers * LAYER), CELL)
+    fill = pixelate(bed, cell=CELL, layer_thickness=LAYER, box=((0.0, 0.0, 0.0), box),
+                    spacing=SPACING)
+    bonds = bond_image(bed, cell=CELL, layer_thickness=LAYER, box=((0.0, 0.0, 0.0), box))
+    return np.asarray(fill, np.float32), np.asarray(bonds, np.float32), box
+
+
+def rule_calibration(shipped, spread):
+    """The size rule's conformal calibration for one bed: per constant, the widest of the
+    shipped models' calibrations (each at its own size) given the bed's spread (6,). A
+    bed between the shipped sizes has no calibration beds of its own (the stated rule,
+    docs/surrogate.md, "Any size"): the neighbours' alone under-covered Ez at 2 mm (80 %
+    of 100 held-out beds)."""
+    cals = [shipped[s].ckpt["conformal"]["sizes"][size_key((s * 1e-3, s * 1e-3))]
+            for s in sorted(shipped)]
+    q, s0 = {}, {}
+    for k, name in enumerate(LABEL_NAMES):
+        width = [c["quantile"][name] * (spread[k] + c["spread_scale"][name]) for c in cals]
+        best = cals[int(np.argmax(width))]
+        q[name], s0[name] = best["quantile"][name], best["spread_scale"][name]
+    return {"n": min(int(c["n"]) for c in cals), "quantile": q, "spread_scale": s0,
+            "uses_spread": True}
+
+
+def predict_any_bed(models, bed, size, material):
+    """A bed's prediction by its route: {mean (6,), spread (6,), conformal, route, image,
+    layers, box, times {imaging, predict} [s]} (mean [Pa, -] at the bed's E).
+
+    size (3,) [m]: the bed's box (recorded, else its spheres' from the origin);
+    material: its Material (E, nu, psi).
+    """
+    t0 = time.perf_counter()
+    fill, bonds, box = bed_images(bed, size)
+    t1 = time.perf_counter()
+    kind = dict(layers=fill.shape[0], lx_mm=box[0] * 1e3, ly_mm=box[1] * 1e3,
+                nu=float(material.nu), psi=float(material.psi), E=float(material.E))
+    members, route = any_members(models, fill[None], bonds[None], kind)
+    mean, spread = members.mean(axis=0)[0], relative_spread(members)[0]
+    if route == "size rule":
+        cal = rule_calibration(models["shipped"], spread)
+    else:
+        cal = models["anybed"].ckpt["conformal"]["sizes"]["0.6x0.6"]
+    conformal = {"coverage": DEFAULT_COVERAGE, "flag_half_width": DEFAULT_FLAG_HALF_WIDTH,
+                 "sizes": {size_key(box): cal}}
+    return {"mean": mean, "spread": spread, "conformal": conformal, "route": route,
+            "image": fill, "layers": fill.shape[0], "box": box,
+            "times": {"imaging": t1 - t0, "predict": time.perf_counter() - t1}}

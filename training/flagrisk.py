@@ -1,0 +1,182 @@
+"""One flag that holds bed by bed: a bed's risk of a constant more than 10 % off (issue 46).
+
+The risk is a logistic model of "some constant more than 10 % off" on
+features a prediction already has: the bed's fill and bond images (their
+densities, the share of empty cells, the weakest cross-sections, the connected
+pieces of the fill and whether the largest spans the bed: beds with skipped scan
+pieces are where the surrogate errs) and the ensemble's spread and predicted
+constants. It is fitted on held-out calibration beds (never trained on), and a
+bed is flagged when its risk exceeds the threshold that flags a stated share of
+the calibration beds (docs/surrogate.md, "The flag").
+
+Intervals are Mondrian split-conformal: the calibration beds are split into
+bins, by whether the bed looks as if it has skipped scan pieces (a second
+logistic model on the same features, fitted to the generator's record of
+skipped pieces: 88 % right on held-out beds) and by risk (:data:`BIN_EDGES`,
+quantiles of the calibration risk, and the flag's threshold); each bin has
+its own quantile per constant (amfe.training.conformal.calibrate), so the
+coverage holds within each bin, not only over all beds: a risky bed gets the
+wide interval of the risky beds, and beds with and without skipped pieces
+each get their own.
+
+The model is a small JSON file beside the checkpoint (``flag_<scale>.json``,
+amfe/models/), read by :func:`load_flag`.
+"""
+import json
+import os
+
+import numpy as np
+from scipy import ndimage
+
+from amfe.errors import AmfeError
+from amfe.training.conformal import calibrate
+from amfe.vocab import LABEL_NAMES
+
+#: The format of the flag file.
+FLAG_FORMAT, FLAG_VERSION = "amfe.flag", 1
+#: A constant this far off (relative) makes a bed bad.
+BAD = 0.10
+#: Risk bins of the intervals, as quantiles of the calibration risk (the last bin is the
+#: flagged share when the flag's share is 1 - its edge).
+BIN_EDGES = (0.5,)
+
+
+def features(fill, bonds, mean, spread, bond_scale):
+    """(n, F) risk features of n beds: fill, bonds (n, layers, H, W) images; mean, spread
+    (n, 6) the ensemble's predictions [Pa, -] and relative spread; bond_scale: the bond
+    images' unit (the calibration beds' mean; the model file's ``bond_scale``). Beds of
+    another E: give the bonds and moduli at the model's E (divided by E / E_model)."""
+    fill, bonds = np.asarray(fill, float), np.asarray(bonds, float)
+    n = len(fill)
+    F = [fill.mean((1, 2, 3))] + [fill[:, k].mean((1, 2)) for k in range(fill.shape[1])]
+    F += [(fill < t).mean((1, 2, 3)) for t in (0.05, 0.3, 0.6)]
+    bn = bonds / float(bond_scale)
+    F += [bn.mean((1, 2, 3))] + [bn[:, k].mean((1, 2)) for k in range(bonds.shape[1])]
+    F.append((bn < 1e-3).mean((1, 2, 3)))
+    cols, rows = bn.sum(2), bn.sum(3)     # per layer: sums over y (n, L, W), over x (n, L, H)
+    F.append(cols.min(2).min(1) / (cols.mean((1, 2)) + 1e-12))
+    F.append(rows.min(2).min(1) / (rows.mean((1, 2)) + 1e-12))
+    layer = bn.sum((2, 3))
+    F.append(layer.min(1) / (layer.mean(1) + 1e-12))
+    for thr in (0.15, 0.35):
+        F += [np.array(v, float) for v in zip(*(_pieces(fill[i], thr) for i in range(n)))]
+    spread, mean = np.asarray(spread, float), np.asarray(mean, float)
+    F += [np.log(spread[:, k] + 1e-6) for k in range(6)]
+    F += [mean[:, k] for k in range(3, 6)] + [np.log(mean[:, k]) for k in range(3)]
+    return np.stack(F, axis=1)
+
+
+def _pieces(img, thr):
+    """(log(1 + pieces), share of the fill outside the largest, it spans x, it spans y)."""
+    m = img > thr
+    lab, k = ndimage.label(m)
+    if k == 0:
+        return 0.0, 1.0, 0.0, 0.0
+    sizes = ndimage.sum(img, lab, range(1, k + 1))
+    big = lab == 1 + int(np.argmax(sizes))
+    return (np.log1p(k), 1 - sizes.max() / max(img[m].sum(), 1e-12),
+            float(big.any((0, 1))[0] and big.any((0, 1))[-1]),
+            float(big.any((0, 2))[0] and big.any((0, 2))[-1]))
+
+
+def _design(X, mu, sd):
+    Z = (np.asarray(X, float) - mu) / sd
+    return np.concatenate([np.ones((len(Z), 1)), Z, Z ** 2], axis=1)
+
+
+def bad_beds(pred, labels):
+    """(n,) bool: a constant more than :data:`BAD` off."""
+    return (np.abs(pred - labels) / np.abs(labels) > BAD).any(axis=1)
+
+
+def _logistic(A, target, lam):
+    w = np.zeros(A.shape[1])
+    for _ in range(50):     # Newton's method on the penalised log-likelihood
+        p = 1 / (1 + np.exp(-(A @ w)))
+        H = (A * (p * (1 - p))[:, None]).T @ A + lam * np.eye(len(w))
+        w -= np.linalg.solve(H, A.T @ (p - target) + lam * w)
+    return w
+
+
+def fit(X, data, bond_scale, flag_share=0.19, lam=0.1, coverage=0.9):
+    """The flag model (a dict for the JSON file) from calibration beds.
+
+    X (n, F) :func:`features` (with ``bond_scale``); data: (pred, labels, spread (n, 6),
+    skipped (n,) bool: the generator skipped scan pieces). flag_share: the share of the
+    calibration beds above the threshold; lam: the logistic fits' ridge penalty;
+    coverage: the intervals' nominal coverage.
+    """
+    pred, labels, spread, skipped = data
+    bad = bad_beds(pred, labels).astype(float)
+    mu, sd = X.mean(axis=0), X.std(axis=0) + 1e-12
+    A = _design(X, mu, sd)
+    w = _logistic(A, bad, lam)
+    w_skip = _logistic(A, np.asarray(skipped, float), 1.0)
+    score = A @ w
+    threshold = float(np.quantile(score, 1 - flag_share))
+    model = {"format": FLAG_FORMAT, "format_version": FLAG_VERSION, "bad": BAD,
+             "bond_scale": float(bond_scale), "coverage": coverage, "flag_share": flag_share,
+             "lam": lam, "mu": mu.tolist(), "sd": sd.tolist(), "w": w.tolist(),
+             "w_skip": w_skip.tolist(), "threshold": threshold,
+             "bin_edges": [float(np.quantile(score, q)) for q in BIN_EDGES] + [threshold],
+             "n": int(len(X)), "bad_share": float(bad.mean())}
+    bins = bins_of(model, X)
+    model["bins"] = [calibrate(pred[bins == b], labels[bins == b], list(LABEL_NAMES),
+                               spread[bins == b], coverage) for b in range(n_bins(model))]
+    return model
+
+
+def risk(model, X):
+    """(n,) risk scores (the logit of "a constant more than 10 % off") of features X."""
+    return _design(X, np.asarray(model["mu"]), np.asarray(model["sd"])) @ np.asarray(model["w"])
+
+
+def n_bins(model):
+    """How many interval bins: (skipped-looking or not) x (risk bins)."""
+    return 2 * (len(model["bin_edges"]) + 1)
+
+
+def bins_of(model, X):
+    """(n,) the interval bin of each bed of features X: risk bin, plus the risk bins' count
+    when the bed looks as if it has skipped pieces."""
+    A = _design(X, np.asarray(model["mu"]), np.asarray(model["sd"]))
+    looks_skipped = (A @ np.asarray(model["w_skip"])) > 0
+    return np.digitize(A @ np.asarray(model["w"]), model["bin_edges"]) \
+        + looks_skipped * (len(model["bin_edges"]) + 1)
+
+
+def load_flag(path):
+    """The flag model of a JSON file; AmfeError for another format or version."""
+    try:
+        with open(path) as f:
+            model = json.load(f)
+    except (OSError, json.JSONDecodeError) as exc:
+        raise AmfeError(f"cannot read the flag model {path}: {exc}") from None
+    if model.get("format") != FLAG_FORMAT or model.get("format_version") != FLAG_VERSION:
+        raise AmfeError(f"{path} is not an amfe flag model of version {FLAG_VERSION} (format "
+                        f"{model.get('format')!r}, version {model.get('format_version')!r})")
+    return model
+
+
+def bed_risk(model, fill, bonds, mean, spread):
+    """One bed's flag: {risk (the logit), threshold, flagged, bin, calibration (its bin's
+    conformal calibration)}; fill, bonds (layers, H, W), mean, spread (6,) at the model's E."""
+    X = features(fill[None], bonds[None], np.asarray(mean)[None], np.asarray(spread)[None],
+                 model["bond_scale"])
+    score = float(risk(model, X)[0])
+    b = int(bins_of(model, X)[0])
+    return {"risk": score, "threshold": float(model["threshold"]),
+            "flagged": bool(score > model["threshold"]), "bin": b,
+            "calibration": model["bins"][b]}
+
+
+def shipped_flag(checkpoint_path, models_dir, shipped):
+    """The flag model of a shipped checkpoint (``flag_<scale>.json`` beside it), or None for
+    a checkpoint that is not one of ``shipped`` ({scale: file name}) or has no flag file."""
+    for scale, name in shipped.items():
+        path = os.path.join(models_dir, name)
+        flag = os.path.join(models_dir, f"flag_{scale}.json")
+        if os.path.isfile(flag) and os.path.isfile(path) \
+                and os.path.samefile(path, checkpoint_path):
+            return load_flag(flag)
+    return None
