@@ -192,7 +192,7 @@ class BlockCG:
         return self.reason == 0
 
 
-def solve_block(ksp, bs, X0, backend="auto", info=None, prescribed=None):
+def solve_block(ksp, bs, X0, backend="auto", info=None, prescribed=None, monitor=None):
     """Solve A x_j = b_j for every case j with k CGs sharing one block V-cycle.
 
     ksp: a set-up KSP (CG with GAMG); bs: k right-hand side Vecs; X0: None or
@@ -205,7 +205,9 @@ def solve_block(ksp, bs, X0, backend="auto", info=None, prescribed=None):
     summed over ranks (:mod:`amfe.solvers.correction`).
     prescribed: (local rows (p,), values (p, k)): rows whose exact values are
     known (identity rows of MatZeroRowsColumns); they are set before the true
-    residuals, which are then zero there.
+    residuals, which are then zero there. monitor: None or a callable given (iteration, the
+    largest residual norm of a running column over its stopping tolerance), from iteration 0
+    (progress lines, :meth:`amfe.solvers.progress.Progress.iteration`).
     """
     t0 = time.perf_counter()
     k = len(bs)
@@ -214,7 +216,7 @@ def solve_block(ksp, bs, X0, backend="auto", info=None, prescribed=None):
     except BlockUnsupported:
         return None
     try:
-        cg = _iterate(ksp, V, bs, X0)
+        cg = _iterate(ksp, V, bs, X0, monitor)
         if cg is None:
             return None
         if prescribed is not None:
@@ -239,7 +241,7 @@ def solve_block(ksp, bs, X0, backend="auto", info=None, prescribed=None):
     return out
 
 
-def _iterate(ksp, V, bs, X0):
+def _iterate(ksp, V, bs, X0, monitor=None):
     """KSPSolve_CG for every right-hand side at once; None if V-cycle != PCApply.
 
     Eight (m, k) blocks live while iterating: X, R, Z, P, Q and the V-cycle's
@@ -290,6 +292,7 @@ def _iterate(ksp, V, bs, X0):
     P = np.where(cg.active, Z, 0.0)
     W = V.scratch
     it = 0
+    _monitor(monitor, cg, it, rtol, atol)
     while cg.active.any() and it < max_it:
         it += 1
         _stop(cg, cg.active & ~np.isfinite(cg.rz), NANORINF, it)
@@ -310,9 +313,17 @@ def _iterate(ksp, V, bs, X0):
         P *= beta
         P += Z
         P[:, ~cg.active] = 0.0  # stopped columns stay where they are
+        _monitor(monitor, cg, it, rtol, atol)
     _stop(cg, cg.active, ITS, it)
     cg.info.update(iterations=it, vcycles=it + 1 + (1 if guess else 0))
     return cg
+
+
+def _monitor(monitor, cg, it, rtol, atol):
+    """monitor(it, the largest rnorm / tolerance of the running columns; 0 when none runs)."""
+    if monitor is not None:
+        ratio = cg.rnorm / np.maximum(rtol * cg.ref, atol)
+        monitor(it, float(ratio[cg.active].max()) if cg.active.any() else 0.0)
 
 
 def _stop(cg, mask, reason, it):

@@ -32,7 +32,7 @@ from amfe.model.averages import (
 from amfe.model.bed import Bed
 from amfe.model.carrying import frame_warnings
 from amfe.model.conditions import CONDITIONS, get_condition, solver_part
-from amfe.model.frame import build_frame
+from amfe.model.frame import FRAME_LOG, build_frame
 from amfe.model.options import SolveOptions
 from amfe.model.volumebox import unit_warnings, volume_box_record
 from amfe.solvers.adjoint import attach_strain_adjoint
@@ -57,6 +57,7 @@ from amfe.solvers.mgchoice import CHOSEN_OPTIONS, choose_multigrid, multigrid_fe
 from amfe.solvers.options import call_options
 from amfe.solvers.petsc import unused_options_warning
 from amfe.solvers.petsclib import PETSc
+from amfe.solvers.progress import Progress
 
 LOG = logging.getLogger("amfe.solvers")
 
@@ -129,10 +130,11 @@ def homogenize_bed(bed: Bed, options: SolveOptions | None = None, comm: object =
     :class:`~amfe.io.result.Fields` on every rank ("root": on rank 0 only, for
     the files the caller writes).
 
-    Progress (one line per phase and load case) and warnings leave through the
-    ``logging`` logger "amfe.solvers", on rank 0 only; this function prints and
-    writes nothing. Every solve must reach a true relative residual of at most
-    :data:`~amfe.solvers.ksp.RESIDUAL_FACTOR` x rtol (or x the rounding floor);
+    Progress (one line per phase and load case; on beds above
+    :data:`~amfe.solvers.progress.PROGRESS_PARTICLES` also each phase's start and the time
+    left) and warnings leave through the ``logging`` logger "amfe.solvers", on rank 0 only;
+    this function prints and writes nothing. Every solve must reach a true relative
+    residual of at most :data:`~amfe.solvers.ksp.RESIDUAL_FACTOR` x rtol (or x the rounding floor);
     ``accept_unconverged`` keeps the numbers of one that does not, with a
     warning. The bed's recorded box (``attrs["size"]`` (3,) [m]) is V (else the
     load-carrying spheres' bounding box; docs/model.md, section 5).
@@ -154,13 +156,20 @@ def _homogenize(bed, options, comm, input_error, scope):
     inp = checked_inputs(mpi, bed, options, CONDITIONS, input_error)
     options, condition = inp.options, get_condition(inp.options.bc)
     t0 = time.perf_counter()
-    log = _progress(mpi.rank)
-    frame = build_frame(bed.centers, bed.radii, inp.material, options.a_star_cap,
-                        nondimensional=options.nondimensional,
-                        box=inp.box if condition.periodic else None, bc=options.bc,
-                        size=given_size(bed, options))
+    log = Progress(_progress(mpi.rank), len(bed.centers))   # long solves: each phase's start
+    log.phase("frame", f"frame: building it from {len(bed.centers)} particles "
+              "(contacts, load-carrying part, springs)")
+    token = FRAME_LOG.set(log.log if log.long else None)
+    try:
+        frame = build_frame(bed.centers, bed.radii, inp.material, options.a_star_cap,
+                            nondimensional=options.nondimensional,
+                            box=inp.box if condition.periodic else None, bc=options.bc,
+                            size=given_size(bed, options))
+    finally:
+        FRAME_LOG.reset(token)
     t_frame = time.perf_counter() - t0
     groups = condition.groups(frame)
+    log.n_cases = sum(len(g.names) for g in groups)
     # the same on every rank: rank 0 decides (qhull; docs/benchmarks.md, "Figures quoted ...")
     corrected = correction_wanted(options.ksp_options) and mpi.bcast(
         solver_part(condition.second_order)(frame, groups) if mpi.rank == 0 else None)

@@ -18,6 +18,7 @@ from amfe.solvers.operator import ConstrainedOperator
 from amfe.solvers.partition import row_ranges
 from amfe.solvers.petsc import READ_AT_FINALIZE
 from amfe.solvers.petsclib import PETSc
+from amfe.solvers.progress import Progress
 
 # GAMG's Chebyshev smoothers scale by an estimate of the largest eigenvalue of
 # D^-1 A from 10 Krylov steps. Very stiff bonds among the prescribed particles
@@ -100,11 +101,15 @@ def solve_load_cases(frame, comm, groups, *, center=None, log=None, **settings):
 
     ``settings``: the fields of :class:`~amfe.solvers.ksp.CaseSettings` (rtol, max_it,
     ksp_options, diagnose, accept_unconverged). ``log``: called with a progress line per
-    operator and per case (on every rank; the caller decides who prints). Raises AmfeError
+    operator and per case (on every rank; the caller decides who prints); a
+    :class:`~amfe.solvers.progress.Progress` also gets the phases' starts and the time left
+    on long solves. Raises AmfeError
     on every rank, also for a solve that misses the convergence contract
     (:func:`amfe.solvers.ksp.check_solution`) unless ``accept_unconverged``.
     """
     settings = CaseSettings(**settings)
+    if not isinstance(log, Progress):   # today's lines alone
+        log = Progress(log, 0, sum(len(g.names) for g in groups))
     ksp_options = settings.ksp_options
     size, rank = comm.getSize(), comm.getRank()
     ranges = row_ranges(frame.n_particles, size)
@@ -117,8 +122,10 @@ def solve_load_cases(frame, comm, groups, *, center=None, log=None, **settings):
         nonlocal block_seconds
         if not rows:
             t0 = time.perf_counter()
+            log.phase("blocks", f"assembly: the element blocks of {len(frame.bonds)} bonds")
             with small_pages():
                 rows.append(local_block_rows(frame, r0, r1))
+            log.done("blocks", "assembly: element blocks made")
             block_seconds += time.perf_counter() - t0
         return rows, rows.clear if last else None
 
@@ -164,21 +171,25 @@ def solve_load_cases(frame, comm, groups, *, center=None, log=None, **settings):
 def _solve_group(frame, comm, part, rows, group, center, settings, log):
     """part: this rank's particle rows (r0, r1); rows: ([block rows], release or None):
     with release, the operator drops the block rows (about a third of the matrix's
-    memory) once its matrices are made; settings: a CaseSettings."""
+    memory) once its matrices are made; settings: a CaseSettings; log: a
+    :class:`~amfe.solvers.progress.Progress`."""
     held, release = rows
+    log.phase("operator", f"operator for {', '.join(group.names)}: assembling the matrix, "
+              "then setting up the preconditioner")
     op = ConstrainedOperator(frame, comm, *part, held[0], group, release=release,
                              **vars(settings))
     try:
         rec = op.record
-        if log:
-            log(f"operator for {', '.join(group.names)}: "
-                f"assembled in {rec.assembly_seconds:.2f} s, "
-                f"{rec.pc_type} set up in {rec.setup_seconds:.2f} s")
-        cases = op.solve_all(center, group.guesses)
-        if log:
-            for case in cases:
-                log(f"load case {case.name}: {case.iterations} iterations, {case.seconds:.2f} s "
-                    f"({rec.path})")
+        log(f"operator for {', '.join(group.names)}: "
+            f"assembled in {rec.assembly_seconds:.2f} s, "
+            f"{rec.pc_type} set up in {rec.setup_seconds:.2f} s")
+        log.phase("cases", f"load case(s) {', '.join(group.names)}: solving")
+        live = log.live(rec.path)   # long solves: each case as it is solved one at a time
+        cases = op.solve_all(center, group.guesses,
+                             progress=(log.iteration, live) if log.long else None)
+        solved = len(log.case_seconds) + len(cases)
+        for case in cases if rec.path == "block" or live is None else ():  # the block's at once
+            log.case(case, rec.path, solved=solved)
         return cases, rec
     finally:
         op.destroy()

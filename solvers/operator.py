@@ -239,7 +239,7 @@ class ConstrainedOperator:
         return CaseSolution(name, iterations, residual, seconds, moment, u_root, eig, warning,
                             note)
 
-    def solve_all(self, center, guesses=None, gather=True):
+    def solve_all(self, center, guesses=None, gather=True, progress=None):
         """Solve every case of the group; a list of :class:`CaseSolution`, in its order.
 
         Two or more cases with CG + GAMG (Chebyshev/Jacobi levels) go through
@@ -247,8 +247,11 @@ class ConstrainedOperator:
         (:func:`amfe.solvers.blocksolve.solve_block`, the same iterations and
         solutions); -amfe_block no, a single case, diagnosis or another
         solver solve one at a time (:meth:`solve`). guesses: optional list of
-        (n, 6) initial guesses, one per case. ``record.path`` says which ran.
+        (n, 6) initial guesses, one per case. ``record.path`` says which ran. progress: None or
+        (the block CG's monitor, :func:`amfe.solvers.blocksolve.solve_block`; a callable
+        given each case as it is solved one at a time, or None).
         """
+        monitor, solved = progress or (None, None)
         names, r0, r1 = self.group.names, self.r0, self.r1
         correct = self._corrects()
         cols, info = None, {}
@@ -256,11 +259,16 @@ class ConstrainedOperator:
             X0 = None if guesses is None else [g[r0:r1].ravel() for g in guesses]
             fixed = (self._local_dofs,
                      np.stack([x.getArray()[self._local_dofs] for x in self._x0], axis=1))
-            cols = solve_block(self.ksp, self._b, X0, info=info, prescribed=fixed)
+            cols = solve_block(self.ksp, self._b, X0, info=info, prescribed=fixed,
+                               monitor=monitor)
         if cols is None:
             keep = [] if correct else None
-            out = [self.solve(k, center, None if guesses is None else guesses[k], gather, keep)
-                   for k in range(len(names))]
+            out = []
+            for k in range(len(names)):
+                out.append(self.solve(k, center, None if guesses is None else guesses[k],
+                                      gather, keep))
+                if solved is not None:
+                    solved(out[-1])
             if correct:
                 self.record.cross = np.array([[xi.dot(rj) for _, rj in keep] for xi, _ in keep])
                 self._strain_adjoint([u for u, _ in keep])

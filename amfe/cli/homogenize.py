@@ -47,7 +47,9 @@ def register(sub):
                         "estimates of the preconditioned operator and GAMG complexities "
                         "(also in the JSON under 'diagnostics')")
     p.add_argument("--quiet", action="store_true",
-                   help="no progress lines on stderr (one per phase and load case)")
+                   help="no progress lines on stderr (one per phase and load case; above "
+                        "50 000 particles also each phase's start and the time left); "
+                        "warnings still print")
     p.add_argument("--accept-unconverged", action="store_true",
                    help="keep the constants of a solve whose true relative residual misses "
                         "10 x rtol (an error otherwise), with a warning in the JSON")

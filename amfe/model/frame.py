@@ -10,6 +10,8 @@ all O(1) instead of ~1e5 N/m against ~1e-5 N m, which keeps the global matrix
 well scaled for the iterative solver and makes results independent of the
 caller's unit system.
 """
+import time
+from contextvars import ContextVar
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -120,6 +122,12 @@ def _check_spans_volume(x, mean_radius):
             "a bed needs at least two particle layers in every direction")
 
 
+#: A callable given :func:`build_frame`'s progress lines, or None (the default: none are made);
+#: set for one build by the solver layer on long solves (a context variable: no argument to
+#: pass through, and each thread or task has its own).
+FRAME_LOG = ContextVar("FRAME_LOG", default=None)
+
+
 def build_frame(centers, radii, material: Material = STEEL, a_star_cap=None, nondimensional=True,
                 box=None, bc="kubc", size=None):
     """The load-carrying, non-dimensionalised frame of a bed under condition ``bc``.
@@ -139,7 +147,11 @@ def build_frame(centers, radii, material: Material = STEEL, a_star_cap=None, non
     load-carrying spheres' bounding box (a periodic bed: the periods); a
     :class:`amfe.model.carrying.GivenBox` is V's box as the user states it, checked
     against the kept centres (:func:`amfe.model.carrying.box_rule`, the one box rule).
+    Progress lines as the contacts are found and the springs evaluated go to
+    :data:`FRAME_LOG`'s callable, if one is set (long solves, :mod:`amfe.solvers.progress`).
     """
+    log = FRAME_LOG.get() or (lambda line: None)
+    t0 = time.perf_counter()
     centers, radii = np.asarray(centers, float), np.asarray(radii, float)  # checked (a Bed's)
     n_input = centers.shape[0]
     length = float(radii.mean()) if nondimensional else 1.0
@@ -154,6 +166,7 @@ def build_frame(centers, radii, material: Material = STEEL, a_star_cap=None, non
         L = check_box(box, radii) / length
         x = wrap(x, L)
         i, j, shift = find_periodic_pairs(x, r, L)
+    log(f"frame: {i.size} contacts found in {time.perf_counter() - t0:.2f} s")
     if i.size == 0:
         raise AmfeError(f"the bed has no bonds: none of its {n_input} particles overlap "
                         "(bonded means |x_j - x_i| < R_i + R_j)")
@@ -197,7 +210,11 @@ def build_frame(centers, radii, material: Material = STEEL, a_star_cap=None, non
     bonds = contact_geometry(x, r, lo[order], hi[order], None if box is None else shift * L)
     E = 1.0 if nondimensional else material.E
     unit = Material(E=E, nu=material.nu, psi=material.psi, density=material.density)
+    log(f"frame: {kept.size} load-carrying particles; evaluating the springs of {len(bonds)} "
+        "bonds")
+    t0 = time.perf_counter()
     k_n, k_t, kappa_n, kappa_t, n_capped = bond_springs(bonds, unit, a_star_cap, labels=kept)
+    log(f"frame: springs evaluated in {time.perf_counter() - t0:.2f} s")
     return Frame(centers=x, radii=r, kept=kept, bonds=bonds, k_n=k_n, k_t=k_t,
                  kappa_n=kappa_n, kappa_t=kappa_t, n_input=n_input, n_capped=n_capped,
                  length_scale=length, force_scale=material.E / E * length**2, material=material,
