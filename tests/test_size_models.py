@@ -62,17 +62,20 @@ def test_a_fixed_size_net_still_refuses_another_bed_size(base, tmp_path):
 def test_the_shipped_model_is_chosen_by_the_beds_size():
     small = bed_for(get_scale("small"), record_seed(2, 0))
     assert shipped_model_for(small) == models_dir() / SHIPPED["small"]
-    # a bed file without a recorded size is matched by its spheres' bounding box cut to whole
-    # cells (issue 46): this bed's spheres stop short of 0.6 mm in y, so it is refused, with
-    # the box it was read as; one whose spheres reach 0.6 x 0.6 mm gets the small model
+    # a bed file without a recorded size is matched by its spheres' bounding box to the
+    # nearest whole cells (issue 46): this bed's spheres stop short of 0.6 mm in y (19.8
+    # cells), so it is read as 0.6 mm and gets the small model; one whose spheres reach
+    # only 0.56 mm (18.7 cells) is read as 0.57 mm and refused, with the box it was read as
     bare = Bed(small.centers, small.radii, {})
     far = small.centers + small.radii[:, None]
-    with pytest.raises(AmfeError, match=rf"for a 0\.6 x {int(far[:, 1].max() / 30e-6) * 0.03:g} "
+    assert 19.5 < far[:, 1].max() / 30e-6 < 20
+    assert shipped_model_for(bare) == models_dir() / SHIPPED["small"]
+    cut = far[:, 1] < 0.56e-3
+    short = Bed(small.centers[cut], small.radii[cut], {})
+    n_y = round((small.centers[cut, 1] + small.radii[cut]).max() / 30e-6)
+    with pytest.raises(AmfeError, match=rf"for a 0\.6 x {n_y * 0.03:g} "
                                         r"mm bed \(its spheres' bounding box\)"):
-        shipped_model_for(bare)
-    reach = small.centers.copy()
-    reach[0, :2] = 0.6e-3 - small.radii[0]
-    assert shipped_model_for(Bed(reach, small.radii, {})) == models_dir() / SHIPPED["small"]
+        shipped_model_for(short)
     # a size within a cell's rounding of 0.6 mm is 0.6 mm (whole cells)
     near = Bed(small.centers, small.radii, {"size": [0.6e-3 + 1e-12, 0.6e-3, 0.3e-3]})
     assert shipped_model_for(near) == models_dir() / SHIPPED["small"]
