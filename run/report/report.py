@@ -148,7 +148,7 @@ def main(argv=None):
             log("[4] surrogate against solver")
             if os.path.exists(args.test) and S.find_models(args.models):
                 n = 3 if quick else 20
-                rt = [1e-2, 1e-4, 1e-8] if quick else [1e-1, 1e-2, 1e-3, 1e-4, 1e-8]
+                rt = [1e-2, 1e-4, 1e-8] if quick else [1e-2, 1e-3, 1e-4, 1e-6, 1e-8]
                 data["surrogate"] = S.surrogate_vs_solver(args.test, args.models, n, rt, log)
                 data["surrogate"]["test"] = args.test
             else:
