@@ -59,15 +59,16 @@ def features(fill, bonds, mean, spread, bond_scale):
     layer = bn.sum((2, 3))
     F.append(layer.min(1) / (layer.mean(1) + 1e-12))
     for thr in (0.15, 0.35):
-        F += [np.array(v, float) for v in zip(*(_pieces(fill[i], thr) for i in range(n)))]
+        F += [np.array(v, float) for v in zip(*(fill_pieces(fill[i], thr) for i in range(n)))]
     spread, mean = np.asarray(spread, float), np.asarray(mean, float)
     F += [np.log(spread[:, k] + 1e-6) for k in range(6)]
     F += [mean[:, k] for k in range(3, 6)] + [np.log(mean[:, k]) for k in range(3)]
     return np.stack(F, axis=1)
 
 
-def _pieces(img, thr):
-    """(log(1 + pieces), share of the fill outside the largest, it spans x, it spans y)."""
+def fill_pieces(img, thr):
+    """(log(1 + pieces), share of the fill outside the largest, it spans x, it spans y) of one
+    bed's fill image (layers, H, W): its pieces above fill ``thr``."""
     m = img > thr
     lab, k = ndimage.label(m)
     if k == 0:

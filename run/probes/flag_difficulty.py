@@ -16,12 +16,11 @@ test seed 4, 1 000 beds, 11.1 % bad), flagging the calibration's riskiest 20 / 2
 (the shipped interval flag's signal) gives a recall of 0.67 at 20 %. Bad beds are 21.5 %
 of the beds with skipped pieces and 1.5 % of the others, mostly on nu_xy.
 """
-import argparse
 
 import numpy as np
-from scipy import ndimage
 
 from amfe.training.data import dataset_info, read_rows
+from amfe.training.flagrisk import fill_pieces
 from amfe.training.predict import Surrogate
 from run.common import parser
 
@@ -48,24 +47,11 @@ def features(fill, bond, res):
         s = bn.sum(axis)
         F.append(s.min(2).min(1) / (s.mean((1, 2)) + 1e-12))
     for thr in (0.15, 0.35):
-        pieces = [_pieces(fill[i], thr) for i in range(n)]
+        pieces = [fill_pieces(fill[i], thr) for i in range(n)]
         F += [np.array(v, dtype=float) for v in zip(*pieces)]
     F += [np.log(res["spread"][:, k] + 1e-6) for k in range(6)]
     F += [res["mean"][:, k] for k in range(3, 6)] + [np.log(res["mean"][:, k]) for k in range(3)]
     return np.stack(F, 1)
-
-
-def _pieces(img, thr):
-    """(log(1 + pieces), share of the fill outside the largest, it spans x, it spans y)."""
-    m = img > thr
-    lab, k = ndimage.label(m)
-    if k == 0:
-        return 0.0, 1.0, 0.0, 0.0
-    sizes = ndimage.sum(img, lab, range(1, k + 1))
-    big = lab == 1 + int(np.argmax(sizes))
-    return (np.log1p(k), 1 - sizes.max() / max(img[m].sum(), 1e-12),
-            float(big.any((0, 1))[0] and big.any((0, 1))[-1]),
-            float(big.any((0, 2))[0] and big.any((0, 2))[-1]))
 
 
 def fit_logistic(A, bad, lam=0.1, steps=50):
