@@ -149,6 +149,9 @@ with open(f"{sys.argv[1]}.{rank}", "w") as log:
         except AmfeError as exc:
             out = {"error": str(exc)}
         log.write(json.dumps({"variant": name, **out}) + "\n")
+# Both logs are closed before rank 0 may die: its abort would otherwise kill rank 1 with
+# its last lines still in the file buffer (seen under load: rank 1's log empty).
+MPI.COMM_WORLD.barrier()
 if sys.argv[2] == "nan" and rank == 0:   # an uncaught error in the user's script, rank 0 only
     amfe.Bed(np.full((3, 3), np.nan), np.ones(3))
 amfe.homogenize(bed)
