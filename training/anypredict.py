@@ -14,6 +14,7 @@ The route (docs/surrogate.md, "Any bed"), decided by the bed's kind:
 E enters by scaling: every network works at 210 GPa and the moduli are
 multiplied by E / 210 GPa (the Poisson ratios do not depend on E).
 """
+import functools
 import json
 import time
 
@@ -25,6 +26,14 @@ from amfe.dataset.images import pixelate
 from amfe.errors import AmfeError
 from amfe.training.anybed import E_TRAINED, anybed_inputs, check_bed_kind
 from amfe.training.anysize import HEIGHT_TOL, cropped_box
+from amfe.training.anystack import (
+    STACK_FILE,
+    image_means,
+    layer_entry,
+    load_stack,
+    stack,
+    window_starts,
+)
 from amfe.training.conformal import DEFAULT_COVERAGE, DEFAULT_FLAG_HALF_WIDTH, size_key
 from amfe.training.ensemble import predict_raw, relative_spread
 from amfe.training.shipped import models_dir
@@ -64,6 +73,44 @@ def rule_members(shipped, fill, bonds, lx_mm, ly_mm):
     return sum(w * _members(shipped[s], x) for s, w in size_weights(lx_mm, ly_mm))
 
 
+def anybed_members(models, fill, bonds, nu, psi, stacked=True):
+    """(members, n, 6) of the anybed network at 210 GPa: fill, bonds (n, layers, H, W), nu,
+    psi (n,); with ``stacked`` and a stack for the bed's thickness in ``models["stack"]``
+    (amfe.training.anystack), the stack's: a bed of 4-6 layers read with its 3-layer windows
+    too."""
+    direct = _members(models["anybed"], anybed_inputs(fill, bonds, nu, psi))
+    entry = layer_entry(models.get("stack"), fill.shape[1]) if stacked else None
+    if entry is None:
+        return direct
+    return stack(entry["coefs"], direct, window_members(models, fill, bonds, nu, psi),
+                 np.asarray(nu, float), np.asarray(psi, float), image_means(fill, bonds))
+
+
+def window_members(models, fill, bonds, nu, psi):
+    """(members, windows, n, 6) of the anybed network on the beds' 3-layer windows, or None
+    for beds of 2 or 3 layers."""
+    starts = window_starts(fill.shape[1])
+    if not starts:
+        return None
+    return np.stack([_members(models["anybed"], anybed_inputs(
+        fill[:, s:s + 3], bonds[:, s:s + 3], nu, psi)) for s in starts], axis=1)
+
+
+def anybed_calibration(models, layers):
+    """The anybed route's interval calibration for a bed of ``layers`` layers: the stack
+    file's, per thickness, else the network's own (pooled over 2-6 layers)."""
+    entry = layer_entry(models.get("stack"), layers)
+    if entry is not None:
+        return entry["calibration"]
+    return models["anybed"].ckpt["conformal"]["sizes"]["0.6x0.6"]
+
+
+def load_stack_for(anybed):
+    """The installed stack (amfe/models/anybed_stack.json) of the Surrogate ``anybed``, or
+    None where none is installed."""
+    return load_stack(models_dir() / STACK_FILE, anybed.ckpt.get("created"))
+
+
 def three_layer_view(fill, bonds):
     """(fill, bonds) (n, 3, H, W): a bed's lowest three layers (a 2-layer bed's upper one
     repeated), for the size rule's factor."""
@@ -74,7 +121,8 @@ def three_layer_view(fill, bonds):
 def any_members(models, fill, bonds, kind):
     """(members (m, n, 6) raw at the bed's E, route) of n beds of one kind.
 
-    models: {"shipped": {size: Surrogate}, "anybed": Surrogate}; fill, bonds
+    models: {"shipped": {size: Surrogate}, "anybed": Surrogate, "stack": the anybed stack
+    or None}; fill, bonds
     (n, layers, H, W); kind: dict layers, lx_mm, ly_mm, nu, psi, E [Pa].
     """
     route = route_of(kind["layers"], kind["lx_mm"], kind["ly_mm"], kind["nu"], kind["psi"])
@@ -82,8 +130,8 @@ def any_members(models, fill, bonds, kind):
     if route == "size rule":
         out = rule_members(models["shipped"], fill, bonds, kind["lx_mm"], kind["ly_mm"])
     else:
-        x = anybed_inputs(fill, bonds, np.full(n, kind["nu"]), np.full(n, kind["psi"]))
-        out = _members(models["anybed"], x)
+        out = anybed_members(models, fill, bonds, np.full(n, kind["nu"]),
+                             np.full(n, kind["psi"]))
         if route == "anybed x size rule":
             f3, b3 = three_layer_view(fill, bonds)
             at_size = rule_members(models["shipped"], f3, b3, kind["lx_mm"], kind["ly_mm"])
@@ -119,6 +167,20 @@ def bed_images(bed, size):
 SIZERULE_CALIBRATION = "sizerule_calibration.json"
 
 
+@functools.lru_cache(maxsize=4)
+def _rule_spans(path):
+    """The size rule's calibration file, read once a process (a batch reads it per bed);
+    None where it is not installed."""
+    try:
+        with open(path) as f:
+            data = json.load(f)
+    except FileNotFoundError:
+        return None
+    if data.get("format") != "amfe.sizerule_calibration" or data.get("format_version") != 2:
+        raise AmfeError(f"{path} is not a size-rule calibration of version 2")
+    return data
+
+
 def rule_calibration(shipped, spread, side_mm=None):
     """The size rule's conformal calibration for one bed with the ensemble spread (6,) and
     side ``side_mm`` (the L of 1/L = (1/Lx + 1/Ly)/2).
@@ -129,12 +191,8 @@ def rule_calibration(shipped, spread, side_mm=None):
     (:data:`SIZERULE_CALIBRATION`; docs/surrogate.md, "Any bed"). Without that file, or
     outside its spans: per constant, the widest of the shipped models' calibrations.
     """
-    path = models_dir() / SIZERULE_CALIBRATION
-    if path.is_file() and side_mm is not None:
-        with open(path) as f:
-            data = json.load(f)
-        if data.get("format") != "amfe.sizerule_calibration" or data.get("format_version") != 2:
-            raise AmfeError(f"{path} is not a size-rule calibration of version 2")
+    data = _rule_spans(str(models_dir() / SIZERULE_CALIBRATION))
+    if data is not None and side_mm is not None:
         for span in data["spans"]:
             if span["lo_mm"] <= side_mm < span["hi_mm"]:
                 return span["calibration"]
@@ -150,8 +208,9 @@ def rule_calibration(shipped, spread, side_mm=None):
 
 
 def predict_any_bed(models, bed, size, material):
-    """A bed's prediction by its route: {mean (6,), spread (6,), conformal, route, image,
-    layers, box, times {imaging, predict} [s]} (mean [Pa, -] at the bed's E).
+    """A bed's prediction by its route: {mean (6,), spread (6,), conformal, route, stacked
+    (read through the anybed stack), image, layers, box, times {imaging, predict} [s]}
+    (mean [Pa, -] at the bed's E).
 
     size (3,) [m]: the bed's box (recorded, else its spheres' from the origin);
     material: its Material (E, nu, psi).
@@ -167,9 +226,11 @@ def predict_any_bed(models, bed, size, material):
         cal = rule_calibration(models["shipped"], spread,
                                1 / inverse_size(kind["lx_mm"], kind["ly_mm"]))
     else:
-        cal = models["anybed"].ckpt["conformal"]["sizes"]["0.6x0.6"]
+        cal = anybed_calibration(models, kind["layers"])
     conformal = {"coverage": DEFAULT_COVERAGE, "flag_half_width": DEFAULT_FLAG_HALF_WIDTH,
                  "sizes": {size_key(box): cal}}
+    stacked = route != "size rule" and layer_entry(models.get("stack"), kind["layers"]) is not None
     return {"mean": mean, "spread": spread, "conformal": conformal, "route": route,
+            "stacked": stacked,
             "image": fill, "layers": fill.shape[0], "box": box,
             "times": {"imaging": t1 - t0, "predict": time.perf_counter() - t1}}

@@ -73,15 +73,17 @@ class Models:
     def get(self):
         if self._models is None:
             t = time.perf_counter()
+            from amfe.training.anypredict import load_stack_for
             from amfe.training.predict import Surrogate
             from amfe.training.shipped import SHIPPED, models_dir
             from amfe.training.sizerule import SIZES
             path = models_dir() / ANYBED
             if not path.is_file():
                 raise AmfeError(f"the any-bed model {path} is not installed; reinstall amfe")
+            anybed = Surrogate.load(path)
             self._models = {"shipped": {s: Surrogate.load(models_dir() / SHIPPED[name])
                                         for s, name in zip(SIZES, ("small", "medium", "paper"))},
-                            "anybed": Surrogate.load(path)}
+                            "anybed": anybed, "stack": load_stack_for(anybed)}
             self.seconds = time.perf_counter() - t
         return self._models
 
@@ -107,6 +109,9 @@ def route_record(args, models, item, times, t_start):
     props = finite_or_none(dict(zip(SIX, map(float, mean))))
     notes = [n for n in (note,) if n] + [f"predicted by the {got['route']} route "
                                          "(docs/surrogate.md, \"Any bed\")"]
+    if got["stacked"]:
+        notes.append(f"anybed's stack for {got['layers']} layers"
+                     + (", with the bed's 3-layer windows" if got["layers"] >= 4 else ""))
     out = {"bed": None if path is None else os.fspath(path), "bc": "kubc",
            "properties": props, "spread": finite_or_none(dict(zip(SIX, map(float, spread)))),
            "spread_score": None, "threshold": None,

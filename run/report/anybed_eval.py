@@ -9,7 +9,13 @@ import numpy as np
 import torch
 from scipy.stats import binom
 
-from amfe.training.anypredict import any_members, rule_calibration
+from amfe.training.anypredict import (
+    any_members,
+    anybed_calibration,
+    load_stack_for,
+    rule_calibration,
+)
+from amfe.training.anystack import load_stack
 from amfe.training.ensemble import relative_spread
 from amfe.training.predict import Surrogate
 from amfe.training.sizerule import SIZES, inverse_size
@@ -17,10 +23,16 @@ from amfe.vocab import LABEL_NAMES
 from run.common import ROOT, md_table, parser, write_json
 
 
-def load_models(anybed_path):
+def load_models(anybed_path, stack_path=None):
+    """The shipped models, anybed and its stack (None: the installed one; "none": without)."""
     shipped = {s: Surrogate.load(f"{ROOT}/amfe/models/multiscale_{name}.pt")
                for s, name in zip(SIZES, ("small", "medium", "paper"))}
-    return {"shipped": shipped, "anybed": Surrogate.load(anybed_path) if anybed_path else None}
+    anybed = Surrogate.load(anybed_path) if anybed_path else None
+    stack = None
+    if anybed is not None and stack_path != "none":
+        stack = (load_stack_for(anybed) if stack_path is None
+                 else load_stack(stack_path, anybed.ckpt.get("created")))
+    return {"shipped": shipped, "anybed": anybed, "stack": stack}
 
 
 def read_kind(path):
@@ -57,8 +69,7 @@ def predict_set(models, path):
         for i, row in enumerate(rows):
             cal = (rule_calibration(models["shipped"], spread[i],
                                    1 / inverse_size(box[0], box[1]))
-                   if route == "size rule" else
-                   models["anybed"].ckpt["conformal"]["sizes"]["0.6x0.6"])
+                   if route == "size rule" else anybed_calibration(models, fill.shape[1]))
             q = np.array([cal["quantile"][k] for k in LABEL_NAMES])
             s0 = np.array([cal["spread_scale"][k] for k in LABEL_NAMES])
             half = q * np.abs(preds[row]) * (spread[i] + s0)
@@ -81,11 +92,13 @@ def errors(preds, labels, covered):
 def main():
     p = parser(__doc__)
     p.add_argument("--anybed", default=None, help="the anybed checkpoint")
+    p.add_argument("--stack", default=None,
+                   help="the anybed stack (default: the installed one; none: without)")
     p.add_argument("--sets", nargs="+", required=True)
     p.add_argument("--json", default=None)
     args = p.parse_args()
     torch.set_num_threads(1)
-    models = load_models(args.anybed)
+    models = load_models(args.anybed, args.stack)
     rows, out = [], {}
     for path in args.sets:
         preds, labels, route, covered = predict_set(models, path)

@@ -1,0 +1,121 @@
+"""Fit the anybed stack (issue 46): thick beds read through their 3-layer windows, and the
+anybed route's intervals per thickness (amfe.training.anystack, docs/surrogate.md, "Any bed").
+
+Every bed given must be one the anybed network never saw: ``PATH:START`` takes a data
+set's records from START on (the records a data set grew by after the network was
+trained). Per thickness, the stack's coefficients are a ridge fit on them and its
+intervals are calibrated on cross-fitted predictions (each bed by a fit without it); a
+constant whose cross-fitted error the stack does not lower keeps the network's value.
+
+    python -m run.train.fit_anybed_stack --data L5.h5:1000 L6.h5:300 ... \
+        [--anybed amfe/models/anybed_small.pt] [-o amfe/models/anybed_stack.json]
+"""
+import os
+import time
+
+import h5py
+import numpy as np
+import torch
+
+from amfe.training.anybed import E_TRAINED
+from amfe.training.anypredict import anybed_members, window_members
+from amfe.training.anystack import (
+    FORMAT,
+    FORMAT_VERSION,
+    STACK_FILE,
+    cross_fitted,
+    fit,
+    image_means,
+)
+from amfe.training.conformal import calibrate
+from amfe.training.ensemble import relative_spread
+from amfe.training.predict import Surrogate
+from amfe.vocab import LABEL_NAMES
+from run.common import ROOT, md_table, parser, write_json
+from run.report.anybed_eval import read_kind
+
+
+def read_unseen(spec):
+    """(fill, bonds, labels at 210 GPa, nu, psi) of a data set's solved records from START."""
+    path, _, start = spec.partition(":")
+    fill, bonds, labels, (nu, psi, E, _), ok = read_kind(path)
+    keep = np.flatnonzero(ok) >= int(start or 0)
+    labels = labels[keep].astype(np.float64)
+    labels[:, :3] *= (E_TRAINED / E[keep])[:, None]
+    return fill[keep], bonds[keep], labels, nu[keep], psi[keep]
+
+
+def data_record(spec):
+    """{data set, its scale and seed, first record} of a ``PATH[:START]`` (the data set is
+    rebuilt from the committed label tables: docs/datasets.md, "The tables of issue 46")."""
+    path, _, start = spec.partition(":")
+    with h5py.File(path, "r") as f:
+        attrs = {k: f.attrs[k] for k in ("scale", "seed") if k in f.attrs}
+    return {"data_set": os.path.basename(path), "first_record": int(start or 0),
+            **{k: v.item() if hasattr(v, "item") else str(v) for k, v in attrs.items()}}
+
+
+def mre(members, labels):
+    """Mean relative error per constant of the members' mean."""
+    return np.mean(np.abs(members.mean(axis=0) - labels) / np.abs(labels), axis=0)
+
+
+def fit_layers(models, sets, args):
+    """{layers: entry} of the beds of each thickness in ``sets`` [(fill, bonds, ...)]."""
+    layers = {}
+    for f, b, y, nu, psi in sets:
+        layers.setdefault(f.shape[1], []).append((f, b, y, nu, psi))
+    entries = {}
+    for n_layers, parts in sorted(layers.items()):
+        f, b, y, nu, psi = (np.concatenate(a) for a in zip(*parts))
+        direct = anybed_members(models, f, b, nu, psi, stacked=False)
+        windows = window_members(models, f, b, nu, psi)
+        means = image_means(f, b)
+        coefs = fit(direct, windows, nu, psi, means, y, args.ridge)
+        out = cross_fitted(direct, windows, nu, psi, means, y, args.folds, args.ridge)
+        # A constant the stack does not improve on these beds (cross-fitted) keeps the
+        # network's own value: its row picks log d_k, which gives it bit for bit.
+        kept = mre(out, y) < mre(direct, y)
+        coefs[~kept] = 0.0
+        coefs[~kept, 1] = 1.0
+        out[..., ~kept] = direct[..., ~kept]
+        entries[str(n_layers)] = {
+            "n": int(len(y)), "mre_network": dict(zip(LABEL_NAMES, mre(direct, y))),
+            "mre_stack_cross_fitted": dict(zip(LABEL_NAMES, mre(out, y))),
+            "stacked": dict(zip(LABEL_NAMES, map(bool, kept))), "coefs": coefs.tolist(),
+            "calibration": calibrate(out.mean(axis=0), y, list(LABEL_NAMES),
+                                     relative_spread(out))}
+    return entries
+
+
+def main():
+    p = parser(__doc__)
+    p.add_argument("--data", nargs="+", required=True, help="PATH[:START] of unseen beds")
+    p.add_argument("--anybed", default=os.path.join(ROOT, "amfe", "models", "anybed_small.pt"))
+    p.add_argument("-o", "--output", default=os.path.join(ROOT, "amfe", "models", STACK_FILE))
+    p.add_argument("--ridge", type=float, default=1e-4)
+    p.add_argument("--folds", type=int, default=5)
+    args = p.parse_args()
+    torch.set_num_threads(1)
+    t0 = time.perf_counter()
+    anybed = Surrogate.load(args.anybed)
+    entries = fit_layers({"anybed": anybed}, [read_unseen(s) for s in args.data], args)
+    rows = []
+    for n_layers, e in entries.items():
+        for what in ("mre_network", "mre_stack_cross_fitted"):
+            rows.append([n_layers, e["n"], what[4:]]
+                            + [f"{100 * e[what][k]:.2f}" for k in LABEL_NAMES])
+    print(md_table(["layers", "beds", "predictor", *LABEL_NAMES], rows))
+    write_json(args.output, {
+        "format": FORMAT, "format_version": FORMAT_VERSION,
+        "network": os.path.relpath(args.anybed, ROOT),
+        "network_created": anybed.ckpt.get("created"),
+        "ridge": args.ridge, "folds": args.folds,
+        "data": [data_record(s) for s in args.data], "layers": entries,
+        "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        "seconds": time.perf_counter() - t0})
+    print(f"wrote {args.output}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,164 @@
+"""The anybed stack (issue 46): thick beds read through their 3-layer windows, and the anybed
+route's intervals per thickness (amfe.training.anystack, docs/surrogate.md, "Any bed").
+
+Checks against what must hold exactly or by construction: a stack whose coefficients
+pick log d_k gives the network's members bit for bit; the fit recovers a known log-linear
+map; cross-fitted predictions never see their own bed; a stack fitted to another network
+is refused; a thick bed's windows are its consecutive 3-layer sub-stacks as the network
+reads them; the shipped stack is the network's and holds every thickness it routes.
+"""
+import json
+
+import numpy as np
+import pytest
+
+from amfe.errors import AmfeError
+from amfe.training.anybed import anybed_inputs
+from amfe.training.anystack import (
+    FORMAT,
+    FORMAT_VERSION,
+    cross_fitted,
+    design,
+    fit,
+    image_means,
+    layer_entry,
+    load_stack,
+    n_columns,
+    stack,
+    window_starts,
+)
+
+
+def _outputs(rng, m=2, n=40, w=3):
+    direct = np.exp(rng.normal(0, 0.3, (m, n, 6))) * [1e11, 1e11, 1e11, 0.05, 0.05, 0.1]
+    windows = direct[:, None] * np.exp(rng.normal(0, 0.05, (m, w, n, 6)))
+    nu, psi = rng.uniform(0.25, 0.4, n), rng.uniform(0.04, 0.12, n)
+    means = rng.uniform(0.3, 0.9, (n, 2 * (w + 2) + 2))
+    return direct, windows, nu, psi, means
+
+
+def test_a_stack_that_reads_log_d_gives_the_members_bit_for_bit():
+    direct, windows, nu, psi, means = _outputs(np.random.default_rng(0))
+    p = design(0, direct[0], windows[0], nu, psi, means).shape[1]
+    assert p == n_columns(windows.shape[1] + 2)
+    coefs = np.zeros((6, p))
+    coefs[:, 1] = 1.0          # column 1 is log d_k
+    np.testing.assert_allclose(stack(coefs, direct, windows, nu, psi, means), direct,
+                               rtol=1e-14)
+    coefs = np.zeros((6, design(0, direct[0], None, nu, psi, means).shape[1]))
+    coefs[:, 1] = 1.0
+    thin = stack(coefs, direct, None, nu, psi, means)
+    np.testing.assert_allclose(thin, direct, rtol=1e-14)   # 2-3 layers: no window columns
+
+
+def test_the_fit_recovers_a_known_map_and_cross_fitting_holds_each_bed_out():
+    rng = np.random.default_rng(1)
+    direct, windows, nu, psi, means = _outputs(rng, m=1, n=400)
+    # labels: the windows' mean, 3 % up, and a nu dependence the network missed
+    truth = np.exp(np.log(windows[0]).mean(axis=0)) * 1.03 * np.exp(0.5 * (nu - 0.3))[:, None]
+    coefs = fit(direct, windows, nu, psi, means, truth, ridge=1e-12)
+    got = stack(coefs, direct, windows, nu, psi, means)[0]
+    np.testing.assert_allclose(got, truth, rtol=1e-8)
+    assert np.allclose(coefs[:, 2], 1.0) and np.allclose(coefs[:, 1], 0.0, atol=1e-8)
+    # a bed's cross-fitted value is unchanged when its own label is changed
+    moved = truth.copy()
+    moved[7] *= 5.0
+    a = cross_fitted(direct, windows, nu, psi, means, truth)
+    b = cross_fitted(direct, windows, nu, psi, means, moved)
+    assert np.array_equal(a[:, 7], b[:, 7])
+    assert not np.allclose(a, b)
+
+
+def test_a_non_positive_output_keeps_the_beds_own_members():
+    direct, windows, nu, psi, means = _outputs(np.random.default_rng(2))
+    direct[1, 3, 5] = -0.01
+    coefs = np.zeros((6, design(0, direct[0], windows[0], nu, psi, means).shape[1]))
+    out = stack(coefs, direct, windows, nu, psi, means)
+    assert np.array_equal(out[:, 3], direct[:, 3])
+    assert np.allclose(out[:, 4], 1.0)
+    with pytest.raises(AmfeError, match="positive"):
+        fit(direct, windows, nu, psi, means, np.abs(direct[0]))
+
+
+def test_windows_are_the_consecutive_three_layer_stacks_as_the_network_reads_them():
+    assert window_starts(2) == window_starts(3) == []
+    assert window_starts(5) == [0, 1, 2]
+    rng = np.random.default_rng(3)
+    fill, bonds = rng.random((2, 5, 4, 4)), rng.random((2, 5, 4, 4))
+    x = anybed_inputs(fill[:, 1:4], bonds[:, 1:4], [0.3, 0.3], [0.08, 0.08])
+    assert np.array_equal(x[:, :3], fill[:, 1:4].astype(np.float32))
+    assert np.all(x[:, 3:6] == 1.0)                      # absent fill layers: full
+    m = image_means(fill, bonds)
+    assert m.shape == (2, 12)
+    np.testing.assert_allclose(m[:, 10], fill.mean(axis=(2, 3)).min(axis=1))
+
+
+def test_a_stack_fitted_to_another_network_is_refused(tmp_path):
+    path = tmp_path / "stack.json"
+    assert load_stack(path, "2026-12-05T00:00:00+00:00") is None      # none installed
+    path.write_text(json.dumps({"format": FORMAT, "format_version": FORMAT_VERSION,
+                                "network_created": "A", "layers": {}}))
+    with pytest.raises(AmfeError, match="refit"):
+        load_stack(path, "B")
+    assert layer_entry(load_stack(path, "A"), 5) is None
+    path.write_text(json.dumps({"format": FORMAT, "format_version": FORMAT_VERSION,
+                                "network_created": "A",
+                                "layers": {"5": {"coefs": [[0.0] * 9] * 6, "calibration": {}}}}))
+    with pytest.raises(AmfeError, match=r"\(6, 9\), not \(6, 31\): refit"):
+        layer_entry(load_stack(path, "A"), 5)
+    path.write_text("{")
+    with pytest.raises(AmfeError, match="not a readable anybed stack"):
+        load_stack(path, "A")
+
+
+def test_the_shipped_stack_is_the_networks_and_calibrated_per_thickness():
+    from amfe.training.anypredict import load_stack_for
+    from amfe.training.predict import Surrogate
+    from amfe.training.shipped import models_dir
+    anybed = Surrogate.load(models_dir() / "anybed_small.pt")
+    data = load_stack_for(anybed)
+    assert data is not None
+    for layers in (2, 3, 4, 5, 6):
+        entry = layer_entry(data, layers)
+        assert entry is not None, layers
+        cal = entry["calibration"]
+        assert cal["uses_spread"] and cal["n"] >= 300
+        assert all(np.isfinite(v) and v > 0 for v in cal["quantile"].values())
+        # the stack was kept because it beat the network on its cross-fitted beds
+        raw = data["layers"][str(layers)]
+        assert (np.mean(list(raw["mre_stack_cross_fitted"].values()))
+                < np.mean(list(raw["mre_network"].values())))
+
+
+def test_a_thick_bed_is_predicted_through_its_windows_as_the_stack_says(tmp_path):
+    """amfe.predict and the CLI give, for a 4-layer bed, the stack of the network's members on
+    the bed and on its two windows, computed here step by step."""
+    from helpers import run_cli
+
+    import amfe
+    from amfe.model.scales import bed_for, record_seed
+    from amfe.training.anypredict import _members, bed_images, load_stack_for
+    from amfe.training.predict import Surrogate
+    from amfe.training.shipped import models_dir
+    bed = bed_for("box600x600x400um_nu250to400psi40to120", record_seed(7, 0))
+    p = amfe.predict(bed).to_dict()
+    assert p["route"] == "anybed" and any("3-layer windows" in n for n in p["notes"])
+    anybed = Surrogate.load(models_dir() / "anybed_small.pt")
+    entry = layer_entry(load_stack_for(anybed), 4)
+    fill, bonds, _ = bed_images(bed, bed.attrs["size"])
+    nu = np.array([float(bed.attrs["material_nu"])])
+    psi = np.array([float(bed.attrs["material_psi"])])
+    f, b = fill[None], bonds[None]
+    direct = _members(anybed, anybed_inputs(f, b, nu, psi))
+    windows = np.stack([_members(anybed, anybed_inputs(f[:, s:s + 3], b[:, s:s + 3], nu, psi))
+                        for s in (0, 1)], axis=1)
+    want = stack(entry["coefs"], direct, windows, nu, psi, image_means(f, b)).mean(axis=0)[0]
+    want[:3] *= float(bed.attrs["material_E"]) / 210e9
+    got = np.array([p["properties"][k] for k in ("Ex", "Ey", "Ez", "nu_yz", "nu_xz", "nu_xy")])
+    np.testing.assert_allclose(got, want, rtol=1e-6)
+    path = tmp_path / "thick.h5"
+    amfe.write_bed(str(path), bed)
+    out = tmp_path / "p.json"
+    proc = run_cli(["predict", str(path), "-o", str(out)])
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(out.read_text())["beds"][0]["properties"] == p["properties"]

@@ -1,0 +1,182 @@
+"""Thick beds read through their 3-layer windows, and intervals per thickness (issue 46).
+
+The anybed network (amfe.training.anybed) learned 4-6 layers from about 1 000
+beds a thickness, against the 40 000 3-layer beds its start, the small model,
+saw; on thick beds its errors are about twice those at 3 layers. A bed of L
+layers also holds L - 2 windows of three consecutive layers, which the same
+network reads at 3 layers (with the bed's nu and psi), where it is good. The
+*stack* combines them, per thickness L and per constant k, linearly in log
+space (docs/surrogate.md, "Any bed"):
+
+    log y_k = c_0 + c_1 log d_k + c_2 mean_w log w_k + c_3 min_w log w_k
+              + c_4 max_w log w_k + c_5 log w_k(bottom) + c_6 log w_k(top)
+              + sum_j (a_j log d_j + b_j mean_w log w_j) + c_7 nu + c_8 psi
+              + the layers' mean fill and bond images (and the emptiest layer's),
+
+d the network's output on the whole bed, w its outputs on the windows. Beds of
+2 and 3 layers have no windows to read; their stack is the same map without
+the window terms, a correction of the network by what it underfits. The
+coefficients are a ridge fit on beds the network never saw; each ensemble
+member is stacked on its own outputs, so the members' spread stays the
+ensemble's. The intervals are calibrated per thickness (2-6 layers), on the
+stack's cross-fitted outputs (every bed predicted by a fit that did not see it).
+
+Pure numpy: amfe.training.anypredict runs the network and calls these.
+"""
+import json
+
+import numpy as np
+
+from amfe.errors import AmfeError
+
+#: The stack's file in amfe/models/ (run/train/fit_anybed_stack.py writes it).
+STACK_FILE = "anybed_stack.json"
+FORMAT, FORMAT_VERSION = "amfe.anybed_stack", 1
+#: The thinnest bed with windows to stack: a 3-layer bed is its own window.
+MIN_STACKED = 4
+
+
+def window_starts(layers):
+    """The first layer of each 3-layer window of a bed of ``layers`` layers (bottom first)."""
+    return list(range(int(layers) - 2)) if int(layers) >= MIN_STACKED else []
+
+
+def image_means(fill, bonds):
+    """(n, 2 L + 2): each layer's mean fill and bond image, and the emptiest layer's of each,
+    of images fill, bonds (n, L, H, W): what the stack reads of the bed beside the network."""
+    fm = np.asarray(fill, np.float64).mean(axis=(2, 3))
+    bm = np.asarray(bonds, np.float64).mean(axis=(2, 3))
+    return np.column_stack([fm, bm, fm.min(axis=1), bm.min(axis=1)])
+
+
+def design(k, direct, windows, nu, psi, means):
+    """(n, p) design of constant k for one member's outputs.
+
+    direct (n, 6) > 0 on the whole beds; windows (w, n, 6) > 0 on their 3-layer windows, or
+    None for a bed of 2 or 3 layers; nu, psi (n,); means (n, q): :func:`image_means`.
+    Columns: 1, log d_k, and, with windows, mean, min, max, bottom and top of log w_k and
+    mean log w of the five other constants; then log d of the five others, nu, psi and
+    the image means.
+    """
+    ld = np.log(np.asarray(direct, np.float64))
+    cols = [np.ones(ld.shape[0]), ld[:, k]]
+    if windows is not None:
+        lw = np.log(np.asarray(windows, np.float64))
+        cols += [lw[..., k].mean(0), lw[..., k].min(0), lw[..., k].max(0), lw[0, :, k],
+                 lw[-1, :, k], *np.delete(lw.mean(0), k, axis=1).T]
+    cols += [*np.delete(ld, k, axis=1).T, np.asarray(nu, np.float64),
+             np.asarray(psi, np.float64), *np.asarray(means, np.float64).T]
+    return np.column_stack(cols)
+
+
+def n_columns(layers):
+    """The number of columns of :func:`design` for a bed of ``layers`` layers."""
+    windows = 10 if int(layers) >= MIN_STACKED else 0
+    return 2 + windows + 5 + 2 + 2 * int(layers) + 2
+
+
+def _positive(direct, windows):
+    """(n,) bool: the beds whose outputs are all positive (the stack reads their logs)."""
+    ok = np.all(np.asarray(direct) > 0, axis=(0, 2))
+    if windows is not None:
+        ok &= np.all(np.asarray(windows) > 0, axis=(0, 1, 3))
+    return ok
+
+
+def stack(coefs, direct, windows, nu, psi, means):
+    """(m, n, 6) stacked members: coefs (6, p); direct (m, n, 6) the members' outputs on the
+    beds, windows (m, w, n, 6) on their windows or None (2-3 layers); nu, psi (n,); means
+    (n, q) (:func:`image_means`).
+
+    A bed with a non-positive output (no log) keeps its direct members: finite, unstacked.
+    """
+    direct = np.asarray(direct, np.float64)
+    coefs = np.asarray(coefs, np.float64)
+    out = direct.copy()
+    ok = _positive(direct, windows)
+    if not ok.any():
+        return out
+    for m in range(direct.shape[0]):
+        w = None if windows is None else np.asarray(windows, np.float64)[m][:, ok]
+        for k in range(6):
+            X = design(k, direct[m, ok], w, nu[ok], psi[ok], means[ok])
+            out[m, ok, k] = np.exp(X @ coefs[k])
+    return out
+
+
+def fit(direct, windows, nu, psi, means, labels, ridge=1e-4):
+    """coefs (6, p): the ridge fit of log labels (n, 6) on the members' mean design.
+
+    direct (m, n, 6), windows (m, w, n, 6) or None: the network's outputs on beds it never
+    saw; ridge: the penalty per bed on every coefficient but the intercept (it keeps the
+    near-collinear window columns from cancelling; 1e-4 chosen by 5-fold cross-validation
+    on the fitting beds among 1e-2, 1e-3 and 1e-4).
+    """
+    direct = np.asarray(direct, np.float64)
+    labels = np.asarray(labels, np.float64)
+    if not (_positive(direct, windows).all() and np.all(labels > 0)):
+        raise AmfeError("the stack is fitted on beds with positive outputs and labels")
+    coefs = []
+    for k in range(6):
+        X = np.mean([design(k, direct[m], None if windows is None else windows[m], nu, psi,
+                            means) for m in range(direct.shape[0])], axis=0)
+        penalty = float(ridge) * labels.shape[0] * np.eye(X.shape[1])
+        penalty[0, 0] = 0.0
+        coefs.append(np.linalg.solve(X.T @ X + penalty, X.T @ np.log(labels[:, k])))
+    return np.array(coefs)
+
+
+def cross_fitted(direct, windows, nu, psi, means, labels, folds=5, ridge=1e-4):
+    """(m, n, 6) stacked members of every bed by a fit on the other folds (for calibration;
+    the folds are a fixed shuffle of the beds, seed 0)."""
+    n = labels.shape[0]
+    fold = np.random.default_rng(0).permutation(n) % int(folds)
+    out = np.empty(np.shape(direct))
+
+    def sub(a, rows):
+        return None if a is None else a[:, :, rows]
+    for f in range(int(folds)):
+        test, train = fold == f, fold != f
+        c = fit(direct[:, train], sub(windows, train), nu[train], psi[train], means[train],
+                labels[train], ridge)
+        out[:, test] = stack(c, direct[:, test], sub(windows, test), nu[test], psi[test],
+                             means[test])
+    return out
+
+
+def load_stack(path, network_created):
+    """The stack file's content, checked; None where there is no file.
+
+    network_created: the anybed checkpoint's ``created`` stamp; a stack fitted to another
+    network is refused (its coefficients read that network's outputs).
+    """
+    try:
+        with open(path) as f:
+            data = json.load(f)
+    except FileNotFoundError:
+        return None
+    except (OSError, ValueError) as exc:
+        raise AmfeError(f"{path}: not a readable anybed stack ({exc}); reinstall amfe") from None
+    if data.get("format") != FORMAT or data.get("format_version") != FORMAT_VERSION:
+        raise AmfeError(f"{path} is not an anybed stack of version {FORMAT_VERSION}")
+    if data.get("network_created") != network_created:
+        raise AmfeError(f"{path} was fitted to the anybed network of "
+                        f"{data.get('network_created')}, not to the installed one of "
+                        f"{network_created}: refit it (run/train/fit_anybed_stack.py)")
+    return data
+
+
+def layer_entry(data, layers):
+    """The stack's entry for ``layers`` ({coefs (6, p), calibration}); None if absent."""
+    if data is None:
+        return None
+    entry = data["layers"].get(str(int(layers)))
+    if entry is None:
+        return None
+    coefs = np.asarray(entry["coefs"], np.float64)
+    if coefs.shape != (6, n_columns(layers)):
+        raise AmfeError(f"the anybed stack's coefficients for {int(layers)} layers are "
+                        f"{coefs.shape}, not (6, {n_columns(layers)}): refit it "
+                        "(run/train/fit_anybed_stack.py)")
+    return {"coefs": coefs, "calibration": entry["calibration"]}
+
