@@ -122,8 +122,8 @@ def any_members(models, fill, bonds, kind):
     """(members (m, n, 6) raw at the bed's E, route) of n beds of one kind.
 
     models: {"shipped": {size: Surrogate}, "anybed": Surrogate, "stack": the anybed stack
-    or None}; fill, bonds
-    (n, layers, H, W); kind: dict layers, lx_mm, ly_mm, nu, psi, E [Pa].
+    or None}; fill, bonds (n, layers, H, W); kind: dict layers, lx_mm, ly_mm, nu, psi,
+    E [Pa].
     """
     route = route_of(kind["layers"], kind["lx_mm"], kind["ly_mm"], kind["nu"], kind["psi"])
     n = fill.shape[0]
