@@ -70,9 +70,12 @@ def design(k, direct, windows, nu, psi, means):
 
 
 def n_columns(layers):
-    """The number of columns of :func:`design` for a bed of ``layers`` layers."""
-    windows = 10 if int(layers) >= MIN_STACKED else 0
-    return 2 + windows + 5 + 2 + 2 * int(layers) + 2
+    """The number of columns of :func:`design` for a bed of ``layers`` layers (its design of
+    one made-up bed, so the count cannot drift from the design)."""
+    starts = window_starts(layers)
+    windows = np.ones((len(starts), 1, 6)) if starts else None
+    means = image_means(np.ones((1, int(layers), 1, 1)), np.ones((1, int(layers), 1, 1)))
+    return design(0, np.ones((1, 6)), windows, [0.3], [0.08], means).shape[1]
 
 
 def _positive(direct, windows):
@@ -163,20 +166,19 @@ def load_stack(path, network_created):
         raise AmfeError(f"{path} was fitted to the anybed network of "
                         f"{data.get('network_created')}, not to the installed one of "
                         f"{network_created}: refit it (run/train/fit_anybed_stack.py)")
+    # Checked and converted once here, so that a bed's prediction only looks its entry up.
+    for layers, entry in data["layers"].items():
+        coefs = np.asarray(entry["coefs"], np.float64)
+        if coefs.shape != (6, n_columns(int(layers))):
+            raise AmfeError(f"the anybed stack's coefficients for {int(layers)} layers are "
+                            f"{coefs.shape}, not (6, {n_columns(int(layers))}): refit it "
+                            "(run/train/fit_anybed_stack.py)")
+        entry["coefs"] = coefs
     return data
 
 
 def layer_entry(data, layers):
-    """The stack's entry for ``layers`` ({coefs (6, p), calibration}); None if absent."""
-    if data is None:
-        return None
-    entry = data["layers"].get(str(int(layers)))
-    if entry is None:
-        return None
-    coefs = np.asarray(entry["coefs"], np.float64)
-    if coefs.shape != (6, n_columns(layers)):
-        raise AmfeError(f"the anybed stack's coefficients for {int(layers)} layers are "
-                        f"{coefs.shape}, not (6, {n_columns(layers)}): refit it "
-                        "(run/train/fit_anybed_stack.py)")
-    return {"coefs": coefs, "calibration": entry["calibration"]}
+    """The stack's entry for ``layers`` ({coefs (6, p), calibration, ...}) of a stack read by
+    :func:`load_stack`; None if there is none."""
+    return None if data is None else data["layers"].get(str(int(layers)))
 

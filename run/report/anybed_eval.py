@@ -16,6 +16,7 @@ from amfe.training.anypredict import (
     rule_calibration,
 )
 from amfe.training.anystack import load_stack
+from amfe.training.conformal import intervals
 from amfe.training.ensemble import relative_spread
 from amfe.training.predict import Surrogate
 from amfe.training.sizerule import SIZES, inverse_size
@@ -70,10 +71,8 @@ def predict_set(models, path):
             cal = (rule_calibration(models["shipped"], spread[i],
                                    1 / inverse_size(box[0], box[1]))
                    if route == "size rule" else anybed_calibration(models, fill.shape[1]))
-            q = np.array([cal["quantile"][k] for k in LABEL_NAMES])
-            s0 = np.array([cal["spread_scale"][k] for k in LABEL_NAMES])
-            half = q * np.abs(preds[row]) * (spread[i] + s0)
-            covered[row] = np.abs(labels[row] - preds[row]) <= half
+            lo, hi = intervals(preds[row][None], LABEL_NAMES, cal, spread[i][None])
+            covered[row] = (lo[0] <= labels[row]) & (labels[row] <= hi[0])
         routes.add(route)
     return preds, labels, ", ".join(sorted(routes)), covered
 
