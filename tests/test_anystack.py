@@ -111,6 +111,16 @@ def test_a_stack_fitted_to_another_network_is_refused(tmp_path):
         load_stack(path, "A")
 
 
+def test_a_missing_stack_is_an_error_not_the_network_alone(tmp_path, monkeypatch):
+    import amfe.training.anypredict as anypredict
+    from amfe.training.predict import Surrogate
+    from amfe.training.shipped import models_dir
+    anybed = Surrogate.load(models_dir() / "anybed_small.pt")
+    monkeypatch.setattr(anypredict, "models_dir", lambda: tmp_path)
+    with pytest.raises(AmfeError, match="anybed_stack.json is not installed; reinstall"):
+        anypredict.load_stack_for(anybed)
+
+
 def test_the_shipped_stack_is_the_networks_and_calibrated_per_thickness():
     from amfe.training.anypredict import load_stack_for
     from amfe.training.predict import Surrogate

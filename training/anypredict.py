@@ -106,9 +106,14 @@ def anybed_calibration(models, layers):
 
 
 def load_stack_for(anybed):
-    """The installed stack (amfe/models/anybed_stack.json) of the Surrogate ``anybed``, or
-    None where none is installed."""
-    return load_stack(models_dir() / STACK_FILE, anybed.ckpt.get("created"))
+    """The installed stack (amfe/models/anybed_stack.json) of the Surrogate ``anybed``;
+    AmfeError where it is missing (the network alone would be used silently, with the
+    intervals of no thickness)."""
+    path = models_dir() / STACK_FILE
+    data = load_stack(path, anybed.ckpt.get("created"))
+    if data is None:
+        raise AmfeError(f"the anybed stack {path} is not installed; reinstall amfe")
+    return data
 
 
 def three_layer_view(fill, bonds):
