@@ -8,6 +8,8 @@ import argparse
 import json
 import os
 
+import numpy as np
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 """The repository's root (the folder that holds run/, docs/ and tests/)."""
 
@@ -40,3 +42,30 @@ def write_json(path, data):
 def read_json(path):
     with open(path) as f:
         return json.load(f)
+
+
+def record_spec(spec):
+    """(path, keep) of a ``PATH[:RANGES]`` data-set argument: RANGES is ``START`` (records
+    START on) or comma-separated ``A-B`` (records A to B inclusive), in record positions of
+    the data set; ``keep(positions)`` -> bool array of the positions selected (all if none).
+
+    >>> path, keep = record_spec("D.h5:0-1,3-4"); path, keep(range(6)).tolist()
+    ('D.h5', [True, True, False, True, True, False])
+    """
+    path, _, ranges = spec.rpartition(":") if ":" in spec else (spec, "", "")
+    bounds = []
+    for part in filter(None, ranges.split(",")):
+        a, dash, b = part.partition("-")
+        try:
+            lo, hi = int(a), (int(b) if dash else None)
+        except ValueError:
+            raise SystemExit(f"error: {spec!r}: record ranges are START or A-B[,C-D]")
+        bounds.append((lo, hi))
+
+    def keep(positions):
+        pos = np.asarray(positions)
+        if not bounds:
+            return np.ones(pos.shape, bool)
+        return np.any([(pos >= lo) & ((pos <= hi) if hi is not None else True)
+                       for lo, hi in bounds], axis=0)
+    return path, keep

@@ -2,8 +2,8 @@
 anybed route's intervals per thickness (amfe.training.anystack, docs/surrogate.md, "Any bed").
 
 Every bed given must be one the anybed network never saw: ``PATH:START`` takes a data
-set's records from START on (the records a data set grew by after the network was
-trained). Per thickness, the stack's coefficients are a ridge fit on them and its
+set's records from START on, ``PATH:A-B,C-D`` those ranges (the records the network
+was not trained on). Per thickness, the stack's coefficients are a ridge fit on them and its
 intervals are calibrated on cross-fitted predictions (each bed by a fit without it); a
 constant whose cross-fitted error the stack does not lower keeps the network's value.
 
@@ -31,27 +31,28 @@ from amfe.training.conformal import calibrate
 from amfe.training.ensemble import relative_spread
 from amfe.training.predict import Surrogate
 from amfe.vocab import LABEL_NAMES
-from run.common import ROOT, md_table, parser, write_json
+from run.common import ROOT, md_table, parser, record_spec, write_json
 from run.report.anybed_eval import read_kind
 
 
 def read_unseen(spec):
-    """(fill, bonds, labels at 210 GPa, nu, psi) of a data set's solved records from START."""
-    path, _, start = spec.partition(":")
+    """(fill, bonds, labels at 210 GPa, nu, psi) of a data set's solved records in its ranges."""
+    path, in_ranges = record_spec(spec)
     fill, bonds, labels, (nu, psi, E, _), ok = read_kind(path)
-    keep = np.flatnonzero(ok) >= int(start or 0)
+    keep = in_ranges(np.flatnonzero(ok))
     labels = labels[keep].astype(np.float64)
     labels[:, :3] *= (E_TRAINED / E[keep])[:, None]
     return fill[keep], bonds[keep], labels, nu[keep], psi[keep]
 
 
 def data_record(spec):
-    """{data set, its scale and seed, first record} of a ``PATH[:START]`` (the data set is
+    """{data set, its scale and seed, records} of a ``PATH[:RANGES]`` (the data set is
     rebuilt from the committed label tables: docs/datasets.md, "The tables of issue 46")."""
-    path, _, start = spec.partition(":")
+    path, _ = record_spec(spec)
+    ranges = spec.rpartition(":")[2] if ":" in spec else "all"
     with h5py.File(path, "r") as f:
         attrs = {k: f.attrs[k] for k in ("scale", "seed") if k in f.attrs}
-    return {"data_set": os.path.basename(path), "first_record": int(start or 0),
+    return {"data_set": os.path.basename(path), "records": ranges,
             **{k: v.item() if hasattr(v, "item") else str(v) for k, v in attrs.items()}}
 
 
@@ -90,7 +91,8 @@ def fit_layers(models, sets, args):
 
 def main():
     p = parser(__doc__)
-    p.add_argument("--data", nargs="+", required=True, help="PATH[:START] of unseen beds")
+    p.add_argument("--data", nargs="+", required=True,
+                   help="PATH[:START or A-B,C-D] of unseen beds")
     p.add_argument("--anybed", default=os.path.join(ROOT, "amfe", "models", "anybed_small.pt"))
     p.add_argument("-o", "--output", default=os.path.join(ROOT, "amfe", "models", STACK_FILE))
     p.add_argument("--ridge", type=float, default=1e-4)

@@ -8,7 +8,7 @@ small model's normaliser, L1 loss on the normalised labels, mirror/transpose
 augmentation and a cosine learning rate. Writes a checkpoint of the shipped
 layout (arch multiscale with ``features``, inputs fill + bonds, ``anybed`` block).
 
-    python -m run.train.train_anybed --data D1.h5 D2.h5 ... -o amfe/models/anybed_small.pt
+    python -m run.train.train_anybed --data D1.h5 D2.h5:0-999,2000-2999 ... -o amfe/models/anybed_small.pt
 """
 import os
 import time
@@ -24,15 +24,18 @@ from amfe.training.data import Normalizer, augment_batch
 from amfe.training.ensemble import predict_raw, relative_spread
 from amfe.training.predict import Surrogate
 from amfe.vocab import LABEL_NAMES
-from run.common import ROOT, parser
+from run.common import ROOT, parser, record_spec
 
 SMALL = os.path.join(ROOT, "amfe", "models", "multiscale_small.pt")
 
 
-def read_set(path):
-    """(inputs (n, 15, H, W), labels (n, 6) at E_TRAINED) of a data set's solved records."""
+def read_set(spec):
+    """(inputs (n, 15, H, W), labels (n, 6) at E_TRAINED) of a data set's solved records
+    (``PATH[:RANGES]``: those in the ranges, run.common.record_spec)."""
+    path, keep = record_spec(spec)
     with h5py.File(path, "r") as f:
-        ok = f["status"][:] == 0
+        status = f["status"][:]
+        ok = (status == 0) & keep(np.arange(len(status)))
         fill, bonds = f["images"][:][ok], f["bond_images"][:][ok]
         labels = f["labels"][:][ok].astype(np.float64)
         n = int(ok.sum())
@@ -105,7 +108,7 @@ def calibrate_on_validation(ckpt, x, y, args):
 
 def main():
     p = parser(__doc__)
-    p.add_argument("--data", nargs="+", required=True, help="data sets (0.6 mm, any layers)")
+    p.add_argument("--data", nargs="+", required=True, help="data sets (0.6 mm, any layers), each PATH[:A-B,C-D]: those records only")
     p.add_argument("-o", "--output", required=True, help="the checkpoint to write")
     p.add_argument("--epochs", type=int, default=30)
     p.add_argument("--lr", type=float, default=3e-4)
