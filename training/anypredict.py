@@ -192,7 +192,7 @@ def rule_calibration(shipped, spread, side_mm=None):
 
     A bed between the shipped sizes has no calibration beds of its own size: the rule's
     intervals are calibrated on beds of other sizes in the same span between shipped
-    sizes (0.75 and 1.05 mm; 1.6 and 2.5 mm: never the test sizes), pooled per span
+    sizes (0.69-1.14 mm; 1.6 and 2.5 mm: never the test sizes), pooled per span
     (:data:`SIZERULE_CALIBRATION`; docs/surrogate.md, "Any bed"). Without that file, or
     outside its spans: per constant, the widest of the shipped models' calibrations.
     """
