@@ -17,6 +17,7 @@ from amfe.training.anybed import anybed_inputs
 from amfe.training.anystack import (
     FORMAT,
     FORMAT_VERSION,
+    Reads,
     cross_fitted,
     design,
     fit,
@@ -43,12 +44,27 @@ def test_a_stack_that_reads_log_d_gives_the_members_bit_for_bit():
     assert p == n_columns(windows.shape[1] + 2)
     coefs = np.zeros((6, p))
     coefs[:, 1] = 1.0          # column 1 is log d_k
-    np.testing.assert_allclose(stack(coefs, direct, windows, nu, psi, means), direct,
+    np.testing.assert_allclose(stack(coefs, Reads(direct, windows, nu, psi, means)), direct,
                                rtol=1e-14)
     coefs = np.zeros((6, design(0, direct[0], None, nu, psi, means).shape[1]))
     coefs[:, 1] = 1.0
-    thin = stack(coefs, direct, None, nu, psi, means)
-    np.testing.assert_allclose(thin, direct, rtol=1e-14)   # 2-3 layers: no window columns
+    thin = stack(coefs, Reads(direct, None, nu, psi, means))
+    np.testing.assert_allclose(thin, direct, rtol=1e-14)   # 2 layers: no window columns
+
+
+def test_a_three_layer_stack_can_take_the_small_models_geometry_and_the_networks_material():
+    """With steel = (small model s, network at steel r), the coefficients 1, 1, -1 on log d_k,
+    log s_k, log r_k give s d / r member by member: the last two columns are those."""
+    rng = np.random.default_rng(4)
+    direct, _, nu, psi, means = _outputs(rng, w=1)
+    steel = direct[None] * np.exp(rng.normal(0, 0.1, (2,) + direct.shape))
+    p = n_columns(3)
+    assert p == design(0, direct[0], None, nu, psi, means, steel[:, 0]).shape[1]
+    assert p == design(0, direct[0], None, nu, psi, means).shape[1] + 2   # log s_k, log r_k
+    coefs = np.zeros((6, p))
+    coefs[:, 1], coefs[:, -2], coefs[:, -1] = 1.0, 1.0, -1.0
+    got = stack(coefs, Reads(direct, None, nu, psi, means, steel))
+    np.testing.assert_allclose(got, direct * steel[0] / steel[1], rtol=1e-12)
 
 
 def test_the_fit_recovers_a_known_map_and_cross_fitting_holds_each_bed_out():
@@ -56,15 +72,16 @@ def test_the_fit_recovers_a_known_map_and_cross_fitting_holds_each_bed_out():
     direct, windows, nu, psi, means = _outputs(rng, m=1, n=400)
     # labels: the windows' mean, 3 % up, and a nu dependence the network missed
     truth = np.exp(np.log(windows[0]).mean(axis=0)) * 1.03 * np.exp(0.5 * (nu - 0.3))[:, None]
-    coefs = fit(direct, windows, nu, psi, means, truth, ridge=1e-12)
-    got = stack(coefs, direct, windows, nu, psi, means)[0]
+    reads = Reads(direct, windows, nu, psi, means)
+    coefs = fit(reads, truth, ridge=1e-12)
+    got = stack(coefs, reads)[0]
     np.testing.assert_allclose(got, truth, rtol=1e-8)
     assert np.allclose(coefs[:, 2], 1.0) and np.allclose(coefs[:, 1], 0.0, atol=1e-8)
     # a bed's cross-fitted value is unchanged when its own label is changed
     moved = truth.copy()
     moved[7] *= 5.0
-    a = cross_fitted(direct, windows, nu, psi, means, truth)
-    b = cross_fitted(direct, windows, nu, psi, means, moved)
+    a = cross_fitted(reads, truth)
+    b = cross_fitted(reads, moved)
     assert np.array_equal(a[:, 7], b[:, 7])
     assert not np.allclose(a, b)
 
@@ -73,11 +90,11 @@ def test_a_non_positive_output_keeps_the_beds_own_members():
     direct, windows, nu, psi, means = _outputs(np.random.default_rng(2))
     direct[1, 3, 5] = -0.01
     coefs = np.zeros((6, design(0, direct[0], windows[0], nu, psi, means).shape[1]))
-    out = stack(coefs, direct, windows, nu, psi, means)
+    out = stack(coefs, Reads(direct, windows, nu, psi, means))
     assert np.array_equal(out[:, 3], direct[:, 3])
     assert np.allclose(out[:, 4], 1.0)
     with pytest.raises(AmfeError, match="positive"):
-        fit(direct, windows, nu, psi, means, np.abs(direct[0]))
+        fit(Reads(direct, windows, nu, psi, means), np.abs(direct[0]))
 
 
 def test_windows_are_the_consecutive_three_layer_stacks_as_the_network_reads_them():
@@ -140,35 +157,62 @@ def test_the_shipped_stack_is_the_networks_and_calibrated_per_thickness():
                 < np.mean(list(raw["mre_network"].values())))
 
 
+def _by_hand(layers, steel_too):
+    """(amfe.predict's record, the stack's constants computed step by step) of a drawn-material
+    bed of ``layers`` layers: the network on the bed and its windows and, with
+    ``steel_too``, the small model and the network at steel's nu and psi."""
+    import amfe
+    from amfe.model.scales import bed_for, record_seed
+    from amfe.training.anypredict import _members, bed_images, load_stack_for
+    from amfe.training.predict import Surrogate
+    from amfe.training.shipped import models_dir
+    bed = bed_for(f"box600x600x{layers}00um_nu250to400psi40to120", record_seed(7, 0))
+    p = amfe.predict(bed).to_dict()
+    anybed = Surrogate.load(models_dir() / "anybed_small.pt")
+    entry = layer_entry(load_stack_for(anybed), layers)
+    fill, bonds, _ = bed_images(bed, bed.attrs["size"])
+    nu = np.array([float(bed.attrs["material_nu"])])
+    psi = np.array([float(bed.attrs["material_psi"])])
+    f, b = fill[None], bonds[None]
+    direct = _members(anybed, anybed_inputs(f, b, nu, psi))
+    windows = None if layers < 4 else np.stack(
+        [_members(anybed, anybed_inputs(f[:, s:s + 3], b[:, s:s + 3], nu, psi))
+         for s in range(layers - 2)], axis=1)
+    steel = None
+    if steel_too:
+        small = Surrogate.load(models_dir() / "multiscale_small.pt")
+        steel = np.stack([_members(small, np.concatenate([f, b], axis=1)),
+                          _members(anybed, anybed_inputs(f, b, [0.28], [0.08]))])
+    want = stack(entry["coefs"], Reads(direct, windows, nu, psi, image_means(f, b), steel))
+    want = want.mean(axis=0)[0]
+    want[:3] *= float(bed.attrs["material_E"]) / 210e9
+    return bed, p, want
+
+
+def _constants(p):
+    return np.array([p["properties"][k] for k in ("Ex", "Ey", "Ez", "nu_yz", "nu_xz", "nu_xy")])
+
+
 def test_a_thick_bed_is_predicted_through_its_windows_as_the_stack_says(tmp_path):
     """amfe.predict and the CLI give, for a 4-layer bed, the stack of the network's members on
     the bed and on its two windows, computed here step by step."""
     from helpers import run_cli
 
     import amfe
-    from amfe.model.scales import bed_for, record_seed
-    from amfe.training.anypredict import _members, bed_images, load_stack_for
-    from amfe.training.predict import Surrogate
-    from amfe.training.shipped import models_dir
-    bed = bed_for("box600x600x400um_nu250to400psi40to120", record_seed(7, 0))
-    p = amfe.predict(bed).to_dict()
+    bed, p, want = _by_hand(4, steel_too=False)
     assert p["route"] == "anybed" and any("3-layer windows" in n for n in p["notes"])
-    anybed = Surrogate.load(models_dir() / "anybed_small.pt")
-    entry = layer_entry(load_stack_for(anybed), 4)
-    fill, bonds, _ = bed_images(bed, bed.attrs["size"])
-    nu = np.array([float(bed.attrs["material_nu"])])
-    psi = np.array([float(bed.attrs["material_psi"])])
-    f, b = fill[None], bonds[None]
-    direct = _members(anybed, anybed_inputs(f, b, nu, psi))
-    windows = np.stack([_members(anybed, anybed_inputs(f[:, s:s + 3], b[:, s:s + 3], nu, psi))
-                        for s in (0, 1)], axis=1)
-    want = stack(entry["coefs"], direct, windows, nu, psi, image_means(f, b)).mean(axis=0)[0]
-    want[:3] *= float(bed.attrs["material_E"]) / 210e9
-    got = np.array([p["properties"][k] for k in ("Ex", "Ey", "Ez", "nu_yz", "nu_xz", "nu_xy")])
-    np.testing.assert_allclose(got, want, rtol=1e-6)
+    np.testing.assert_allclose(_constants(p), want, rtol=1e-6)
     path = tmp_path / "thick.h5"
     amfe.write_bed(str(path), bed)
     out = tmp_path / "p.json"
     proc = run_cli(["predict", str(path), "-o", str(out)])
     assert proc.returncode == 0, proc.stderr
     assert json.loads(out.read_text())["beds"][0]["properties"] == p["properties"]
+
+
+def test_a_three_layer_alloy_bed_is_read_by_the_small_model_too_as_the_stack_says():
+    """A 3-layer bed of another nu and psi: the stack of the network's members, the small
+    model's and the network's at steel's nu and psi, computed here step by step."""
+    _, p, want = _by_hand(3, steel_too=True)
+    assert p["route"] == "anybed"
+    np.testing.assert_allclose(_constants(p), want, rtol=1e-6)

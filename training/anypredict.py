@@ -24,10 +24,12 @@ import torch
 from amfe.dataset.bondimage import bond_image
 from amfe.dataset.images import pixelate
 from amfe.errors import AmfeError
-from amfe.training.anybed import E_TRAINED, anybed_inputs, check_bed_kind
+from amfe.training.anybed import E_TRAINED, REFERENCE, anybed_inputs, check_bed_kind
 from amfe.training.anysize import HEIGHT_TOL, cropped_box
 from amfe.training.anystack import (
     STACK_FILE,
+    STEEL_LAYERS,
+    Reads,
     image_means,
     layer_entry,
     load_stack,
@@ -77,13 +79,36 @@ def anybed_members(models, fill, bonds, nu, psi, stacked=True):
     """(members, n, 6) of the anybed network at 210 GPa: fill, bonds (n, layers, H, W), nu,
     psi (n,); with ``stacked`` and a stack for the bed's thickness in ``models["stack"]``
     (amfe.training.anystack), the stack's: a bed of 4-6 layers read with its 3-layer windows
-    too."""
-    direct = _members(models["anybed"], anybed_inputs(fill, bonds, nu, psi))
+    too, a 3-layer bed with the small model too."""
     entry = layer_entry(models.get("stack"), fill.shape[1]) if stacked else None
     if entry is None:
-        return direct
-    return stack(entry["coefs"], direct, window_members(models, fill, bonds, nu, psi),
-                 np.asarray(nu, float), np.asarray(psi, float), image_means(fill, bonds))
+        return _members(models["anybed"], anybed_inputs(fill, bonds, nu, psi))
+    return stack(entry["coefs"], stack_reads(models, fill, bonds, nu, psi))
+
+
+def stack_reads(models, fill, bonds, nu, psi):
+    """amfe.training.anystack.Reads of n beds (fill, bonds (n, layers, H, W); nu, psi (n,)):
+    the network on the beds, on their 3-layer windows and, on 3-layer beds, at steel's nu
+    and psi beside the small model."""
+    nu, psi = np.asarray(nu, np.float64), np.asarray(psi, np.float64)
+    direct = _members(models["anybed"], anybed_inputs(fill, bonds, nu, psi))
+    steel = steel_members(models, fill, bonds) if fill.shape[1] in STEEL_LAYERS else None
+    return Reads(direct, window_members(models, fill, bonds, nu, psi), nu, psi,
+                 image_means(fill, bonds), steel)
+
+
+def steel_members(models, fill, bonds):
+    """(2, members, n, 6): the small model's members on 3-layer beds (its own kind of bed,
+    learned from 40 000 steel beds) and the anybed network's on them at steel's nu and psi;
+    member m of one beside member m of the other."""
+    n = fill.shape[0]
+    small = _members(models["shipped"][0.6], np.concatenate([fill, bonds], axis=1))
+    ref = _members(models["anybed"], anybed_inputs(fill, bonds, np.full(n, REFERENCE["nu"]),
+                                                   np.full(n, REFERENCE["psi"])))
+    if small.shape[0] != ref.shape[0]:
+        raise AmfeError(f"the small model has {small.shape[0]} members and the anybed network "
+                        f"{ref.shape[0]}: the stack pairs them; reinstall amfe")
+    return np.stack([small, ref])
 
 
 def window_members(models, fill, bonds, nu, psi):

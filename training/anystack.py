@@ -21,9 +21,16 @@ member is stacked on its own outputs, so the members' spread stays the
 ensemble's. The intervals are calibrated per thickness (2-6 layers), on the
 stack's cross-fitted outputs (every bed predicted by a fit that did not see it).
 
+A 3-layer bed is also read by the small model, trained on 40 000 steel beds:
+its stack has two more columns, log s_k of the small model's output and log
+r_k of the network's at steel's nu and psi, so that it can take the small
+model's reading of the geometry and the network's of the material
+(s_k d_k / r_k; :data:`STEEL_LAYERS`).
+
 Pure numpy: amfe.training.anypredict runs the network and calls these.
 """
 import json
+from typing import NamedTuple, Optional
 
 import numpy as np
 
@@ -31,9 +38,44 @@ from amfe.errors import AmfeError
 
 #: The stack's file in amfe/models/ (run/train/fit_anybed_stack.py writes it).
 STACK_FILE = "anybed_stack.json"
-FORMAT, FORMAT_VERSION = "amfe.anybed_stack", 1
+FORMAT, FORMAT_VERSION = "amfe.anybed_stack", 2
 #: The thinnest bed with windows to stack: a 3-layer bed is its own window.
 MIN_STACKED = 4
+#: The thicknesses whose stack also reads the small model and the network at steel (the
+#: small model's own beds: 3 layers).
+STEEL_LAYERS = (3,)
+
+
+class Reads(NamedTuple):
+    """What the stack reads of n beds, for each of m ensemble members.
+
+    direct (m, n, 6): the network's outputs on the whole beds; windows (m, w, n, 6): on
+    their 3-layer windows, or None (2-3 layers); nu, psi (n,); means (n, q):
+    :func:`image_means`; steel (2, m, n, 6) or None: on a 3-layer bed (:data:`STEEL_LAYERS`)
+    the small model's member m and the network's at steel's nu and psi.
+    """
+    direct: np.ndarray
+    windows: Optional[np.ndarray]
+    nu: np.ndarray
+    psi: np.ndarray
+    means: np.ndarray
+    steel: Optional[np.ndarray] = None
+
+    def rows(self, sel):
+        """The same reads of the beds ``sel`` (bool or index array over the n beds)."""
+        idx = np.asarray(sel)
+        idx = np.flatnonzero(idx) if idx.dtype == bool else idx
+
+        def cut(a, axis):
+            return None if a is None else np.take(np.asarray(a, np.float64), idx, axis=axis)
+        return Reads(cut(self.direct, 1), cut(self.windows, 2), cut(self.nu, 0),
+                     cut(self.psi, 0), cut(self.means, 0), cut(self.steel, 2))
+
+    def design(self, k, m):
+        """:func:`design` of constant k for member m."""
+        return design(k, self.direct[m], None if self.windows is None else self.windows[m],
+                      self.nu, self.psi, self.means,
+                      None if self.steel is None else self.steel[:, m])
 
 
 def window_starts(layers):
@@ -49,14 +91,15 @@ def image_means(fill, bonds):
     return np.column_stack([fm, bm, fm.min(axis=1), bm.min(axis=1)])
 
 
-def design(k, direct, windows, nu, psi, means):
+def design(k, direct, windows, nu, psi, means, steel=None):
     """(n, p) design of constant k for one member's outputs.
 
     direct (n, 6) > 0 on the whole beds; windows (w, n, 6) > 0 on their 3-layer windows, or
-    None for a bed of 2 or 3 layers; nu, psi (n,); means (n, q): :func:`image_means`.
+    None for a bed of 2 or 3 layers; nu, psi (n,); means (n, q): :func:`image_means`;
+    steel (2, n, 6) > 0 or None: the small model's output and the network's at steel.
     Columns: 1, log d_k, and, with windows, mean, min, max, bottom and top of log w_k and
     mean log w of the five other constants; then log d of the five others, nu, psi and
-    the image means.
+    the image means; with steel, log s_k and log r_k last.
     """
     ld = np.log(np.asarray(direct, np.float64))
     cols = [np.ones(ld.shape[0]), ld[:, k]]
@@ -66,6 +109,8 @@ def design(k, direct, windows, nu, psi, means):
                  lw[-1, :, k], *np.delete(lw.mean(0), k, axis=1).T]
     cols += [*np.delete(ld, k, axis=1).T, np.asarray(nu, np.float64),
              np.asarray(psi, np.float64), *np.asarray(means, np.float64).T]
+    if steel is not None:
+        cols += list(np.log(np.asarray(steel, np.float64)[:, :, k]))
     return np.column_stack(cols)
 
 
@@ -75,75 +120,68 @@ def n_columns(layers):
     starts = window_starts(layers)
     windows = np.ones((len(starts), 1, 6)) if starts else None
     means = image_means(np.ones((1, int(layers), 1, 1)), np.ones((1, int(layers), 1, 1)))
-    return design(0, np.ones((1, 6)), windows, [0.3], [0.08], means).shape[1]
+    steel = np.ones((2, 1, 6)) if int(layers) in STEEL_LAYERS else None
+    return design(0, np.ones((1, 6)), windows, [0.3], [0.08], means, steel).shape[1]
 
 
-def _positive(direct, windows):
+def _positive(reads):
     """(n,) bool: the beds whose outputs are all positive (the stack reads their logs)."""
-    ok = np.all(np.asarray(direct) > 0, axis=(0, 2))
-    if windows is not None:
-        ok &= np.all(np.asarray(windows) > 0, axis=(0, 1, 3))
+    ok = np.all(np.asarray(reads.direct) > 0, axis=(0, 2))
+    if reads.windows is not None:
+        ok &= np.all(np.asarray(reads.windows) > 0, axis=(0, 1, 3))
+    if reads.steel is not None:
+        ok &= np.all(np.asarray(reads.steel) > 0, axis=(0, 1, 3))
     return ok
 
 
-def stack(coefs, direct, windows, nu, psi, means):
-    """(m, n, 6) stacked members: coefs (6, p); direct (m, n, 6) the members' outputs on the
-    beds, windows (m, w, n, 6) on their windows or None (2-3 layers); nu, psi (n,); means
-    (n, q) (:func:`image_means`).
+def stack(coefs, reads):
+    """(m, n, 6) stacked members: coefs (6, p); reads: :class:`Reads` of the n beds.
 
     A bed with a non-positive output (no log) keeps its direct members: finite, unstacked.
     """
-    direct = np.asarray(direct, np.float64)
+    direct = np.asarray(reads.direct, np.float64)
     coefs = np.asarray(coefs, np.float64)
     out = direct.copy()
-    ok = _positive(direct, windows)
+    ok = _positive(reads)
     if not ok.any():
         return out
+    sub = reads.rows(ok)
     for m in range(direct.shape[0]):
-        w = None if windows is None else np.asarray(windows, np.float64)[m][:, ok]
         for k in range(6):
-            X = design(k, direct[m, ok], w, nu[ok], psi[ok], means[ok])
-            out[m, ok, k] = np.exp(X @ coefs[k])
+            out[m, ok, k] = np.exp(sub.design(k, m) @ coefs[k])
     return out
 
 
-def fit(direct, windows, nu, psi, means, labels, ridge=1e-4):
+def fit(reads, labels, ridge=1e-4):
     """coefs (6, p): the ridge fit of log labels (n, 6) on the members' mean design.
 
-    direct (m, n, 6), windows (m, w, n, 6) or None: the network's outputs on beds it never
-    saw; ridge: the penalty per bed on every coefficient but the intercept (it keeps the
-    near-collinear window columns from cancelling; 1e-4 chosen by 5-fold cross-validation
-    on the fitting beds among 1e-2, 1e-3 and 1e-4).
+    reads: :class:`Reads` of beds the network never saw; ridge: the penalty per bed on
+    every coefficient but the intercept (it keeps the near-collinear window columns from
+    cancelling; 1e-4 chosen by 5-fold cross-validation on the fitting beds among 1e-2,
+    1e-3 and 1e-4).
     """
-    direct = np.asarray(direct, np.float64)
     labels = np.asarray(labels, np.float64)
-    if not (_positive(direct, windows).all() and np.all(labels > 0)):
+    if not (_positive(reads).all() and np.all(labels > 0)):
         raise AmfeError("the stack is fitted on beds with positive outputs and labels")
     coefs = []
     for k in range(6):
-        X = np.mean([design(k, direct[m], None if windows is None else windows[m], nu, psi,
-                            means) for m in range(direct.shape[0])], axis=0)
+        X = np.mean([reads.design(k, m) for m in range(np.shape(reads.direct)[0])], axis=0)
         penalty = float(ridge) * labels.shape[0] * np.eye(X.shape[1])
         penalty[0, 0] = 0.0
         coefs.append(np.linalg.solve(X.T @ X + penalty, X.T @ np.log(labels[:, k])))
     return np.array(coefs)
 
 
-def cross_fitted(direct, windows, nu, psi, means, labels, folds=5, ridge=1e-4):
+def cross_fitted(reads, labels, folds=5, ridge=1e-4):
     """(m, n, 6) stacked members of every bed by a fit on the other folds (for calibration;
     the folds are a fixed shuffle of the beds, seed 0)."""
     n = labels.shape[0]
     fold = np.random.default_rng(0).permutation(n) % int(folds)
-    out = np.empty(np.shape(direct))
-
-    def sub(a, rows):
-        return None if a is None else a[:, :, rows]
+    out = np.empty(np.shape(reads.direct))
     for f in range(int(folds)):
         test, train = fold == f, fold != f
-        c = fit(direct[:, train], sub(windows, train), nu[train], psi[train], means[train],
-                labels[train], ridge)
-        out[:, test] = stack(c, direct[:, test], sub(windows, test), nu[test], psi[test],
-                             means[test])
+        c = fit(reads.rows(train), labels[train], ridge)
+        out[:, test] = stack(c, reads.rows(test))
     return out
 
 

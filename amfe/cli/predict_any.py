@@ -92,6 +92,7 @@ def route_record(args, models, item, times, t_start):
     """(record, rank) of a bed predicted by its route (item: (path, Bed, seconds to read))."""
     from amfe.cli.predict_common import finish, finite_or_none, solve_for
     from amfe.training.anypredict import predict_any_bed
+    from amfe.training.anystack import STEEL_LAYERS
     from amfe.training.conformal import interval_block
     path, bed, t_read = item
     size, material, note = bed_kind(bed)
@@ -111,7 +112,8 @@ def route_record(args, models, item, times, t_start):
                                          "(docs/surrogate.md, \"Any bed\")"]
     if got["stacked"]:
         notes.append(f"anybed's stack for {got['layers']} layers"
-                     + (", with the bed's 3-layer windows" if got["layers"] >= 4 else ""))
+                     + (", with the bed's 3-layer windows" if got["layers"] >= 4 else "")
+                     + (", with the small model" if got["layers"] in STEEL_LAYERS else ""))
     out = {"bed": None if path is None else os.fspath(path), "bc": "kubc",
            "properties": props, "spread": finite_or_none(dict(zip(SIX, map(float, spread)))),
            "spread_score": None, "threshold": None,

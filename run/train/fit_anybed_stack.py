@@ -18,21 +18,13 @@ import numpy as np
 import torch
 
 from amfe.training.anybed import E_TRAINED
-from amfe.training.anypredict import anybed_members, window_members
-from amfe.training.anystack import (
-    FORMAT,
-    FORMAT_VERSION,
-    STACK_FILE,
-    cross_fitted,
-    fit,
-    image_means,
-)
+from amfe.training.anypredict import stack_reads
+from amfe.training.anystack import FORMAT, FORMAT_VERSION, STACK_FILE, cross_fitted, fit
 from amfe.training.conformal import calibrate
 from amfe.training.ensemble import relative_spread
-from amfe.training.predict import Surrogate
 from amfe.vocab import LABEL_NAMES
 from run.common import ROOT, md_table, parser, record_spec, write_json
-from run.report.anybed_eval import read_kind
+from run.report.anybed_eval import load_models, read_kind
 
 
 def read_unseen(spec):
@@ -69,11 +61,10 @@ def fit_layers(models, sets, args):
     entries = {}
     for n_layers, parts in sorted(layers.items()):
         f, b, y, nu, psi = (np.concatenate(a) for a in zip(*parts))
-        direct = anybed_members(models, f, b, nu, psi, stacked=False)
-        windows = window_members(models, f, b, nu, psi)
-        means = image_means(f, b)
-        coefs = fit(direct, windows, nu, psi, means, y, args.ridge)
-        out = cross_fitted(direct, windows, nu, psi, means, y, args.folds, args.ridge)
+        reads = stack_reads(models, f, b, nu, psi)
+        coefs = fit(reads, y, args.ridge)
+        out = cross_fitted(reads, y, args.folds, args.ridge)
+        direct = reads.direct
         # A constant the stack does not improve on these beds (cross-fitted) keeps the
         # network's own value: its row picks log d_k, which gives it bit for bit.
         kept = mre(out, y) < mre(direct, y)
@@ -100,8 +91,9 @@ def main():
     args = p.parse_args()
     torch.set_num_threads(1)
     t0 = time.perf_counter()
-    anybed = Surrogate.load(args.anybed)
-    entries = fit_layers({"anybed": anybed}, [read_unseen(s) for s in args.data], args)
+    models = load_models(args.anybed, "none")   # the shipped models beside it (3 layers)
+    anybed = models["anybed"]
+    entries = fit_layers(models, [read_unseen(s) for s in args.data], args)
     rows = []
     for n_layers, e in entries.items():
         for what in ("mre_network", "mre_stack_cross_fitted"):
