@@ -8,7 +8,11 @@ small model's normaliser, L1 loss on the normalised labels, mirror/transpose
 augmentation and a cosine learning rate. Writes a checkpoint of the shipped
 layout (arch multiscale with ``features``, inputs fill + bonds, ``anybed`` block).
 
-    python -m run.train.train_anybed --data D1.h5 D2.h5:0-999,2000-2999 ... -o amfe/models/anybed_small.pt
+    python -m run.train.train_anybed --data D1.h5 D2.h5:0-999,2000-2999 ... \
+        -o amfe/models/anybed_small.pt
+
+or one member a core (``--members 0 -o p0.pt`` and ``--members 1 -o p1.pt``, then
+``--join p0.pt p1.pt --data <the same> -o anybed_small.pt``).
 """
 import os
 import time
@@ -108,7 +112,8 @@ def calibrate_on_validation(ckpt, x, y, args):
 
 def main():
     p = parser(__doc__)
-    p.add_argument("--data", nargs="+", required=True, help="data sets (0.6 mm, any layers), each PATH[:A-B,C-D]: those records only")
+    p.add_argument("--data", nargs="+", required=True,
+                   help="data sets (0.6 mm, any layers), each PATH[:A-B,C-D]: those records only")
     p.add_argument("-o", "--output", required=True, help="the checkpoint to write")
     p.add_argument("--epochs", type=int, default=30)
     p.add_argument("--lr", type=float, default=3e-4)
@@ -116,6 +121,10 @@ def main():
     p.add_argument("--val-fraction", type=float, default=0.1,
                    help="held out of every member: the intervals' calibration beds")
     p.add_argument("--threads", type=int, default=1)
+    p.add_argument("--members", type=int, nargs="+", default=None,
+                   help="train only these members (one process a core), written as a part")
+    p.add_argument("--join", nargs="+", default=None,
+                   help="parts (--members) to join in order, instead of training")
     args = p.parse_args()
     torch.set_num_threads(args.threads)
     small = load_checkpoint(SMALL)
@@ -125,24 +134,36 @@ def main():
     y = np.concatenate([b for _, b in parts])
     hw = x.shape[-2:]
     print(f"{x.shape[0]} beds from {len(args.data)} data sets, input {x.shape[1:]}", flush=True)
-    states, histories = [], []
+    states, histories, seeds, seconds = [], [], [], 0.0
     t0 = time.perf_counter()
-    for k, start in enumerate(build_members(small)):
+    for part in args.join or []:
+        c = load_checkpoint(part)
+        if c["anybed"]["data"] != list(args.data):
+            raise SystemExit(f"error: {part} was trained on {c['anybed']['data']}, not --data")
+        states += c["members"]
+        histories += c["history"]
+        seeds += c["member_seeds"]
+        seconds += c["anybed"]["seconds"]
+        args.epochs, args.lr = c["anybed"]["epochs"], c["anybed"]["lr"]
+    for k, start in enumerate([] if args.join else build_members(small)):
+        if args.members is not None and k not in args.members:
+            continue
         net = from_small(start.state_dict(), hw)
         hist = train_member(net, x, y, norm, args, seed=k)
         states.append({n: v.detach().clone() for n, v in net.state_dict().items()})
         histories.append(hist)
+        seeds.append(k)
     ckpt = {key: small[key] for key in ("normalizer", "pixelation", "tta", "label_rule",
                                         "format", "format_version", "amfe_version",
                                         "torch_version")}
     ckpt.update(arch="multiscale", arch_args={"n_fill": 6, "width": 0.5, "features": 3},
-                members=states, member_seeds=list(range(len(states))),
+                members=states, member_seeds=seeds,
                 image_shape=[int(x.shape[1]), int(hw[0]), int(hw[1])],
                 inputs=["fill", "bonds"], material=dict(small["material"]),
                 anybed={"descriptors": ["layers", "nu", "psi"], "data": list(args.data),
                         "n_beds": int(x.shape[0]), "epochs": args.epochs, "lr": args.lr,
                         "init": os.path.relpath(SMALL, ROOT),
-                        "seconds": time.perf_counter() - t0},
+                        "seconds": seconds + time.perf_counter() - t0},
                 history=histories, created=time.strftime("%Y-%m-%dT%H:%M:%S+00:00",
                                                          time.gmtime()))
     ckpt["conformal"], ckpt["validation"] = calibrate_on_validation(ckpt, x, y, args)
