@@ -22,14 +22,17 @@ if TYPE_CHECKING:   # the type only: torch stays unloaded until a prediction
 def predict(beds: "object | str | os.PathLike | list", *, fallback: bool = False,
             stiffness: bool = False, model: "str | os.PathLike | None" = None,
             threshold: float | None = None, check: bool = False,
-            petsc_args: tuple = ()) -> "Prediction | list[Prediction]":
+            petsc_args: tuple = (), material: "dict | object | None" = None
+            ) -> "Prediction | list[Prediction]":
     """Predict each bed's elastic constants with the shipped model for its size and material.
 
     beds: a bed file's path, a :class:`~amfe.model.bed.Bed`, or a list of them.
     fallback: solve (PETSc) a bed that is flagged or cannot be predicted; stiffness: the
     shipped full-stiffness model (C and the shear moduli too); model: a checkpoint for every
     bed instead of the shipped ones; threshold: the spread flag's threshold (default: the
-    model's); check: also solve every bed. Returns a
+    model's); check: also solve every bed; material: an :class:`~amfe.Material` or a dict of
+    E [Pa], nu, psi for every bed, instead of its file's (as ``amfe predict --E --nu --psi``;
+    it picks the route and is what a fallback solves). Returns a
     :class:`~amfe.training.prediction.Prediction` for one bed, a list for a list; a bed that
     cannot be predicted gets source "failed" and its ``error`` (never an exception).
     """
@@ -41,7 +44,18 @@ def predict(beds: "object | str | os.PathLike | list", *, fallback: bool = False
     items = [beds] if one else list(beds)
     args = SimpleNamespace(model=None if model is None else os.fspath(model),
                            stiffness=stiffness, fallback=fallback, check=check,
-                           threshold=threshold, petsc_args=list(petsc_args))
+                           threshold=threshold, petsc_args=list(petsc_args),
+                           material=_given(material), material_source="argument")
     records, _ = predict_records(args, items, {}, time.perf_counter())
     out = [Prediction(record) for record, _ in records]
     return out[0] if one else out
+
+
+def _given(material):
+    """{E, nu, psi} given for every bed (None: each bed's own)."""
+    if material is None or isinstance(material, dict):
+        return material or None
+    if all(hasattr(material, k) for k in ("E", "nu", "psi")):
+        return {k: getattr(material, k) for k in ("E", "nu", "psi")}
+    raise AmfeError("predict: material must be an amfe.Material or a dict of E, nu, psi; got "
+                    f"{type(material).__name__}")

@@ -144,3 +144,29 @@ def test_material_out_of_the_trained_range_is_refused_with_its_value(thin_bed):
 def test_material_helper_is_the_beds():
     m = Material(E=114e9, nu=0.34, psi=0.08)
     assert route_of(3, 0.6, 0.6, m.nu, m.psi) == "anybed"
+
+
+def test_a_material_given_for_the_bed_is_the_one_written_in_its_file(tmp_path):
+    """amfe predict --E --nu --psi (and amfe.predict(material=...)) give what a bed file with
+    that material gives, route included, and --check solves the bed with it: the solve
+    equals amfe.homogenize with the same material; the record says where it came from."""
+    bed = amfe.generate_bed(size=(0.6e-3, 0.6e-3, 0.3e-3), seed=3)      # steel, small
+    given = {"E": 114e9, "nu": 0.33, "psi": 0.06}
+    written = amfe.Bed(bed.centers, bed.radii, attrs={
+        **bed.attrs, **{f"material_{k}": v for k, v in given.items()}})
+    want = amfe.predict(written).to_dict()
+    assert want["route"] == "anybed" and want["source"] == "surrogate"
+    got = amfe.predict(bed, material=given).to_dict()
+    assert got["properties"] == want["properties"] and got["intervals"] == want["intervals"]
+    assert any("material from the argument" in n for n in got["notes"])
+    path, out = tmp_path / "steel.h5", tmp_path / "p.json"
+    amfe.write_bed(str(path), bed)
+    proc = run_cli(["predict", str(path), "--E", "114e9", "--nu", "0.33", "--psi", "0.06",
+                    "--check", "-o", str(out)])
+    assert proc.returncode == 0, proc.stderr
+    rec = json.loads(out.read_text())["beds"][0]
+    assert rec["properties"] == want["properties"]
+    assert rec["material"] == {**given, "source": "command line"}
+    solved = amfe.homogenize(bed, material=Material(**given)).properties
+    for k in ("Ex", "Ey", "Ez", "nu_yz", "nu_xz", "nu_xy"):
+        assert rec["check"]["solver"][k] == pytest.approx(solved[k], rel=1e-6)

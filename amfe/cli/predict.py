@@ -32,6 +32,7 @@ import os
 import sys
 import time
 
+from amfe.cli.homogenize import add_material_args, given_material
 from amfe.cli.options import nonnegative_float, thread_count
 from amfe.cli.predict_core import NINE, SIX, flag_reasons, interval_of  # noqa: F401 (re-exported)
 from amfe.errors import AmfeError
@@ -66,6 +67,7 @@ def register(sub):
                    help="flag threshold on the spread score, a finite number >= 0 (default: the "
                         "model's, calibrated on its validation beds)")
     p.add_argument("--threads", type=thread_count, help="torch CPU threads (default: torch's)")
+    add_material_args(p, "for every bed, instead of its file's")
     p.set_defaults(func=run)
 
 
@@ -97,6 +99,7 @@ def run(args):
         torch.set_num_threads(args.threads)
     # start-up: the interpreter, amfe's and torch's imports (before any work on the bed)
     times = {"start_up": time.perf_counter() - t_start + age} if age is not None else {}
+    args.material, args.material_source = given_material(args), "command line"
     records, failed = predict_records(args, args.bed, times, t_start)
     if len(records) == 1 and failed:   # one bed: its error, as amfe homogenize's (no file)
         raise AmfeError(records[0][0]["error"])

@@ -34,6 +34,15 @@ def solve_for(args, bed, reasons, times, why="the model overflows on this bed"):
         times["solve"] = time.perf_counter() - t
     return solver, (comm.rank if comm is not None else launcher_rank())
 
+def given_notes(args):
+    """The record's note on a material given instead of the bed file's (else none)."""
+    given = getattr(args, "material", None)
+    if not given:
+        return []
+    return [f"material from the {getattr(args, 'material_source', 'command line')}: "
+            + ", ".join(f"{k} {v:.6g}" for k, v in given.items()) + " (for the bed file's)"]
+
+
 def finish(out, item, times, t_start):
     """The record with its header, predict block and timings."""
     path, bed = item

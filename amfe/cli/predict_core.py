@@ -15,7 +15,7 @@ import time
 
 from amfe.cli.interrupt import launcher_rank
 from amfe.cli.predict_any import Models, needs_route, route_record
-from amfe.cli.predict_common import finish, finite_or_none, solve_for
+from amfe.cli.predict_common import finish, finite_or_none, given_notes, solve_for
 from amfe.errors import AmfeError
 from amfe.io.result_meta import header
 from amfe.model.material import resolve_material
@@ -40,7 +40,7 @@ def predict_records(args, items, times, t_start, cache=None):
     for k, item in enumerate(items):
         path = os.fspath(item) if isinstance(item, (str, os.PathLike)) else None
         try:
-            beds[k] = _read(item, path)
+            beds[k] = _read(item, path, getattr(args, "material", None))
             if not (args.model or args.stiffness) and needs_route(beds[k][1]):
                 records[k] = route_record(args, models, beds[k], times, t_start)
                 continue
@@ -72,19 +72,32 @@ def predict_records(args, items, times, t_start, cache=None):
                     raise got
                 res, image, t_pred = got
                 scale_moduli(res, factors[k])
-                extra = {"factor": factors[k], "notes": _notes(bed, factors[k], sur)}
+                extra = {"factor": factors[k],
+                         "notes": _notes(bed, factors[k], sur) + given_notes(args)}
                 records[k] = _one_bed(args, sur, threshold, (path, bed), (res, image),
                                       {**times, "read_bed": t_read, **t_pred}, t_start, extra)
             except AmfeError as exc:
                 records[k] = _failed(args, (path, bed), exc, times, t_start)
+    given = getattr(args, "material", None)
+    for (out, _), read in zip(records, beds):
+        if given and read is not None and isinstance(out.get("material"), dict):
+            out["material"] = resolve_material(read[1].attrs, given, given_source=getattr(
+                args, "material_source", "command line"))[1]
     return records, sum(1 for out, _ in records if out["source"] == "failed")
 
 
-def _read(item, path):
-    """(path, Bed, seconds to read it) of a bed path or a Bed."""
+def _read(item, path, given=None):
+    """(path, Bed, seconds to read it) of a bed path or a Bed; ``given``: material values
+    (dict of E, nu, psi) that replace the bed's, so that its route, its prediction and a
+    fallback solve all read them."""
     from amfe.io.bedfile import read_bed
     t = time.perf_counter()
     bed = read_bed(item) if path is not None else item
+    if given:
+        material = resolve_material(bed.attrs, given)[0]
+        bed = type(bed)(bed.centers, bed.radii, {
+            **bed.attrs, "material_E": material.E, "material_nu": material.nu,
+            "material_psi": material.psi})
     return path, bed, time.perf_counter() - t
 
 
