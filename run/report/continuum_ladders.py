@@ -11,7 +11,8 @@ loses only the bed in flight, and the same command resumes. Beds whose necks the
 cannot resolve are recorded with the reason. Every fifth bed (k % 5 == 4) is held out of
 any fit.
 
-    .venv/bin/python -m run.report.continuum_ladders -o /work/labels47 --count 200 [--seed 47001]
+    .venv/bin/python -m run.report.continuum_ladders -o /work/labels47 --count 200 [--seed 47001] \
+        [--every 2 0]
 """
 import json
 import os
@@ -45,11 +46,13 @@ def main(argv=None):
     ap.add_argument("--count", type=int, default=200)
     ap.add_argument("--seed", type=int, default=47001)
     ap.add_argument("--levels", type=float, nargs="+", default=[3, 4, 5])
+    ap.add_argument("--every", type=int, nargs=2, default=(1, 0), metavar=("N", "R"),
+                    help="only the beds k with k %% N == R (one process a core: N 2, R 0 and 1)")
     args = ap.parse_args(argv)
     os.makedirs(args.output, exist_ok=True)
     for k in range(args.count):
         out = os.path.join(args.output, f"bed_{k:05d}.json")
-        if os.path.exists(out):
+        if os.path.exists(out) or k % args.every[0] != args.every[1]:
             continue
         bed, record = bed_of(args.seed, k)
         t = time.perf_counter()
