@@ -11,8 +11,8 @@ loses only the bed in flight, and the same command resumes. Beds whose necks the
 cannot resolve are recorded with the reason. Every fifth bed (k % 5 == 4) is held out of
 any fit.
 
-    .venv/bin/python -m run.report.continuum_ladders -o /work/labels47 --count 200 [--seed 47001] \
-        [--every 2 0]
+    .venv/bin/python -m run.report.continuum_ladders -o OUT --count 200 [--seed 47001]
+    (one process a core: add --every 2 0 to one and --every 2 1 to the other)
 """
 import json
 import os
