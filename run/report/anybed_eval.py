@@ -16,7 +16,7 @@ from amfe.training.anypredict import (
     rule_calibration,
 )
 from amfe.training.anystack import load_stack
-from amfe.training.conformal import intervals
+from amfe.training.conformal import DEFAULT_FLAG_HALF_WIDTH, intervals
 from amfe.training.ensemble import relative_spread
 from amfe.training.predict import Surrogate
 from amfe.training.sizerule import SIZES, inverse_size
@@ -54,10 +54,12 @@ def read_kind(path):
 
 def predict_set(models, path):
     """(mean predictions (n, 6), labels (n, 6), route, covered (n, 6) bool: the label inside
-    the 90 % interval amfe predict gives) of a data set, bed by bed kind."""
+    the 90 % interval amfe predict gives, flagged (n,) bool: its interval flag, a half-width
+    over DEFAULT_FLAG_HALF_WIDTH) of a data set, bed by bed kind."""
     fill, bonds, labels, (nu, psi, E, box), _ = read_kind(path)
     preds, routes = np.empty_like(labels), set()
     covered = np.zeros(labels.shape, bool)
+    flagged = np.zeros(len(labels), bool)
     # beds of one material share one call (a drawn-material set: every bed its own)
     keys = np.stack([nu, psi, E], axis=1)
     for key in np.unique(keys, axis=0):
@@ -73,17 +75,22 @@ def predict_set(models, path):
                    if route == "size rule" else anybed_calibration(models, fill.shape[1]))
             lo, hi = intervals(preds[row][None], LABEL_NAMES, cal, spread[i][None])
             covered[row] = (lo[0] <= labels[row]) & (labels[row] <= hi[0])
+            half = (hi[0] - lo[0]) / 2 / np.abs(preds[row])
+            flagged[row] = bool(np.any(~np.isfinite(half) | (half > DEFAULT_FLAG_HALF_WIDTH)))
         routes.add(route)
-    return preds, labels, ", ".join(sorted(routes)), covered
+    return preds, labels, ", ".join(sorted(routes)), covered, flagged
 
 
-def errors(preds, labels, covered):
+def errors(preds, labels, covered, flagged):
     rel = np.abs(preds - labels) / np.abs(labels)
     n = len(labels)
+    bad = rel.max(axis=1) > 0.10
     lo, hi = (v / n for v in binom.interval(0.99, n, 0.9))
     cov = covered.mean(axis=0)
     return {"mre": dict(zip(LABEL_NAMES, map(float, rel.mean(axis=0)))),
-            "over_10": float(np.mean(rel.max(axis=1) > 0.10)), "n": int(n),
+            "over_10": float(np.mean(bad)), "n": int(n),
+            "interval_flagged": float(flagged.mean()),
+            "bad_unflagged": float(np.mean(bad & ~flagged)),
             "coverage": dict(zip(LABEL_NAMES, map(float, cov))), "band": [lo, hi],
             "coverage_in_band": bool(np.all((cov >= lo) & (cov <= hi)))}
 
@@ -100,17 +107,18 @@ def main():
     models = load_models(args.anybed, args.stack)
     rows, out = [], {}
     for path in args.sets:
-        preds, labels, route, covered = predict_set(models, path)
-        e = errors(preds, labels, covered)
+        preds, labels, route, covered, flagged = predict_set(models, path)
+        e = errors(preds, labels, covered, flagged)
         out[path] = {**e, "route": route}
         rows.append([path.rsplit("/", 1)[-1], e["n"], route]
                     + [f"{100 * e['mre'][k]:.2f}" for k in LABEL_NAMES]
-                    + [f"{100 * e['over_10']:.1f}",
+                    + [f"{100 * e['over_10']:.1f}", f"{100 * e['interval_flagged']:.1f}",
+                       f"{100 * e['bad_unflagged']:.1f}",
                        f"{100 * min(e['coverage'].values()):.1f}-"
                        f"{100 * max(e['coverage'].values()):.1f}"
                        + ("" if e["coverage_in_band"] else " (out of band)")])
-    print(md_table(["set", "beds", "route", *LABEL_NAMES, "> 10 % off (%)",
-                    "90 % coverage (%)"], rows))
+    print(md_table(["set", "beds", "route", *LABEL_NAMES, "> 10 % off (%)", "flagged (%)",
+                    "> 10 % off, unflagged (%)", "90 % coverage (%)"], rows))
     if args.json:
         write_json(args.json, out)
 
