@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 
 from amfe.cli.predict_core import predict_records
 from amfe.errors import AmfeError
+from amfe.model.material import Material
 
 if TYPE_CHECKING:   # the type only: torch stays unloaded until a prediction
     from amfe.training.prediction import Prediction
@@ -55,7 +56,7 @@ def _given(material):
     """{E, nu, psi} given for every bed (None: each bed's own)."""
     if material is None or isinstance(material, dict):
         return material or None
-    if all(hasattr(material, k) for k in ("E", "nu", "psi")):
+    if isinstance(material, Material):     # as amfe.homogenize takes it
         return {k: getattr(material, k) for k in ("E", "nu", "psi")}
     raise AmfeError("predict: material must be an amfe.Material or a dict of E, nu, psi; got "
                     f"{type(material).__name__}")

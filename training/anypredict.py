@@ -252,15 +252,23 @@ def predict_any_bed(models, bed, size, material):
                 nu=float(material.nu), psi=float(material.psi), E=float(material.E))
     members, route = any_members(models, fill[None], bonds[None], kind)
     mean, spread = members.mean(axis=0)[0], relative_spread(members)[0]
-    if route == "size rule":
-        cal = rule_calibration(models["shipped"], spread,
-                               1 / inverse_size(kind["lx_mm"], kind["ly_mm"]))
-    else:
-        cal = anybed_calibration(models, kind["layers"])
-    conformal = {"coverage": DEFAULT_COVERAGE, "flag_half_width": DEFAULT_FLAG_HALF_WIDTH,
-                 "sizes": {size_key(box): cal}}
+    conformal = route_conformal(models, route, kind, spread, box)
     stacked = route != "size rule" and layer_entry(models.get("stack"), kind["layers"]) is not None
     return {"mean": mean, "spread": spread, "conformal": conformal, "route": route,
             "stacked": stacked,
             "image": fill, "layers": fill.shape[0], "box": box,
             "times": {"imaging": t1 - t0, "predict": time.perf_counter() - t1}}
+
+
+def route_conformal(models, route, kind, spread, box):
+    """The conformal block of one bed of an any-bed route (amfe.training.conformal's
+    interval_block reads it): its route's calibration (the size rule's span, else anybed's
+    for its thickness) at the default coverage and flag half-width. kind: as for
+    :func:`any_members`; spread (6,) the bed's relative spread; box (3,) [m]."""
+    if route == "size rule":
+        cal = rule_calibration(models["shipped"], spread,
+                               1 / inverse_size(kind["lx_mm"], kind["ly_mm"]))
+    else:
+        cal = anybed_calibration(models, kind["layers"])
+    return {"coverage": DEFAULT_COVERAGE, "flag_half_width": DEFAULT_FLAG_HALF_WIDTH,
+            "sizes": {size_key(box): cal}}

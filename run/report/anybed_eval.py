@@ -9,17 +9,12 @@ import numpy as np
 import torch
 from scipy.stats import binom
 
-from amfe.training.anypredict import (
-    any_members,
-    anybed_calibration,
-    load_stack_for,
-    rule_calibration,
-)
+from amfe.training.anypredict import any_members, load_stack_for, route_conformal
 from amfe.training.anystack import load_stack
-from amfe.training.conformal import DEFAULT_FLAG_HALF_WIDTH, intervals
+from amfe.training.conformal import interval_block
 from amfe.training.ensemble import relative_spread
 from amfe.training.predict import Surrogate
-from amfe.training.sizerule import SIZES, inverse_size
+from amfe.training.sizerule import SIZES
 from amfe.vocab import LABEL_NAMES
 from run.common import ROOT, md_table, parser, write_json
 
@@ -55,8 +50,9 @@ def read_kind(path):
 def predict_set(models, path):
     """(mean predictions (n, 6), labels (n, 6), route, covered (n, 6) bool: the label inside
     the 90 % interval amfe predict gives, flagged (n,) bool: its interval flag, a half-width
-    over DEFAULT_FLAG_HALF_WIDTH) of a data set, bed by bed kind."""
+    over its limit) of a data set, bed by bed kind."""
     fill, bonds, labels, (nu, psi, E, box), _ = read_kind(path)
+    box_m = np.asarray(box, float) * 1e-3
     preds, routes = np.empty_like(labels), set()
     covered = np.zeros(labels.shape, bool)
     flagged = np.zeros(len(labels), bool)
@@ -69,14 +65,13 @@ def predict_set(models, path):
         members, route = any_members(models, fill[rows], bonds[rows], kind)
         preds[rows] = members.mean(axis=0)
         spread = relative_spread(members)
-        for i, row in enumerate(rows):
-            cal = (rule_calibration(models["shipped"], spread[i],
-                                   1 / inverse_size(box[0], box[1]))
-                   if route == "size rule" else anybed_calibration(models, fill.shape[1]))
-            lo, hi = intervals(preds[row][None], LABEL_NAMES, cal, spread[i][None])
-            covered[row] = (lo[0] <= labels[row]) & (labels[row] <= hi[0])
-            half = (hi[0] - lo[0]) / 2 / np.abs(preds[row])
-            flagged[row] = bool(np.any(~np.isfinite(half) | (half > DEFAULT_FLAG_HALF_WIDTH)))
+        for i, row in enumerate(rows):   # the intervals and flag amfe predict gives
+            block = interval_block(preds[row], LABEL_NAMES,
+                                   route_conformal(models, route, kind, spread[i], box_m),
+                                   box_m, spread[i])
+            lo, hi = np.array([block["intervals"][k] for k in LABEL_NAMES]).T
+            covered[row] = (lo <= labels[row]) & (labels[row] <= hi)
+            flagged[row] = block["interval_flag"]
         routes.add(route)
     return preds, labels, ", ".join(sorted(routes)), covered, flagged
 
