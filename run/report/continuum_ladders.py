@@ -21,6 +21,7 @@ import sys
 import tempfile
 import time
 
+from amfe.errors import AmfeError
 from amfe.io.atomic import write_json
 from amfe.io.bedfile import write_bed
 from amfe.model.bed import generate_bed
@@ -54,8 +55,16 @@ def main(argv=None):
         out = os.path.join(args.output, f"bed_{k:05d}.json")
         if os.path.exists(out) or k % args.every[0] != args.every[1]:
             continue
-        bed, record = bed_of(args.seed, k)
         t = time.perf_counter()
+        try:
+            bed, record = bed_of(args.seed, k)
+        except AmfeError as exc:   # the plan's scan path left no bed: recorded, not a crash
+            write_json(out, {"family": "tiny" if k % 2 == 0 else "figure2",
+                             "bed_seed": args.seed * 100_000 + k, "held_out": k % 5 == 4,
+                             "n_particles": 0, "error": [str(exc)],
+                             "seconds": time.perf_counter() - t})
+            print(f"bed {k}: no bed ({exc})", flush=True)
+            continue
         with tempfile.TemporaryDirectory() as tmp:
             path = os.path.join(tmp, "bed.h5")
             write_bed(path, bed)
