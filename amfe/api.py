@@ -31,7 +31,7 @@ def homogenize(bed: Bed | str | os.PathLike | tuple, *, bc: str = "kubc",
                material_source: str | None = None, input_path: str | os.PathLike | None = None,
                model: str = "frame", voxel_size: float | None = None,
                voxel_operator: str = "assembled",
-               box: tuple | None = None) -> Result | dict[str, Result]:
+               box: tuple | None = None, springs: str = "paper") -> Result | dict[str, Result]:
     """Effective elastic constants of a powder bed, as a :class:`~amfe.io.result.Result`.
 
     Parameters
@@ -112,6 +112,11 @@ def homogenize(bed: Bed | str | os.PathLike | tuple, *, bc: str = "kubc",
         (docs/model.md, section 5). ``result.extra["volume_box"]`` says which
         box V is and where it came from; ``result.extra["density"]`` is the
         solid fraction of that box (relative density, to 1e-3).
+    springs : {"paper", "continuum"}
+        The frame's bond springs: the paper's eqs. 1-4 (default), or those
+        calibrated on the voxel model's continuum (docs/model.md, section 11;
+        frame model only). ``result.extra["springs"]`` records which, with the
+        fitted parameters.
 
     Returns
     -------
@@ -152,7 +157,7 @@ def homogenize(bed: Bed | str | os.PathLike | tuple, *, bc: str = "kubc",
             rtol=rtol, solver=solver, max_it=max_it, a_star_cap=a_star_cap,
             ksp_options=check_petsc_options("petsc_options", petsc_options),
             accept_unconverged=accept_unconverged, max_memory=max_memory, diagnose=diagnose,
-            box=box,
+            box=box, springs=springs,
             fields=check_flag("fields", fields) or ("root" if vtu_dir is not None else False))
         if isinstance(bed, (str, os.PathLike)):
             input_path = bed if input_path is None else input_path
@@ -218,6 +223,9 @@ def _voxel(bed, options, error, comm, spec):
     if error is None and options.a_star_cap is not None:   # issue 45 fuzz: was ignored
         raise AmfeError("homogenize: the a* cap (--cap-a-star) caps the frame's springs; the "
                         "voxel model has none: leave it out, or give --model frame")
+    if error is None and options.springs != "paper":
+        raise AmfeError("homogenize: the springs (--springs) are the frame's; the voxel model is "
+                        "the continuum itself: leave it out, or give --model frame")
     if error is None and options.diagnose:
         raise AmfeError("homogenize: --diagnose describes the frame's solve; the voxel model "
                         "has no diagnostics: leave it out, or give --model frame")

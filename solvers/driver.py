@@ -32,6 +32,7 @@ from amfe.model.averages import (
 from amfe.model.bed import Bed
 from amfe.model.carrying import frame_warnings
 from amfe.model.conditions import CONDITIONS, get_condition, solver_part
+from amfe.model.continuum_springs import apply_springs, springs_record, springs_warnings
 from amfe.model.frame import FRAME_LOG, build_frame
 from amfe.model.options import SolveOptions
 from amfe.model.volumebox import unit_warnings, volume_box_record
@@ -165,6 +166,7 @@ def _homogenize(bed, options, comm, input_error, scope):
                             nondimensional=options.nondimensional,
                             box=inp.box if condition.periodic else None, bc=options.bc,
                             size=given_size(bed, options))
+        frame = apply_springs(frame, options.springs)   # "paper": the frame as built
     finally:
         FRAME_LOG.reset(token)
     t_frame = time.perf_counter() - t0
@@ -311,7 +313,8 @@ def _average(solved, options):
     C = C * frame.stress_scale
     S, props = compliance_and_constants(C)
     size = np.asarray(frame.size) * frame.length_scale
-    warnings = frame_warnings(frame, options.bc) + unit_warnings(solved.bed.radii, size)
+    warnings = (frame_warnings(frame, options.bc) + unit_warnings(solved.bed.radii, size)
+                + springs_warnings(frame, options.springs))
     for line in warnings:   # removed pieces, the box rule, the unit: the terminal
         LOG.warning(line)
     t_avg = time.perf_counter() - t0
@@ -340,6 +343,7 @@ def _average(solved, options):
             **stats,
         },
         "material": solved.material,
+        "springs": springs_record(options.springs),
         "warnings": list(solved.warnings) + warnings,
     }
     bed = solved.bed

@@ -125,7 +125,7 @@ def run(args):
                 ranks_per_bed=args.ranks_per_bed,
                 rtol=args.rtol, solver=args.solver, progress=not args.no_progress,
                 max_failed_share=DEFAULT_MAX_FAILED_SHARE if args.max_failed_share is None
-                else args.max_failed_share, bc=args.bc)
+                else args.max_failed_share, bc=args.bc, springs=args.springs)
     return 0
 
 
@@ -206,7 +206,8 @@ def _from_labels(args):
     given = [name for name, value, default in (
         ("--seed", args.seed, 0), ("--scale", args.scale, "small"), ("--rtol", args.rtol, None),
         ("--solver", args.solver, "auto"), ("--bc", args.bc, "kubc"),
-        ("--ranks-per-bed", args.ranks_per_bed, 1), ("--size", args.size, None),
+        ("--springs", args.springs, "paper"), ("--ranks-per-bed", args.ranks_per_bed, 1),
+        ("--size", args.size, None),
         ("--materials", args.materials, None), ("--nu", args.nu, None),
         ("--psi", args.psi, None)) if value != default]
     if given:

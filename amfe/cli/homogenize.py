@@ -128,6 +128,8 @@ def run(args):
     options = dict(accept_unconverged=args.accept_unconverged, max_memory=max_memory,
                    material=given_material(args) or None, material_source="command line",
                    solver=args.solver, **({} if args.box is None else {"box": tuple(args.box)}))
+    if args.springs != "paper":   # the voxel model has no springs: refused there by name
+        options["springs"] = args.springs
     if args.model != "frame" or args.voxel_size is not None or args.voxel_operator:
         options.update(model=args.model, voxel_size=args.voxel_size,   # voxel model (issue 35)
                        voxel_operator=args.voxel_operator or "assembled")

@@ -9,6 +9,8 @@ finiteness: a NaN threshold would otherwise never compare true.
 import argparse
 import math
 
+from amfe.model.continuum_springs import SPRING_CHOICES
+
 MAX_THREADS = 1024   # more threads than this is a typo (torch would try to start them)
 
 
@@ -53,7 +55,7 @@ def finite_float(text):
 
 
 def add_solver_args(p):
-    """--solver and --rtol, as homogenize and dataset take them (amfe.solvers.choice)."""
+    """--solver, --rtol and --springs, as homogenize and dataset take them."""
     p.add_argument("--solver", choices=["auto", "gamg", "cholesky"], default="auto",
                    help="auto (default): Cholesky on one rank where its predicted fill is low, "
                         "else CG + GAMG; the constants stay within 1e-5 of a tight reference")
@@ -62,3 +64,6 @@ def add_solver_args(p):
                         "vertices are all prescribed, its stress then second order in the "
                         "error, or whose free hull vertices carry <= 1e-3 of the strain; else "
                         "1e-8 with --solver gamg, 1e-7 when auto picks GAMG)")
+    p.add_argument("--springs", choices=SPRING_CHOICES, default="paper",
+                   help="the bonds' springs: paper (eqs. 1-4, default) or continuum (calibrated "
+                        "on the voxel model of the same spheres, docs/model.md, section 11)")

@@ -100,7 +100,7 @@ def run_dataset(output, count, *, comm=None, progress=True, pixelate=None, out=N
     """Make (or finish) the data set ``output``; collective over ``comm`` (default COMM_WORLD).
 
     ``options``: the fields of :class:`amfe.dataset.plan.DatasetOptions` (seed,
-    scale, ranks_per_bed, rtol, solver, bc, max_failed_share, from_labels),
+    scale, ranks_per_bed, rtol, solver, bc, springs, max_failed_share, from_labels),
     collected into one at once. With ``from_labels`` (label tables,
     :mod:`amfe.dataset.labels`) the tables give the scale, seeds and labels:
     each record's bed and images are regenerated, the bed checked against its
@@ -143,7 +143,7 @@ def run_dataset(output, count, *, comm=None, progress=True, pixelate=None, out=N
         rtol = DEFAULT_RTOL if opts.solver == "gamg" else GAMG_RTOL_AUTO
     check_arguments(count, opts.seed, opts.ranks_per_bed, rtol, opts.max_failed_share,
                     world.size)
-    params = run_params(sc.name, opts.seed, count, rtol, opts.solver, opts.bc)
+    params = run_params(sc.name, opts.seed, count, rtol, opts.solver, opts.bc, opts.springs)
     if table is not None:
         params.update(table_params(table, count))
     job = _Job(world, os.fspath(output), params, sc, opts, progress, pixelate, t_start, table)
@@ -287,9 +287,8 @@ def _work(job, group, window, todo, parts):
                 window.stop()
                 continue
         else:
-            rec = make_record(todo[pos], params["seed"], job.sc, group, rtol=params["rtol"],
-                              pixelate=job.pixelate, solver=params.get("solver", "gamg"),
-                              bc=params.get("bc", "kubc"))
+            rec = make_record(todo[pos], params["seed"], job.sc, group, pixelate=job.pixelate,
+                              solve=params)
         if group.rank != 0:
             continue
         try:

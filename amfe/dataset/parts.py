@@ -14,6 +14,7 @@ import numpy as np
 
 from amfe.errors import AmfeError
 from amfe.io.atomic import atomic_write
+from amfe.model.continuum_springs import springs_record
 from amfe.model.scales import PARAM_NAMES, get_scale, record_seed
 from amfe.version import __version__
 
@@ -62,12 +63,14 @@ def part_path(parts, k):
 
 
 
-def run_params(scale, seed, count, rtol, solver="gamg", bc="kubc"):
+def run_params(scale, seed, count, rtol, solver="gamg", bc="kubc", springs="paper"):
     """The parameters that define a data set's records (what params.json and the attrs hold).
 
-    ``solver`` (the --solver asked for) and ``bc`` are recorded unless they are
-    "gamg" and "kubc", so the parameters of runs made before these choices
-    existed stay equal.
+    ``solver`` (the --solver asked for), ``bc`` and ``springs`` are recorded unless they
+    are "gamg", "kubc" and "paper", so the parameters of runs made before these choices
+    existed stay equal; continuum springs are recorded with their fitted values
+    (:func:`amfe.model.continuum_springs.springs_record`), so a run is resumed only
+    with the same ones.
     """
     params = {"format": FORMAT, "format_version": FORMAT_VERSION, "scale": str(scale),
               "seed": int(seed), "count": int(count), "rtol": float(rtol),
@@ -76,6 +79,9 @@ def run_params(scale, seed, count, rtol, solver="gamg", bc="kubc"):
         params["solver"] = str(solver)
     if bc != "kubc":
         params["bc"] = str(bc)
+    if springs != "paper":
+        # JSON text: an HDF5 attribute holds no dict
+        params["springs"] = json.dumps(springs_record(springs), sort_keys=True)
     return params
 
 

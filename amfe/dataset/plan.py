@@ -47,7 +47,8 @@ DEFAULT_MAX_FAILED_SHARE = 0.05
 class DatasetOptions:
     """What ``amfe dataset`` makes, beside the output and the count (checked by
     :func:`check_arguments`): the data-set seed and scale, rank groups, the
-    labels' solve (rtol None: the solver's default) and boundary conditions,
+    labels' solve (rtol None: the solver's default), boundary conditions and bond
+    springs ("paper" or "continuum", amfe.model.continuum_springs),
     the failure budget, and ``from_labels``: label tables (paths) whose labels
     the records copy instead of solving (:mod:`amfe.dataset.labels`);
     ``solve_rest``: with tables, records beyond theirs are solved with the
@@ -59,6 +60,7 @@ class DatasetOptions:
     rtol: float = None
     solver: str = "auto"
     bc: str = "kubc"
+    springs: str = "paper"
     max_failed_share: float = DEFAULT_MAX_FAILED_SHARE
     from_labels: tuple = ()
     solve_rest: bool = False

@@ -15,6 +15,7 @@ from amfe.dataset.parts import STATUS_FAILED, STATUS_OK, empty_record
 from amfe.dataset.upgrade import record_bond_image
 from amfe.errors import AmfeError
 from amfe.model.bed import generate_bed
+from amfe.model.continuum_springs import springs_of_record
 from amfe.model.options import SolveOptions
 from amfe.model.scales import PARAM_NAMES, get_scale, param_record, record_seed, sample_bed_params
 from amfe.solvers.driver import homogenize_bed
@@ -44,9 +45,12 @@ def _agree(group, err):
     return None
 
 
-def make_record(k, dataset_seed, scale, group, rtol=DEFAULT_RTOL, pixelate=None, solver="gamg",
-                bc="kubc"):
+def make_record(k, dataset_seed, scale, group, pixelate=None, solve=None):
     """Record k (a dict, see amfe.dataset.datafile), computed collectively on ``group``.
+
+    solve: how its labels are solved, as a data set's parameters say it
+    (:func:`amfe.dataset.parts.run_params`: rtol, solver, bc, springs; absent ones take
+    rtol 1e-8, GAMG, KUBC and the paper's springs).
 
     Every rank of ``group`` calls it with the same arguments; the record is
     complete on the group's rank 0 (the others hold no image). Never raises
@@ -57,8 +61,8 @@ def make_record(k, dataset_seed, scale, group, rtol=DEFAULT_RTOL, pixelate=None,
     if err is None:
         t2 = time.perf_counter()
         try:
-            res = homogenize_bed(bed, SolveOptions(material=bed.material(), rtol=rtol,
-                                                   solver=solver, bc=bc), group).to_dict()
+            res = homogenize_bed(bed, solve_options(solve or {}, bed.material()),
+                                 group).to_dict()
         except Exception as exc:  # noqa: BLE001
             err = _reason(exc)
         rec["seconds"][2] = time.perf_counter() - t2
@@ -74,6 +78,13 @@ def make_record(k, dataset_seed, scale, group, rtol=DEFAULT_RTOL, pixelate=None,
                volume=float(res["volume"]),
                solver=json.dumps(res["solver"], default=float))
     return rec
+
+
+def solve_options(solve, material):
+    """The :class:`SolveOptions` of a data set's parameters ``solve`` for a bed of ``material``."""
+    return SolveOptions(material=material, rtol=solve.get("rtol", DEFAULT_RTOL),
+                        solver=solve.get("solver", "gamg"), bc=solve.get("bc", "kubc"),
+                        springs=springs_of_record(solve.get("springs")))
 
 
 def regenerate(k, dataset_seed, scale, group, pixelate):

@@ -14,6 +14,7 @@ import numpy as np
 
 from amfe.errors import AmfeError
 from amfe.model.conditions import condition_names
+from amfe.model.continuum_springs import SPRING_CHOICES, ContinuumSprings
 from amfe.model.material import Material
 from amfe.model.memory import parse_size
 
@@ -134,7 +135,9 @@ class SolveOptions:
     bonds); material: the particles' :class:`Material` (None: the bed's, else
     steel) and material_source, what to call its origin in the result;
     nondimensional: False assembles in SI units (a benchmark's); box: V's box (Lx, Ly, Lz)
-    [m] as the user states it (``--box``; None: the box rule of docs/model.md, section 5).
+    [m] as the user states it (``--box``; None: the box rule of docs/model.md, section 5);
+    springs: the bond springs, "paper" (eqs. 1-4) or "continuum" (docs/model.md, section 11;
+    a :class:`~amfe.model.continuum_springs.ContinuumSprings` for a fit's trial values).
     """
 
     bc: str = "kubc"
@@ -152,6 +155,7 @@ class SolveOptions:
     material_source: str = None
     nondimensional: bool = True
     box: tuple = None
+    springs: object = "paper"
 
     def __post_init__(self):
         checked = {
@@ -164,6 +168,7 @@ class SolveOptions:
             "max_memory": check_max_memory(self.max_memory),
             "a_star_cap": check_a_star_cap_type(self.a_star_cap),
             "box": check_box_lengths(self.box),
+            "springs": check_springs(self.springs),
         }
         for name in ("accept_unconverged", "diagnose", "nondimensional"):
             checked[name] = check_flag(name, getattr(self, name))
@@ -176,6 +181,13 @@ class SolveOptions:
             raise AmfeError(f"material_source must be a str, got {self.material_source!r}")
         for name, value in checked.items():  # frozen: set the normalised values once
             object.__setattr__(self, name, value)
+
+
+def check_springs(value):
+    """``value`` if it names a spring model (or is a ContinuumSprings), else AmfeError."""
+    if isinstance(value, ContinuumSprings):
+        return value
+    return check_choice("springs", value, SPRING_CHOICES)
 
 
 def check_box_lengths(box):

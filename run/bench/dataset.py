@@ -88,8 +88,8 @@ def interleaved(count, seed):
             if block:
                 opts.setValue("amfe_block", block)
             t0 = time.process_time()
-            rec = make_record(k, seed, "small", MPI.COMM_SELF, rtol=None, pixelate=pix,
-                              solver=solver)
+            rec = make_record(k, seed, "small", MPI.COMM_SELF, pixelate=pix,
+                              solve={"rtol": None, "solver": solver})
             total[path] += time.process_time() - t0
             opts.delValue("amfe_block")
             if path == "new":
