@@ -90,9 +90,7 @@ def test_the_parameter_file_is_versioned(tmp_path):
     with pytest.raises(AmfeError, match="missing"):
         load_params(tmp_path / "none.json")
     # a record gives back the very springs it describes
-    assert springs_of_record(json.dumps(springs_record("continuum"))) == \
-        ContinuumSprings(shipped.beta_n, shipped.beta_t, shipped.alpha, shipped.version,
-                         shipped.source)
+    assert springs_of_record(json.dumps(springs_record("continuum"))) == shipped
     assert springs_of_record(None) == "paper" == springs_of_record({"name": "paper"})
 
 
@@ -129,6 +127,20 @@ def test_springs_reach_the_data_set_its_labels_and_the_command_line(tmp_path, ca
     assert main(["homogenize", str(bed_path), "-o", str(res), "--quiet", "--springs",
                  "continuum"]) == 0
     assert json.loads(res.read_text())["springs"] == springs_record("continuum")
+    # its label table is named apart, keeps the springs, and rebuilds the same labels
+    shards = tmp_path / "labels"
+    shards.mkdir()
+    assert main(["dataset", "--export-labels", str(out), "-o", str(shards)]) == 0
+    (table,) = shards.iterdir()
+    assert table.name == "tiny_continuum_seed5_labels_00000000-00000003.h5"
+    with h5py.File(table, "r") as f:
+        assert json.loads(f.attrs["springs"]) == recorded
+    again = tmp_path / "again.h5"
+    assert main(["dataset", "--from-labels", str(table), "-o", str(again), "--no-progress",
+                 "--max-failed-share", "1"]) == 0
+    with h5py.File(again, "r") as f:
+        assert json.loads(f.attrs["springs"]) == recorded
+        assert np.array_equal(f["labels"][:], labels, equal_nan=True)
     capsys.readouterr()
 
 

@@ -38,6 +38,7 @@ from amfe.errors import AmfeError, _list_items
 from amfe.io.atomic import atomic_write_h5
 from amfe.io.h5damage import damaged
 from amfe.model.averages import compliance_and_constants
+from amfe.model.continuum_springs import springs_of_record
 from amfe.model.scales import bed_for, record_seed
 from amfe.vocab import LABEL_NAMES
 
@@ -46,7 +47,7 @@ TABLE_FORMAT_VERSION = 1
 MAX_TABLE_BYTES = 20 * 2**20
 #: Root attributes that must agree between the shards of one table and its rebuild.
 IDENTITY = ("scale", "dataset_seed", "rtol", "solver", "bc", "label_rule_version",
-            "imaging_version")
+            "imaging_version", "springs")
 #: Keys of a record's solver JSON that a table keeps: the method and why. Not kept: timings,
 #: iteration counts, residuals and round-off checks (they differ run to run, and their
 #: digits would triple a table's size).
@@ -100,8 +101,10 @@ def export_labels(data_path, output, count=None):
         if first >= end:
             raise AmfeError(f"the shards in {output} already hold records 0..{first - 1} of "
                             f"{data_path}; nothing to export")
-        output = os.path.join(output, f"{ident['scale']}_seed{ident['dataset_seed']}_labels_"
-                                      f"{first:08d}-{end:08d}.h5")
+        # continuum-spring labels are named apart: a shard never looks like the paper's
+        springs = "_continuum" if "springs" in ident else ""
+        output = os.path.join(output, f"{ident['scale']}{springs}_seed{ident['dataset_seed']}"
+                                      f"_labels_{first:08d}-{end:08d}.h5")
     if os.path.exists(output):
         raise AmfeError(f"{output} exists: a label table is written once (write a new shard)")
     rows = _rows(data, first, end, data_path, ident)
@@ -118,7 +121,9 @@ def _identity(attrs):
             "rtol": float(attrs["rtol"]), "solver": str(attrs.get("solver", "gamg")),
             "bc": str(attrs.get("bc", "kubc")),
             "label_rule_version": int(attrs.get("label_rule_version", 1)),
-            "imaging_version": int(attrs.get("imaging_version", 1))}
+            "imaging_version": int(attrs.get("imaging_version", 1)),
+            # only a data set of other springs than the paper's records them (run_params)
+            **({"springs": str(attrs["springs"])} if "springs" in attrs else {})}
 
 
 def _rows(data, first, end, data_path, ident):
@@ -265,7 +270,7 @@ def _check_versions(path, ident):
 
 
 def _describe(ident):
-    return ", ".join(f"{k} {ident[k]}" for k in IDENTITY)
+    return ", ".join(f"{k} {ident.get(k)}" for k in IDENTITY if k != "springs" or ident.get(k))
 
 
 # ---------------------------------------------------------------- rebuild
@@ -291,7 +296,8 @@ def table_options(table, opts):
     """``opts`` (amfe.dataset.plan.DatasetOptions) with the table's scale, seed and method."""
     a = table["attrs"]
     return replace(opts, scale=a["scale"], seed=int(a["dataset_seed"]), rtol=float(a["rtol"]),
-                   solver=a["solver"], bc=a["bc"], ranks_per_bed=1)
+                   solver=a["solver"], bc=a["bc"], ranks_per_bed=1,
+                   springs=springs_of_record(a.get("springs")))
 
 
 def table_params(table, count):
