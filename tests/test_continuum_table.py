@@ -53,7 +53,8 @@ def test_the_extrapolated_moduli_are_those_of_the_tables_own_rungs(path):
                                    [again[k]["error"] for k in names], rtol=1e-12)
         # a finer rung resolves at least the necks a coarser one does
         assert np.all(np.diff(c["voxel_size"][i]) < 0)
-        assert np.all(c["solid_fraction"][i] > 0.1) and np.all(c["solid_fraction"][i] < 0.9)
+        # the plan draws a rare sparse bed (0.05); the bounds catch unit and box errors
+        assert np.all(c["solid_fraction"][i] > 0.02) and np.all(c["solid_fraction"][i] < 0.9)
 
 
 def test_a_beds_frame_constants_are_those_of_the_bed_the_plan_makes():
