@@ -1,18 +1,21 @@
 """Fit the continuum springs (amfe.model.continuum_springs) to issue 47's voxel labels.
 
 Reads every committed continuum table (labels/continuum/voxel_ladders_*.h5), rebuilds each
-labelled bed from its plan (run/report/continuum_ladders.py ``bed_of``), and chooses
+labelled bed from its plan (run/report/continuum_ladders.py ``bed_of``), and chooses alpha,
 beta_n, beta_t that minimise the mean squared log ratio of the frame's six moduli (Ex, Ey,
 Ez, G_yz, G_xz, G_xy, KUBC, as the labels) to the extrapolated continuum ones, over the
 beds not held out whose solid fraction lies in FIT_RANGE (0.2-0.8, issue 47's range), each
-label weighted by its extrapolation error (Nelder-Mead in the logs of beta_n, beta_t, alpha). Then it prints, for the held-out beds (every
-fifth bed of the plan, never used here) and the fitting beds, each constant's error with
+label weighted by its extrapolation error (Nelder-Mead in the parameters' logs). Then it
+prints, for the held-out beds (every fifth bed of the plan, never used here) and the
+fitting beds, each constant's error with
 the paper's springs and with the fitted ones, by solid fraction, and writes the parameter
 file (amfe/models/springs_continuum.json by default) with the fit's data and residuals.
 
     python -m run.train.fit_continuum_springs [--tables labels/continuum] [-o FILE]
+    python -m run.train.fit_continuum_springs --check    # the shipped fit on unseen beds
 """
 import glob
+import json
 import math
 import os
 import time
@@ -23,7 +26,13 @@ from scipy.optimize import minimize
 
 from amfe.api import homogenize
 from amfe.errors import AmfeError
-from amfe.model.continuum_springs import PARAMS_FILE, SPRINGS_FORMAT, ContinuumSprings, neck_share
+from amfe.model.continuum_springs import (
+    PARAMS_FILE,
+    SPRINGS_FORMAT,
+    ContinuumSprings,
+    load_params,
+    neck_share,
+)
 from amfe.model.frame import build_frame
 from run.common import ROOT, md_table, parser, write_json
 from run.report.continuum_ladders import bed_of
@@ -50,6 +59,7 @@ def read_labels(folder):
             order = [names.index(n) for n in MODULI]
             for r in np.flatnonzero(f["status"][:] == 0):
                 beds.append({
+                    "table": os.path.basename(path),
                     "index": int(f["index"][r]), "seed": int(f.attrs["plan_seed"]),
                     "held_out": bool(f["held_out"][r]),
                     "n_particles": int(f["n_particles"][r]),
@@ -66,6 +76,31 @@ def frame_constants(bed, springs):
     res = homogenize(bed, springs=springs)
     return (np.array([res.properties[n] for n in MODULI]),
             np.array([res.properties[n] for n in NUS]))
+
+
+def rebuilt(rec):
+    """The Bed of label ``rec``, rebuilt from its plan (its particle count checked)."""
+    bed = bed_of(rec["seed"], rec["index"])[0]
+    if bed.n != rec["n_particles"]:
+        raise AmfeError(f"bed {rec['index']} of plan {rec['seed']} rebuilt with {bed.n} "
+                        f"particles, the table says {rec['n_particles']}")
+    return bed
+
+
+def check(beds, made):
+    """Print the shipped springs' errors (and the paper's) on the beds their fit never used."""
+    params = load_params()
+    with open(PARAMS_FILE) as f:
+        used = set(json.load(f)["fit"]["tables"])
+    unseen = [k for k, b in enumerate(beds) if b["held_out"] or b["table"] not in used]
+    picked = [beds[k] for k in unseen], [made[k] for k in unseen]
+    rows = []
+    for name, springs in (("paper", "paper"), ("continuum", params)):
+        logs, dnu = evaluate(*picked, springs)
+        rows += summary_rows(f"unseen, {name}", picked[0], logs, dnu)
+    print(f"{len(unseen)} beds the fit of {params.version} never used "
+          f"({sum(b['table'] not in used for b in beds)} in tables packed after it)")
+    print(md_table(["beds, springs", "solid fraction", "n", *MODULI, *NUS], rows))
 
 
 def bed_neck_share(bed):
@@ -109,17 +144,16 @@ def main():
     ap.add_argument("--tables", default=os.path.join(ROOT, "labels", "continuum"))
     ap.add_argument("-o", "--output", default=str(PARAMS_FILE))
     ap.add_argument("--version", default=time.strftime("%Y-%m-%d"))
+    ap.add_argument("--check", action="store_true",
+                    help="fit nothing: the shipped springs on every bed their fit never used "
+                         "(held out, or in a table packed after it)")
     args = ap.parse_args()
     beds = read_labels(args.tables)
     if not beds:
         raise SystemExit(f"no labelled beds in {args.tables}")
-    made = []
-    for rec in beds:
-        bed = bed_of(rec["seed"], rec["index"])[0]
-        if bed.n != rec["n_particles"]:
-            raise AmfeError(f"bed {rec['index']} of plan {rec['seed']} rebuilt with {bed.n} "
-                            f"particles, the table says {rec['n_particles']}")
-        made.append(bed)
+    made = [rebuilt(rec) for rec in beds]
+    if args.check:
+        return check(beds, made)
     fit = [k for k, b in enumerate(beds) if not b["held_out"]
            and FIT_RANGE[0] <= b["solid_fraction"] <= FIT_RANGE[1]]
     held = [k for k, b in enumerate(beds) if b["held_out"]]
