@@ -117,6 +117,16 @@ def test_springs_reach_the_data_set_its_labels_and_the_command_line(tmp_path, ca
         status, labels = f["status"][:], f["labels"][:]
         seeds = f["seed"][:]
     assert recorded == springs_record("continuum")
+    # a finished continuum data set grows with the same springs, and refuses others
+    assert main(["dataset", "-o", str(out), "--count", "4", "--seed", "5", "--scale", "tiny",
+                 "--max-failed-share", "1", "--no-progress", "--springs", "continuum"]) == 0
+    with h5py.File(out, "r") as f:
+        assert f["labels"].shape[0] == 4
+        assert np.array_equal(f["labels"][:3], labels, equal_nan=True)
+        labels = f["labels"][:]
+    assert main(["dataset", "-o", str(out), "--count", "5", "--seed", "5", "--scale", "tiny",
+                 "--max-failed-share", "1", "--no-progress"]) == 2
+    assert "springs" in capsys.readouterr().err
     k = int(np.flatnonzero(status == 0)[0])
     bed = bed_for("tiny", int(seeds[k]))
     want = amfe.homogenize(bed, springs="continuum", rtol=1e-8)
@@ -132,7 +142,7 @@ def test_springs_reach_the_data_set_its_labels_and_the_command_line(tmp_path, ca
     shards.mkdir()
     assert main(["dataset", "--export-labels", str(out), "-o", str(shards)]) == 0
     (table,) = shards.iterdir()
-    assert table.name == "tiny_continuum_seed5_labels_00000000-00000003.h5"
+    assert table.name == "tiny_continuum_seed5_labels_00000000-00000004.h5"
     with h5py.File(table, "r") as f:
         assert json.loads(f.attrs["springs"]) == recorded
     again = tmp_path / "again.h5"

@@ -50,7 +50,8 @@ COMMANDS = {
     "PSI] [--accept-unconverged] [--max-memory SIZE] [--diagnose] [--quiet] [--box LX LY LZ] "
     "[--model frame|voxel] [--voxel-size H] [--voxel-operator assembled|matrix-free] "
     "[--springs paper|continuum]": [
-        "tests/test_golden.py", "tests/test_continuum_springs.py", "tests/test_bounds.py", "tests/test_reliability_solve.py",
+        "tests/test_golden.py", "tests/test_continuum_springs.py", "tests/test_bounds.py",
+        "tests/test_reliability_solve.py",
         "tests/test_voxel_free.py", "tests/test_hard_cases.py", "tests/test_solver_faults45.py",
         "tests/test_material_rtol_origin_faults.py", "tests/test_volume_box.py",
         "tests/test_progress_lines.py"],

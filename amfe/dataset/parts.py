@@ -192,7 +192,7 @@ def describe_params(p):
 #: The root attributes of a data-set file that are its run parameters (:func:`run_params`,
 #: and those of a run from label tables); :func:`file_params` reads them back.
 RUN_KEYS = ("format", "format_version", "scale", "seed", "count", "rtol", "amfe_version",
-            "solver", "bc", "from_labels", "solved_from")
+            "solver", "bc", "springs", "from_labels", "solved_from")
 
 
 def _plain(value):

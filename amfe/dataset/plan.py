@@ -103,7 +103,8 @@ def _same_run(attrs, params):
                 and int(attrs.get("count")) == params["count"]
                 and float(attrs.get("rtol")) == params["rtol"]
                 and str(attrs.get("solver", "gamg")) == params.get("solver", "gamg")
-                and str(attrs.get("bc", "kubc")) == params.get("bc", "kubc"))
+                and str(attrs.get("bc", "kubc")) == params.get("bc", "kubc")
+                and str(attrs.get("springs", "")) == params.get("springs", ""))
     except (TypeError, ValueError):
         return False
 
