@@ -15,7 +15,7 @@ pytestmark = pytest.mark.mpi
 
 RESULT_KEYS = {"properties", "C", "S", "volume", "volume_box", "density", "n_particles",
                "n_removed", "n_bonds", "bc",
-               "ranks", "solver", "schema_version", "material", "warnings",
+               "ranks", "solver", "schema_version", "material", "springs", "warnings",
                "removed"} | set(HEADER_KEYS)
 PROPERTY_KEYS = {"Ex", "Ey", "Ez", "nu_yz", "nu_xz", "nu_xy", "G_yz", "G_xz", "G_xy"}
 
