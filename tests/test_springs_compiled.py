@@ -2,6 +2,7 @@
 amfe.model.springs' own functions, so its springs are the numpy path's bit for bit, a second
 spring model plugs in by one table entry, and an edited formula is never served stale from
 numba's on-disk cache."""
+import shutil
 import subprocess
 import sys
 
@@ -124,6 +125,9 @@ def test_an_edited_formula_is_not_served_from_the_cache(tmp_path):
     # the same formula is loaded from the cache, an edited one compiles afresh
     def run(factor):
         (tmp_path / "toysprings.py").write_text(_TOY.replace("FACTOR", factor))
+        # "1.0" and "3.0" are the same size: rewritten within the same second, Python would
+        # import the old toysprings from its .pyc (mtime and size match) and serve factor 1
+        shutil.rmtree(tmp_path / "__pycache__", ignore_errors=True)
         out = subprocess.run([sys.executable, "-c", _RUN, str(tmp_path)], capture_output=True,
                              text=True, timeout=300, check=False)
         assert out.returncode == 0, out.stderr
