@@ -11,6 +11,7 @@ S = (1/V) F . U, periodic from the energy's dot products.
 import logging
 import time
 from collections import namedtuple
+from dataclasses import replace
 
 import numpy as np
 
@@ -32,7 +33,12 @@ from amfe.model.averages import (
 from amfe.model.bed import Bed
 from amfe.model.carrying import frame_warnings
 from amfe.model.conditions import CONDITIONS, get_condition, solver_part
-from amfe.model.continuum_springs import apply_springs, springs_record, springs_warnings
+from amfe.model.continuum_springs import (
+    apply_springs,
+    resolve_springs,
+    springs_record,
+    springs_warnings,
+)
 from amfe.model.frame import FRAME_LOG, build_frame
 from amfe.model.options import SolveOptions
 from amfe.model.volumebox import unit_warnings, volume_box_record
@@ -156,6 +162,8 @@ def _homogenize(bed, options, comm, input_error, scope):
     mpi = comm.tompi4py()
     inp = checked_inputs(mpi, bed, options, CONDITIONS, input_error)
     options, condition = inp.options, get_condition(inp.options.bc)
+    # the parameter file read once a solve: the frame, the record and the warning share it
+    options = replace(options, springs=resolve_springs(options.springs) or "paper")
     t0 = time.perf_counter()
     log = Progress(_progress(mpi.rank), len(bed.centers))   # long solves: each phase's start
     log.phase("frame", f"frame: building it from {len(bed.centers)} particles "
