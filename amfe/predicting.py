@@ -23,8 +23,8 @@ if TYPE_CHECKING:   # the type only: torch stays unloaded until a prediction
 def predict(beds: "object | str | os.PathLike | list", *, fallback: bool = False,
             stiffness: bool = False, model: "str | os.PathLike | None" = None,
             threshold: float | None = None, check: bool = False,
-            petsc_args: tuple = (), material: "dict | object | None" = None
-            ) -> "Prediction | list[Prediction]":
+            petsc_args: tuple = (), material: "dict | object | None" = None,
+            springs: str | None = None) -> "Prediction | list[Prediction]":
     """Predict each bed's elastic constants with the shipped model for its size and material.
 
     beds: a bed file's path, a :class:`~amfe.model.bed.Bed`, or a list of them.
@@ -33,7 +33,9 @@ def predict(beds: "object | str | os.PathLike | list", *, fallback: bool = False
     bed instead of the shipped ones; threshold: the spread flag's threshold (default: the
     model's); check: also solve every bed; material: an :class:`~amfe.Material` or a dict of
     E [Pa], nu, psi for every bed, instead of its file's (as ``amfe predict --E --nu --psi``;
-    it picks the route and is what a fallback solves). Returns a
+    it picks the route and is what a fallback solves); springs: "continuum" picks the shipped
+    model of continuum-spring labels (0.6 mm beds; as ``amfe predict --springs``), "paper"
+    the paper springs' (None: the paper's, or ``model``'s own). Returns a
     :class:`~amfe.training.prediction.Prediction` for one bed, a list for a list; a bed that
     cannot be predicted gets source "failed" and its ``error`` (never an exception).
     """
@@ -46,10 +48,22 @@ def predict(beds: "object | str | os.PathLike | list", *, fallback: bool = False
     args = SimpleNamespace(model=None if model is None else os.fspath(model),
                            stiffness=stiffness, fallback=fallback, check=check,
                            threshold=threshold, petsc_args=list(petsc_args),
-                           material=_given(material), material_source="argument")
+                           material=_given(material), material_source="argument",
+                           springs=_springs(springs, stiffness))
     records, _ = predict_records(args, items, {}, time.perf_counter())
     out = [Prediction(record) for record, _ in records]
     return out[0] if one else out
+
+
+def _springs(springs, stiffness):
+    """``springs`` checked as ``amfe predict --springs`` checks it."""
+    if springs not in (None, "paper", "continuum"):
+        raise AmfeError(f"predict: springs must be 'paper' or 'continuum', not {springs!r}")
+    if stiffness and springs == "continuum":
+        raise AmfeError("predict: no shipped full-stiffness model for the continuum springs: "
+                        "leave out stiffness, or solve with amfe.homogenize(springs="
+                        "'continuum')")
+    return springs
 
 
 def _given(material):

@@ -2,8 +2,8 @@
 
 - No function takes more than 8 parameters (self and cls excluded): values travel
   as a checked Bed and a SolveOptions, not as long lists of arrays and flags. The
-  user-facing keyword options of amfe.homogenize and amfe.generate_bed are the
-  exception.
+  user-facing keyword options of amfe.homogenize, amfe.predict, amfe.sweep and
+  amfe.generate_bed are the exception.
 - solvers/ neither prints nor writes to stdout or stderr: progress and warnings
   leave it through ``logging`` (amfe.io.console prints them for the face).
 - At most 3 function bodies in amfe/, solvers/ and training/ are longer than 80
@@ -17,7 +17,7 @@ MAX_PARAMETERS = 8
 MAX_BODY_LINES = 80
 MAX_LONG_BODIES = 3
 USER_FACING = {("amfe/api.py", "homogenize"), ("amfe/model/bed.py", "generate_bed"),
-               ("amfe/study/__init__.py", "sweep")}
+               ("amfe/study/__init__.py", "sweep"), ("amfe/predicting.py", "predict")}
 
 
 def functions():

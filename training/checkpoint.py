@@ -25,6 +25,7 @@ is one whose image shape does not match the images it is asked to predict
 (:func:`check_image_shape`).
 """
 import datetime
+import json
 import os
 import pickle
 from collections import OrderedDict
@@ -201,6 +202,16 @@ def check_image_shape(ckpt, shape, what="the image", path="the model", bed=False
                         f"images of shape {'x'.join(map(str, want))} (scale {scale}); {fix}")
 
 
+def model_springs(ckpt) -> dict:
+    """The bond springs of a model's labels: {"name": "paper"} or the continuum springs'
+    record with their values (docs/model.md, section 11), from its data set's ``springs``
+    attribute. A model trained before data sets recorded their springs: the paper's."""
+    record = (ckpt.get("dataset") or {}).get("springs")
+    if isinstance(record, str):
+        record = json.loads(record)
+    return dict(record) if record else {"name": "paper"}
+
+
 def describe(ckpt, path, n_members, inputs) -> str:
     """A surrogate in one line: the file, the networks, what they read, the size and
     material trained on, and the sizes with calibrated intervals."""
@@ -212,5 +223,5 @@ def describe(ckpt, path, n_members, inputs) -> str:
                 else "no calibrated intervals")
     return (f"Surrogate({os.path.basename(os.fspath(path))}: {n_members} x {ckpt.get('arch')} "
             f"reading {', '.join(inputs)}; trained on {size} mm beds, E "
-            f"{m.get('E', float('nan')) / 1e9:g} GPa, nu {m.get('nu')}, psi {m.get('psi')}; "
-            f"{coverage})")
+            f"{m.get('E', float('nan')) / 1e9:g} GPa, nu {m.get('nu')}, psi {m.get('psi')}, "
+            f"{model_springs(ckpt)['name']} springs; {coverage})")

@@ -52,7 +52,7 @@ INPUT_KINDS = {"fill": "images", "bonds": "bond_images"}   # kind: data-set arra
 DEFAULT_INPUTS = ("fill",)
 # Root attributes of a data set that say how its images were made (amfe.dataset.datafile).
 IMAGE_ATTRS = ("scale", "image_shape", "image_cell", "layer_thickness", "image_spacing",
-               "bed_size", "seed", "count", "format_version")
+               "bed_size", "seed", "count", "format_version", "springs")
 
 
 def check_inputs(inputs):

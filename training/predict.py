@@ -34,7 +34,13 @@ from amfe.dataset.images import pixelate
 from amfe.errors import AmfeError
 from amfe.io.bedfile import read_bed
 from amfe.model.carrying import rule1_factor
-from amfe.training.checkpoint import build_members, check_image_shape, describe, load_checkpoint
+from amfe.training.checkpoint import (
+    build_members,
+    check_image_shape,
+    describe,
+    load_checkpoint,
+    model_springs,
+)
 from amfe.training.data import DEFAULT_INPUTS, Normalizer, check_inputs, image_batch
 from amfe.training.ensemble import predict_raw, tta_mode
 from amfe.training.shipped import models_dir, shipped_model_for, unrecorded_size
@@ -99,6 +105,7 @@ class Surrogate:
         # largest piece's centres); its moduli are converted to rule 2 (V = the bed's box)
         # per bed in predict_bed (docs/model_card.md, docs/model.md section 5).
         self.label_rule = int(ckpt.get("label_rule", 1))
+        self.springs = model_springs(ckpt)   # the labels' bond springs (docs/model.md, s. 11)
         self.labels = ("label rule 2" if self.label_rule >= 2 else
                        "trained on label rule 1, converted to rule 2 (moduli x V_hull / V_box)")
 

@@ -26,17 +26,32 @@ SHIPPED = {"small": "multiscale_small.pt", "medium": "multiscale_medium.pt",
 #: constants, amfe.training.stiffness_predict), chosen by ``amfe predict --stiffness``
 STIFFNESS = {"small": "stiffness_small.pt", "medium": "stiffness_medium.pt",
              "paper": "stiffness_paper.pt"}
+#: scale name -> a shipped model of labels solved with ``--springs continuum`` (issue 47;
+#: docs/model_card_continuum.md), chosen by ``amfe predict --springs continuum``
+CONTINUUM = {"small": "multiscale_small_continuum.pt"}
+
+
+def model_table(stiffness=False, springs="paper"):
+    """The shipped models' table (scale name -> file) for the kind asked for; AmfeError for a
+    kind none is shipped of (a full-stiffness model of the continuum springs)."""
+    if springs == "continuum":
+        if stiffness:
+            raise AmfeError("no shipped full-stiffness model for the continuum springs: "
+                            "predict without --stiffness, or solve with amfe homogenize "
+                            "--springs continuum (its JSON has C and the shear moduli)")
+        return CONTINUUM
+    return STIFFNESS if stiffness else SHIPPED
 
 
 def models_dir():
     return Path(amfe.version.__file__).resolve().parent / "models"
 
 
-def shipped_sizes(stiffness=False):
+def shipped_sizes(stiffness=False, springs="paper"):
     """{(Lx, Ly) in whole cells: (scale name, path)} of the shipped checkpoints present
-    (the full-stiffness ones with ``stiffness``)."""
+    (the full-stiffness ones with ``stiffness``, the continuum springs' with ``springs``)."""
     out = {}
-    for name, file in (STIFFNESS if stiffness else SHIPPED).items():
+    for name, file in model_table(stiffness, springs).items():
         path = models_dir() / file
         if path.is_file():
             sc = get_scale(name)
@@ -55,13 +70,14 @@ def unrecorded_size(bed, cell, height):
             max(1, round(far[1] / float(cell[1]))) * float(cell[1]), float(height))
 
 
-def shipped_model_for(bed, stiffness=False):
+def shipped_model_for(bed, stiffness=False, springs="paper"):
     """The path of the shipped checkpoint for ``bed``'s imaged size (a full-stiffness one with
-    ``stiffness``); AmfeError quoting the bed's own size and the sizes there are when none
+    ``stiffness``, one of continuum-spring labels with ``springs="continuum"``); AmfeError
+    quoting the bed's own size and the sizes there are when none
     fits (give --model, or solve the bed). A bed without a recorded size is matched by its
     spheres' bounding box (:func:`unrecorded_size`)."""
-    table = STIFFNESS if stiffness else SHIPPED
-    sizes = shipped_sizes(stiffness)
+    table = model_table(stiffness, springs)
+    sizes = shipped_sizes(stiffness, springs)
     size = bed.attrs.get("size") if hasattr(bed, "attrs") else None
     small = get_scale("small")
     cell = small.cell
@@ -74,10 +90,12 @@ def shipped_model_for(bed, stiffness=False):
         return models_dir() / table["small"]
     if key not in sizes:
         have = ", ".join(f"{nx * cell[0] * 1e3:g} x {ny * cell[1] * 1e3:g} mm ({name})"
-                         for (nx, ny), (name, _) in sorted(sizes.items()))
-        kind = "full-stiffness model" if stiffness else "model"
+                         for (nx, ny), (name, _) in sorted(sizes.items())) or "none installed"
+        kind = ("full-stiffness model" if stiffness else
+                "continuum-spring model" if springs == "continuum" else "model")
         raise AmfeError(f"no shipped {kind} for a {float(size[0]) * 1e3:g} x "
                         f"{float(size[1]) * 1e3:g} mm bed{how} (shipped: {have}); give --model "
-                        "MODEL.pt fine-tuned on that size, or solve it with amfe homogenize "
+                        "MODEL.pt fine-tuned on that size, or solve it with amfe homogenize"
+                        f"{' --springs continuum' if springs == 'continuum' else ''} "
                         "(or --fallback)")
     return sizes[key][1]

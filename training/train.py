@@ -305,8 +305,8 @@ def train_model(data_path, cfg, progress=True, log=print):
         "material": {k: float(v) for k, v in STEEL.asdict().items()},
         "dataset": {"path": str(data_path), "sha256": dataset_hash(data_path, ok, cfg.inputs),
                     "seed": info.get("seed"), "scale": info.get("scale"),
-                    "n_ok": int(ok.size), "n_train": int(len(train_rows)),
-                    "n_validation": int(len(val_rows)),
+                    "springs": info.get("springs"), "n_ok": int(ok.size),   # model_springs
+                    "n_train": int(len(train_rows)), "n_validation": int(len(val_rows)),
                     "validation_rows": [int(r) for r in val_rows]},
         "training": {k: v for k, v in asdict(cfg).items() if k not in ("arch", "arch_args")},
         "history": hists,

@@ -57,6 +57,11 @@ def register(sub):
                    help="use the shipped full-stiffness model for the bed's size "
                         "(amfe/models/stiffness_SCALE.pt): C, the shear moduli and their "
                         "intervals as well (0.6, 1.2 and 3 mm beds)")
+    p.add_argument("--springs", choices=("paper", "continuum"),
+                   help="the bond springs of the labels the model learnt (docs/model.md, "
+                        "section 11): continuum picks the shipped continuum-spring model "
+                        "(0.6 mm beds); --check and --fallback solve with the model's springs "
+                        "(default: the paper's, or those of --model's labels)")
     p.add_argument("-o", "--output", metavar="OUT.json",
                    help="write the result as JSON here (-: to stdout, the table to stderr)")
     p.add_argument("--check", action="store_true",
@@ -79,6 +84,10 @@ def check_args(args):
     if args.stiffness and args.model:
         raise AmfeError("give --model or --stiffness, not both: --stiffness picks the shipped "
                         "full-stiffness model")
+    if args.stiffness and args.springs == "continuum":
+        raise AmfeError("no shipped full-stiffness model for the continuum springs: leave out "
+                        "--stiffness, or solve with amfe homogenize --springs continuum (its "
+                        "JSON has C and the shear moduli)")
     if args.output is not None:
         check_output(args.output, inputs=[*args.bed, args.model], allow_stdout=True)
     from amfe.model.tolerance import check_command_rtol, given_rtol

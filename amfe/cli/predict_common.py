@@ -9,11 +9,13 @@ from amfe.io.result_meta import header, predict_block
 from amfe.model.material import resolve_material
 
 
-def solve_for(args, bed, reasons, times, why="the model overflows on this bed"):
+def solve_for(args, bed, reasons, times, why="the model overflows on this bed",
+              springs="paper"):
     """(solver record or None, rank): the bed solved (PETSc, every rank) with --check, or with
     --fallback when flagged. ``reasons`` (the flag's, rank 0's) is made every rank's in place
     (every rank takes the same branch); a non-finite prediction without --fallback is an
-    AmfeError (``why`` says which model and constants)."""
+    AmfeError (``why`` says which model and constants). springs: the model's labels' bond
+    springs (a record, amfe.model.continuum_springs.springs_record), which the solve uses."""
     comm = None
     if args.check or args.fallback:
         from mpi4py import MPI
@@ -24,15 +26,29 @@ def solve_for(args, bed, reasons, times, why="the model overflows on this bed"):
                         "--fallback to solve with PETSc instead, or use amfe homogenize")
     solver = None
     if comm is not None and (args.check or reasons):
-        from amfe.model.options import SolveOptions
-        from amfe.solvers.driver import homogenize_bed
         from amfe.solvers.petsc import init_petsc
         init_petsc(args.petsc_args)
         t = time.perf_counter()
-        solver = homogenize_bed(bed, SolveOptions(material=bed.material(),
-                                                  solver="gamg")).to_dict()
+        solver = solve_bed(bed, springs)
         times["solve"] = time.perf_counter() - t
     return solver, (comm.rank if comm is not None else launcher_rank())
+
+
+def solve_bed(bed, springs="paper"):
+    """The bed's homogenize JSON (KUBC, GAMG) with ``springs`` (a name or a springs record):
+    the solve of --check and --fallback, with the springs of the model's labels."""
+    from amfe.model.continuum_springs import springs_of_record
+    from amfe.model.options import SolveOptions
+    from amfe.solvers.driver import homogenize_bed
+    chosen = springs if isinstance(springs, str) else springs_of_record(springs)
+    return homogenize_bed(bed, SolveOptions(material=bed.material(), solver="gamg",
+                                            springs=chosen)).to_dict()
+
+
+def asked_springs(args):
+    """The springs ``--springs`` asked for ("paper", "continuum"), or None when not given."""
+    return getattr(args, "springs", None)
+
 
 def given_notes(args):
     """The record's note on a material given instead of the bed file's (else none)."""
@@ -47,7 +63,8 @@ def finish(out, item, times, t_start):
     """The record with its header, predict block and timings."""
     path, bed = item
     out = {**header("predict", bed.centers, bed.radii, resolve_material(bed.attrs)[1],
-                    input_path=path), **out, "predict": predict_block(out)}
+                    input_path=path), "springs": {"name": "paper"}, **out,
+           "predict": predict_block(out)}
     times["total"] = time.perf_counter() - t_start
     out["seconds"] = times["total"]
     out["timings"] = times

@@ -15,7 +15,14 @@ import time
 
 from amfe.cli.interrupt import launcher_rank
 from amfe.cli.predict_any import Models, needs_route, route_record
-from amfe.cli.predict_common import finish, finite_or_none, given_notes, solve_for
+from amfe.cli.predict_common import (
+    asked_springs,
+    finish,
+    finite_or_none,
+    given_notes,
+    solve_bed,
+    solve_for,
+)
 from amfe.errors import AmfeError
 from amfe.io.result_meta import header
 from amfe.model.material import resolve_material
@@ -37,14 +44,18 @@ def predict_records(args, items, times, t_start, cache=None):
     records, beds, chosen = [None] * len(items), [None] * len(items), [None] * len(items)
     cache = {} if cache is None else cache
     models = cache.setdefault("routes", Models())
+    springs = asked_springs(args)
     for k, item in enumerate(items):
         path = os.fspath(item) if isinstance(item, (str, os.PathLike)) else None
         try:
             beds[k] = _read(item, path, getattr(args, "material", None))
             if not (args.model or args.stiffness) and needs_route(beds[k][1]):
+                if springs == "continuum":   # the routes' models are the paper springs'
+                    raise AmfeError(_continuum_scope(beds[k][1]))
                 records[k] = route_record(args, models, beds[k], times, t_start)
                 continue
-            chosen[k] = args.model or shipped_model_for(beds[k][1], args.stiffness)
+            chosen[k] = args.model or shipped_model_for(beds[k][1], args.stiffness,
+                                                        springs or "paper")
         except AmfeError as exc:
             records[k] = _failed(args, (path, beds[k] and beds[k][1]), exc, times, t_start)
     for model in dict.fromkeys(m for m in chosen if m is not None):
@@ -53,6 +64,11 @@ def predict_records(args, items, times, t_start, cache=None):
             cache[model] = Surrogate.load(model)
         sur = cache[model]
         times["load_model"] = time.perf_counter() - t
+        if springs and sur.springs["name"] != springs:
+            raise AmfeError(f"--model {sur.path} was trained on labels of the "
+                            f"{sur.springs['name']} springs, not the {springs} springs asked for "
+                            f"(--springs {springs}): give a model of {springs}-spring labels, "
+                            "or leave --springs out")
         threshold = args.threshold if args.threshold is not None else sur.threshold
         if args.fallback and threshold is None and not sur.fill_range \
                 and not sur.ckpt.get("conformal"):
@@ -118,6 +134,17 @@ def _predict_each(sur, beds):
         return out
 
 
+def _continuum_scope(bed):
+    """Why a bed no shipped model reads as it is gets no continuum-spring prediction."""
+    from amfe.cli.predict_any import bed_kind
+    size, material, _ = bed_kind(bed)
+    return (f"no continuum-spring surrogate for a {size[0] * 1e3:g} x {size[1] * 1e3:g} x "
+            f"{size[2] * 1e3:g} mm bed of nu {material.nu:g} and psi {material.psi:g}: the "
+            "continuum-spring model (--springs continuum) reads 0.6 x 0.6 x 0.3 mm beds of the "
+            "paper's nu and psi (any E); solve it with amfe homogenize --springs continuum, or "
+            "add --fallback")
+
+
 def _notes(bed, factor, sur):
     """What the record says about how the bed was read: no recorded size, E scaling."""
     from amfe.training.predict import _image_size
@@ -143,18 +170,16 @@ def _failed(args, item, error, times, t_start):
             launcher_rank()
     from mpi4py import MPI
 
-    from amfe.model.options import SolveOptions
-    from amfe.solvers.driver import homogenize_bed
     from amfe.solvers.petsc import init_petsc
     init_petsc(args.petsc_args)
     t = time.perf_counter()
-    solver = homogenize_bed(bed, SolveOptions(material=bed.material(), solver="gamg")).to_dict()
+    solver = solve_bed(bed, asked_springs(args) or "paper")
     times = {**times, "solve": time.perf_counter() - t}
     out = {"bed": path, "bc": "kubc", "properties": {k: float(solver["properties"][k])
                                                      for k in NINE},
            "intervals": None, "coverage": None, "flagged": True, "flag_reasons": ["failed"],
            "source": "solver", "error": str(error), "size": bed.attrs.get("size"),
-           "notes": [], "model": None,
+           "notes": [], "model": None, "springs": solver["springs"],
            "solver": solver["solver"]}
     out = {**header("predict", bed.centers, bed.radii, resolve_material(bed.attrs)[1],
                     input_path=path), **out}
@@ -187,7 +212,7 @@ def _one_bed(args, sur, threshold, item, prediction, times, t_start, extra):
             reasons.append("interval")
     bad = [k for k, v in zip(SIX, res["mean"][0]) if not math.isfinite(v)]
     solver, rank = solve_for(args, bed, reasons, times, f"the model {sur.path} is damaged or "
-                             f"overflows on this bed ({', '.join(bad) or 'spread'})")
+                             f"overflows on this bed ({', '.join(bad) or 'spread'})", sur.springs)
     flagged = bool(reasons)
 
     surrogate_props = _properties(res)
@@ -216,6 +241,7 @@ def _one_bed(args, sur, threshold, item, prediction, times, t_start, extra):
         "members": sur.n_members,
         "inputs": list(sur.inputs),
         "labels": sur.labels,            # the label rule (docs/model.md, section 5)
+        "springs": sur.springs,          # the labels' bond springs (docs/model.md, s. 11)
         "image_shape": list(image.shape),
         "density": float(image.mean(dtype="float64")),
     }
