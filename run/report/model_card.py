@@ -116,8 +116,14 @@ def main(argv=None):
     name = os.path.relpath(os.path.abspath(args.model), ROOT)
     w(f"# Model card: {name}")
     w("")
-    w(f"Written by `python -m run.report.model_card` (the command is in its docstring). The default "
-      "model of `amfe predict` for beds of its size (`training/shipped.py`); issue 13's measurements and the models it was chosen from "
+    springs = sur.springs
+    role = ("The model of `amfe predict --springs continuum` for beds of its size "
+            "(`training/shipped.py`), whose labels are solved with the continuum springs (issue "
+            "47, docs/model.md section 11); for the paper springs' models, " if
+            springs["name"] == "continuum" else "The default model of `amfe predict` for beds "
+            "of its size (`training/shipped.py`); ")
+    w(f"Written by `python -m run.report.model_card` (the command is in its docstring). {role}"
+      "issue 13's measurements and the models it was chosen from "
       "are in [surrogate_scaling.md](surrogate_scaling.md), a summary in "
       "[surrogate.md](surrogate.md); round 1's networks in [surrogate_round1.md](surrogate_round1.md).")
     w("")
@@ -131,6 +137,12 @@ def main(argv=None):
                       "(`training/predict.py`, exact where rule 2 keeps the same piece; the "
                       "Poisson ratios do not move). The held-out errors below are on rule-1 "
                       "labels; against rule-2 labels see docs/datasets.md, \"Label rules\"."))
+    if springs["name"] == "continuum":
+        w(f"- Springs of the labels: continuum, fit version {springs['version']} (alpha "
+          f"{springs['alpha']:.5g}, beta_n {springs['beta_n']:.5g}, beta_t "
+          f"{springs['beta_t']:.5g}; `amfe/models/springs_continuum.json`): the labels are "
+          "`amfe homogenize --springs continuum`'s, so a new fit needs new labels and a new "
+          "model (tests/test_continuum_surrogate.py fails when they differ).")
     w(f"- {len(ck['members'])} members of the multi-scale net (`training/multiscale.py`, "
       f"arguments {ck['arch_args']}), {ck['n_parameters']:,} parameters each, seeds "
       f"{ck['member_seeds']}; {os.path.getsize(args.model) / 1e6:.2f} MB of plain tensors "
