@@ -74,6 +74,7 @@ COMMANDS = {
         "tests/test_training.py", "tests/test_cli_faults.py"],
     "amfe train --init": ["tests/test_stiffness_predict.py"],
     "amfe predict BED --stiffness": ["tests/test_predict_batch.py"],
+    "amfe predict BED --springs continuum": ["tests/test_continuum_surrogate.py"],
     "amfe predict -o": ["tests/test_predict_batch.py"],
     "python -m amfe": ["tests/test_layout.py"],
     "source run/env.sh && .venv/bin/python -m run.report.report": [

@@ -4,6 +4,15 @@
         --test /work/data/heldout_seed2_300.h5 --ood /work/data/small_ood.h5 \
         --baseline /work/data/exp/custom_small_round1.pt --previous /work/data/exp/initial.pt
 
+The continuum springs' model's card (docs/model_card_continuum.md; its --also lines are
+the held-out sets' rebuilds and the calibration, as the card shows them):
+
+    L=$(for f in labels/small_continuum_seed47100_labels_0000*.h5; do echo -n "--labels $f "; done)
+    .venv/bin/python -m run.report.model_card --model amfe/models/multiscale_small_continuum.pt \
+        --test /work/labels47c/small_continuum_s47200_test.h5 --init-commit 5aa7ca8 \
+        --init-model amfe/models/multiscale_small.pt --init-card docs/model_card.md $L \
+        --also "..." -o docs/model_card_continuum.md
+
 Everything comes from the checkpoint (architecture, members and seeds, data
 set hash and split, recipe) and from evaluating it here: errors per property
 and per kind of bed on each held-out file (run/train/eval_surrogate.py's groups),
@@ -93,6 +102,9 @@ def main(argv=None):
                     help="the committed label tables (labels/, repeat) the training data set "
                          "is rebuilt from: the card then gives the fresh-clone command "
                          "`amfe dataset --from-labels` instead of the labelling run")
+    ap.add_argument("--also", action="append", default=[], metavar="COMMAND",
+                    help="a command line appended to the card's commands (repeat): how the "
+                         "held-out sets are rebuilt, the intervals' calibration")
     ap.add_argument("-o", "--output", default=OUT)
     args = ap.parse_args(argv)
     import torch
@@ -196,6 +208,7 @@ def main(argv=None):
         init_path = "/work/data/exp/initial.pt"
         w(f"git show {args.init_commit}:{args.init_model} > {init_path}")
     L.extend(train_commands(ck, init_path, name))
+    L.extend(args.also)
     w("```")
     w("")
     w("## Held-out errors")
