@@ -163,3 +163,23 @@ def test_a_bed_outside_the_fits_range_is_warned_and_one_inside_is_not():
     warned = [w for w in amfe.homogenize(bed, springs=outside).extra["warnings"]
               if "neck share" in w]
     assert len(warned) == 1 and "--model voxel" in warned[0]
+
+
+def test_the_continuum_moduli_scale_exactly_with_E_and_not_with_the_length_unit():
+    """Every continuum spring is E times a function of the geometry (the body's compliance
+    is phi / (E R^m)): half the E halves the moduli and keeps the Poisson ratios, which is
+    what lets amfe predict scale a bed of another E (docs/surrogate.md); and a bed given in
+    other lengths (all of it x 1000) has the same constants."""
+    bed = bed_for("tiny", 7)
+    steel = amfe.homogenize(bed, springs="continuum", rtol=1e-12)
+    half = amfe.homogenize(bed, springs="continuum", rtol=1e-12,
+                           material={"E": STEEL.E / 2, "nu": STEEL.nu, "psi": STEEL.psi})
+    for name in LABEL_NAMES:
+        factor = 0.5 if name.startswith("E") else 1.0
+        assert half.properties[name] == pytest.approx(factor * steel.properties[name],
+                                                      rel=1e-7), name
+    big = amfe.Bed(bed.centers * 1e3, bed.radii * 1e3,
+                   {**bed.attrs, "size": [s * 1e3 for s in bed.attrs["size"]]})
+    scaled = amfe.homogenize(big, springs="continuum", rtol=1e-12)
+    for name in LABEL_NAMES:
+        assert scaled.properties[name] == pytest.approx(steel.properties[name], rel=1e-7), name

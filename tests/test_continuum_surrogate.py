@@ -72,6 +72,15 @@ def test_amfe_predict_springs_continuum_picks_it(tmp_path):
     assert plain["model"] == os.fspath(models_dir() / SHIPPED["small"])
     assert plain["springs"] == {"name": "paper"}
     assert plain["properties"]["Ex"] > 1.1 * rec["properties"]["Ex"]
+    # a bed that differs only in E: the continuum model's moduli scaled exactly
+    from amfe.model.material import STEEL
+    half = amfe.predict(path, springs="continuum",
+                        material={"E": STEEL.E / 2, "nu": STEEL.nu, "psi": STEEL.psi})
+    assert half.source == "surrogate" and half.to_dict()["springs"]["name"] == "continuum"
+    for name in LABELS:
+        factor = 0.5 if name.startswith("E") else 1.0
+        assert half.properties[name] == pytest.approx(factor * rec["properties"][name],
+                                                      rel=1e-9), name
 
 
 def test_the_fallback_solves_with_the_continuum_springs(tmp_path):
