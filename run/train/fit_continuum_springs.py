@@ -13,6 +13,7 @@ file (amfe/models/springs_continuum.json by default) with the fit's data and res
 
     python -m run.train.fit_continuum_springs [--tables labels/continuum] [-o FILE]
     python -m run.train.fit_continuum_springs --check    # the shipped fit on unseen beds
+    python -m run.train.fit_continuum_springs --bound    # what a per-bed scale could reach
 """
 import glob
 import json
@@ -103,6 +104,23 @@ def check(beds, made):
     print(md_table(["beds, springs", "solid fraction", "n", *MODULI, *NUS], rows))
 
 
+def scalar_bound():
+    """Print, per part of the shipped fit (held out, fit), each modulus' share of beds within
+    10 % as fitted and after removing each bed's mean log ratio of the six: the best any
+    correction that scales a bed's moduli alike could do; what is left is the frame's
+    anisotropy against the continuum's."""
+    with open(PARAMS_FILE) as f:
+        residuals = json.load(f)["fit"]["residuals"]
+    for part, res in residuals.items():
+        logs = np.array(res["log_ratio"])
+        for how, x in (("as fitted", logs), ("each bed's level removed",
+                                             logs - logs.mean(axis=1, keepdims=True))):
+            within = (np.abs(np.expm1(x)) <= 0.1).mean(axis=0)
+            print(f"{part} ({len(logs)} beds), {how}: within 10 % "
+                  + ", ".join(f"{n} {w:.0%}" for n, w in zip(MODULI, within))
+                  + f"; mean log ratio {np.round(x.mean(axis=0), 3)}")
+
+
 def bed_neck_share(bed):
     """The mean neck share of ``bed``'s load-carrying particles under KUBC."""
     frame = build_frame(bed.centers, bed.radii, bed.material(), size=bed.attrs.get("size"))
@@ -147,7 +165,13 @@ def main():
     ap.add_argument("--check", action="store_true",
                     help="fit nothing: the shipped springs on every bed their fit never used "
                          "(held out, or in a table packed after it)")
+    ap.add_argument("--bound", action="store_true",
+                    help="fit nothing: from the shipped fit's stored residuals, the share of "
+                         "beds within 10 %% if each bed's six moduli were also scaled alike "
+                         "by the best factor for that bed")
     args = ap.parse_args()
+    if args.bound:
+        return scalar_bound()
     beds = read_labels(args.tables)
     if not beds:
         raise SystemExit(f"no labelled beds in {args.tables}")
