@@ -192,3 +192,31 @@ def test_every_method_writes_the_same_layout(tmp_path):
     assert (v["Ex_lo [Pa]"], v["flagged"], s["G_yz [Pa]"]) == ("", "", "")
     assert float(s["Ex_lo [Pa]"]) == 0.9e9 and s["flagged"] == "true"
     assert float(v["G_xy [Pa]"]) == consts["G_xy"]
+
+
+def test_a_sweep_with_the_continuum_springs(tmp_path):
+    """--springs continuum: the solver rows are amfe.homogenize(springs="continuum") of the
+    same beds, the surrogate rows the continuum springs' model's, and the spec records the
+    springs (a paper sweep's spec does not name them: its fingerprint is as before)."""
+    from amfe.study.run import bed_of
+    grid = ["--grid", "hatch_spacing=0.1", "--grid", "track_width=0.05", "--seeds", "2",
+            "--no-progress", "--springs", "continuum"]
+    code, _, err = run_main(["sweep", "-o", tmp_path / "v", *grid])
+    assert code == 0, err
+    spec = SweepSpec(points=({"hatch_spacing": 1e-4, "track_width": 5e-5},), seeds=(0, 1),
+                     springs="continuum")
+    assert json.loads((tmp_path / "v" / "sweep.json").read_text())["springs"] == "continuum"
+    assert "springs" not in SweepSpec(points=spec.points, seeds=(0,)).to_dict()
+    solved = read_csv(tmp_path / "v" / "beds.csv")
+    for k, row in enumerate(solved):
+        want = amfe.homogenize(bed_of(spec, k)[0], springs="continuum")
+        assert float(row["Ex [Pa]"]) == pytest.approx(want.Ex, rel=1e-12)
+        assert float(row["Ex [Pa]"]) != pytest.approx(amfe.homogenize(bed_of(spec, k)[0]).Ex,
+                                                      rel=1e-3)
+    code, _, err = run_main(["sweep", "-o", tmp_path / "s", *grid, "--method", "surrogate"])
+    assert code == 0, err
+    for row, truth in zip(read_csv(tmp_path / "s" / "beds.csv"), solved):
+        assert row["source"] == "surrogate"
+        assert abs(float(row["Ex [Pa]"]) / float(truth["Ex [Pa]"]) - 1) < 0.15
+    with pytest.raises(AmfeError, match="springs must be one of"):
+        SweepSpec(points=spec.points, seeds=(0,), springs="voxel")

@@ -2,6 +2,7 @@
 
     mpirun -n N amfe sweep -o DIR --grid hatch_spacing=0.1,0.12,0.15 --grid track_width=0.05,0.1
                            [--seeds 4] [--size 0.6 0.6 0.3] [--method solver|surrogate [--fallback]]
+                           [--springs paper|continuum]
     amfe sweep -o DIR --file SWEEP.toml
 
 Every bed's row is kept as it finishes: a killed sweep resumes with the same
@@ -46,6 +47,10 @@ def register(sub):
     p.add_argument("--rtol", type=float, default=None, help="as amfe homogenize --rtol")
     p.add_argument("--ranks-per-bed", type=int, default=None, metavar="K",
                    help="MPI ranks that solve one bed together (default 1)")
+    p.add_argument("--springs", choices=["paper", "continuum"], default=None,
+                   help="the bond springs (as amfe homogenize --springs; default paper); with "
+                        "--method surrogate, continuum takes the continuum springs' model "
+                        "(0.6 mm beds)")
     p.add_argument("--plot", default="Ex", metavar="CONSTANT",
                    help="the constant plotted (default Ex; also solid_fraction)")
     p.add_argument("--x", default=None, metavar="NAME", help="the plot's x parameter")
@@ -68,7 +73,7 @@ def spec_of(args):
     kw.setdefault("seeds", seeds_of(4))
     if args.size is not None:
         kw["size"] = tuple(v * 1e-3 for v in args.size)
-    for name in ("method", "solver", "rtol", "ranks_per_bed"):
+    for name in ("method", "solver", "rtol", "ranks_per_bed", "springs"):
         if getattr(args, name) is not None:
             kw[name] = getattr(args, name)
     if args.fallback:

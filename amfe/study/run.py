@@ -193,7 +193,8 @@ class _Worker:
         if self.spec.method == "surrogate" and ok:
             # torch and the model only for a surrogate sweep, not on a solver one's start-up
             from amfe.study.surrogate import predict_rows
-            for i, part in zip(ok, predict_rows(self.surrogates, [beds[i] for i in ok])):
+            for i, part in zip(ok, predict_rows(self.surrogates, [beds[i] for i in ok],
+                                                self.spec.springs)):
                 rows[i].update(part)
         for i in ok:
             if self.spec.method == "surrogate" and not (rows[i]["flagged"]
@@ -219,7 +220,7 @@ class _Worker:
         logger.setLevel(logging.ERROR)   # a bed's warnings go to its row, not the terminal
         try:
             result = homogenize(bed, comm=self.group, solver=self.spec.solver,
-                                rtol=self.spec.rtol, **options)
+                                rtol=self.spec.rtol, springs=self.spec.springs, **options)
         finally:
             logger.setLevel(level)
         return {**{name: float(result.properties[name]) for name in CONSTANT_NAMES},

@@ -27,6 +27,8 @@ LENGTHS = ("track_width", "hatch_spacing", "skip_length", "offset", "mean_radius
            "layer_thickness")
 PARAMETERS = SCAN + POWDER + MATERIAL
 METHODS = ("solver", "surrogate")
+#: the bond springs a sweep solves with (amfe.model.continuum_springs.SPRING_CHOICES)
+SPRINGS = ("paper", "continuum")
 
 
 @dataclass(frozen=True)
@@ -36,7 +38,8 @@ class SweepSpec:
     points: tuple of {parameter: value} (SI), the same keys in every point;
     seeds: tuple of int bed seeds; size (3,) [m]: the beds' box; method:
     "solver" (amfe.homogenize) or "surrogate" (the shipped model, ``fallback``:
-    its flagged beds solved); solver, rtol, ranks_per_bed: the solve's.
+    its flagged beds solved); solver, rtol, ranks_per_bed: the solve's; springs: the bond
+    springs, "paper" or "continuum" (the solves', and the surrogate's model of them).
     """
 
     points: tuple
@@ -48,6 +51,7 @@ class SweepSpec:
     rtol: float = None
     ranks_per_bed: int = 1
     base: dict = field(default_factory=dict)
+    springs: str = "paper"
 
     def __post_init__(self):
         if not self.points:
@@ -71,6 +75,9 @@ class SweepSpec:
                             "--method surrogate")
         for name, value in self.base.items():
             _check(name, value)
+        if self.springs not in SPRINGS:
+            raise AmfeError(f"sweep: springs must be one of {', '.join(SPRINGS)}, got "
+                            f"{self.springs!r}")
         if not (isinstance(self.ranks_per_bed, int) and self.ranks_per_bed >= 1):
             raise AmfeError(f"sweep: ranks per bed must be a positive integer, got "
                             f"{self.ranks_per_bed!r}")
@@ -89,8 +96,11 @@ class SweepSpec:
         return divmod(k, len(self.seeds))[0], self.seeds[k % len(self.seeds)]
 
     def to_dict(self):
-        return {**asdict(self), "points": [dict(p) for p in self.points],
-                "seeds": list(self.seeds), "size": list(self.size)}
+        out = {**asdict(self), "points": [dict(p) for p in self.points],
+               "seeds": list(self.seeds), "size": list(self.size)}
+        if self.springs == "paper":   # a sweep from before --springs keeps its fingerprint
+            del out["springs"]
+        return out
 
     def fingerprint(self):
         """A JSON string that names the sweep: its beds and how they are solved."""
@@ -144,7 +154,7 @@ def read_spec_file(path):
 
     [grid] NAME = [values] gives the full grid; [[point]] tables a list of
     points instead; seeds = N (0..N-1) or [list]; size = [x, y, z]; method,
-    fallback, solver, rtol, ranks_per_bed; [base] NAME = value. Lengths are
+    fallback, solver, rtol, ranks_per_bed, springs; [base] NAME = value. Lengths are
     strings with a unit ("0.1mm") or numbers in mm.
     """
     try:
@@ -155,7 +165,7 @@ def read_spec_file(path):
     except (OSError, tomllib.TOMLDecodeError) as exc:
         raise AmfeError(f"sweep: cannot read {path} as TOML: {exc}") from None
     unknown = set(data) - {"grid", "point", "seeds", "size", "method", "fallback", "solver",
-                           "rtol", "ranks_per_bed", "base"}
+                           "rtol", "ranks_per_bed", "base", "springs"}
     if unknown:
         raise AmfeError(f"sweep: {path}: unknown keys {sorted(unknown)}")
     if ("grid" in data) == ("point" in data):
@@ -170,7 +180,7 @@ def read_spec_file(path):
         out["size"] = tuple(read_value("track_width", v) for v in data["size"])
     if "base" in data:
         out["base"] = {n: read_value(n, v) for n, v in data["base"].items()}
-    for key in ("method", "fallback", "solver", "rtol", "ranks_per_bed"):
+    for key in ("method", "fallback", "solver", "rtol", "ranks_per_bed", "springs"):
         if key in data:
             out[key] = data[key]
     return out

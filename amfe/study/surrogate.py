@@ -19,12 +19,15 @@ _ARGS = SimpleNamespace(model=None, stiffness=False, fallback=False, check=False
                         threshold=None, petsc_args=[])
 
 
-def predict_rows(cache, beds):
+def predict_rows(cache, beds, springs="paper"):
     """[{constants, source, flagged, flag_reasons, route, <name>_lo/_hi, solid_fraction}] of
-    ``beds``; ``cache``: kept between calls (the loaded models)."""
+    ``beds``; ``cache``: kept between calls (the loaded models); springs: "continuum" takes
+    the continuum springs' model (a bed it does not cover gets a failed row, which a
+    fallback sweep solves)."""
     if not cache:
         warm()   # the compiled imaging for every bed of the sweep: 10x faster on small ones
-    records, _ = predict_records(_ARGS, beds, {}, time.perf_counter(), cache)
+    args = SimpleNamespace(**vars(_ARGS), springs=None if springs == "paper" else springs)
+    records, _ = predict_records(args, beds, {}, time.perf_counter(), cache)
     return [_row(out) for out, _ in records]
 
 
