@@ -134,9 +134,15 @@ def test_springs_reach_the_data_set_its_labels_and_the_command_line(tmp_path, ca
     # the command line's homogenize writes the same choice into its JSON
     bed_path, res = tmp_path / "bed.h5", tmp_path / "r.json"
     amfe.write_bed(bed_path, bed)
+    capsys.readouterr()
     assert main(["homogenize", str(bed_path), "-o", str(res), "--quiet", "--springs",
                  "continuum"]) == 0
     assert json.loads(res.read_text())["springs"] == springs_record("continuum")
+    # the printout says what these springs do not follow, and where to go for it
+    printed = capsys.readouterr().out
+    assert "springs: continuum (fit " in printed and "use --model voxel" in printed
+    assert main(["homogenize", str(bed_path), "--quiet"]) == 0
+    assert "springs:" not in capsys.readouterr().out
     # its label table is named apart, keeps the springs, and rebuilds the same labels
     shards = tmp_path / "labels"
     shards.mkdir()

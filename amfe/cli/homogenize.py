@@ -179,6 +179,11 @@ def summary(result, bed_path, output=None, vtu=None):
         m = result["material"]
         lines.append(f"material: E {m['E'] / 1e9:g} GPa, nu {m['nu']:g}, psi {m['psi']:g} "
                      f"({m['source']})")
+    springs = result.get("springs") or {}
+    if springs.get("name") == "continuum":   # what the fitted springs do not follow (issue 47)
+        lines.append(f"springs: continuum (fit {springs.get('version')}): the moduli follow the "
+                     "voxel continuum to about a tenth, the Poisson ratios stay too small; for "
+                     "them use --model voxel (docs/model.md, section 11)")
     if "model" in result:  # voxel model (issue 35)
         v = result["model"]
         lines.append(f"model: voxel, {'x'.join(map(str, v['voxels']))} voxels of "
