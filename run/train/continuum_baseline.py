@@ -2,7 +2,8 @@
 
 On continuum-spring test beds: the paper springs' small model as is, the same times its
 median ratio to the labels per constant (fitted on the calibration beds), and the
-continuum model; mean relative error % per constant, and the spread of the label /
+continuum model; mean relative error % per constant, the continuum model's flag
+(share flagged, recall of beds more than 10 % off), and the spread of the label /
 paper-prediction ratio over the test beds (docs/surrogate.md, "The continuum springs'
 model").
 
@@ -44,6 +45,18 @@ def main(argv=None):
     print("label / paper prediction, 5-95 % of the beds: " + ", ".join(
         f"{n} {np.percentile(ratio[:, k], 5):.3f}-{np.percentile(ratio[:, k], 95):.3f}"
         for k, n in enumerate(LABEL_NAMES)))
+    # the continuum model's flag as amfe predict raises it (no risk model: the interval's
+    # width over the limit, or the fill check)
+    from amfe.training.conformal import interval_block
+    res = cont.predict(x)
+    size = tuple(float(v) for v in cont.ckpt["pixelation"]["bed_size"])
+    flag = np.array([interval_block(res["mean"][k], LABEL_NAMES, cont.ckpt["conformal"], size,
+                                    res["spread"][k])["interval_flag"] or bool(res["flagged"][k])
+                     for k in range(len(y))])
+    bad = np.any(np.abs(c / y - 1) > 0.1, axis=1)
+    print(f"continuum model's flag: {flag.mean():.1%} of the beds flagged; {bad.mean():.1%} "
+          f"have a constant more than 10 % off, {bad[flag].sum() / max(bad.sum(), 1):.0%} of "
+          f"them flagged; bad and unflagged {(bad & ~flag).mean():.1%}")
     med, med_p = np.median(y, axis=0), np.median(p, axis=0)
     print(f"median Ex {med[0] / 1e9:.1f} GPa (paper model {med_p[0] / 1e9:.1f}), nu_xy "
           f"{med[5]:.3f} (paper model {med_p[5]:.3f})")
