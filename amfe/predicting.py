@@ -12,6 +12,7 @@ import time
 from types import SimpleNamespace
 from typing import TYPE_CHECKING
 
+from amfe.cli.predict_common import check_springs
 from amfe.cli.predict_core import predict_records
 from amfe.errors import AmfeError
 from amfe.model.material import Material
@@ -49,21 +50,10 @@ def predict(beds: "object | str | os.PathLike | list", *, fallback: bool = False
                            stiffness=stiffness, fallback=fallback, check=check,
                            threshold=threshold, petsc_args=list(petsc_args),
                            material=_given(material), material_source="argument",
-                           springs=_springs(springs, stiffness))
+                           springs=check_springs(springs, stiffness))
     records, _ = predict_records(args, items, {}, time.perf_counter())
     out = [Prediction(record) for record, _ in records]
     return out[0] if one else out
-
-
-def _springs(springs, stiffness):
-    """``springs`` checked as ``amfe predict --springs`` checks it."""
-    if springs not in (None, "paper", "continuum"):
-        raise AmfeError(f"predict: springs must be 'paper' or 'continuum', not {springs!r}")
-    if stiffness and springs == "continuum":
-        raise AmfeError("predict: no shipped full-stiffness model for the continuum springs: "
-                        "leave out stiffness, or solve with amfe.homogenize(springs="
-                        "'continuum')")
-    return springs
 
 
 def _given(material):

@@ -34,10 +34,12 @@ import time
 
 from amfe.cli.homogenize import add_material_args, given_material
 from amfe.cli.options import nonnegative_float, thread_count
+from amfe.cli.predict_common import check_springs
 from amfe.cli.predict_core import NINE, SIX, flag_reasons, interval_of  # noqa: F401 (re-exported)
 from amfe.errors import AmfeError
 from amfe.io.atomic import write_json
 from amfe.io.paths import check_output, is_stdout
+from amfe.model.continuum_springs import SPRING_CHOICES
 
 #: exit status of a batch in which some beds could not be predicted (their records say why)
 EXIT_SOME_FAILED = 3
@@ -57,7 +59,7 @@ def register(sub):
                    help="use the shipped full-stiffness model for the bed's size "
                         "(amfe/models/stiffness_SCALE.pt): C, the shear moduli and their "
                         "intervals as well (0.6, 1.2 and 3 mm beds)")
-    p.add_argument("--springs", choices=("paper", "continuum"),
+    p.add_argument("--springs", choices=SPRING_CHOICES,
                    help="the bond springs of the labels the model learnt (docs/model.md, "
                         "section 11): continuum picks the shipped continuum-spring model "
                         "(0.6 mm beds); --check and --fallback solve with the model's springs "
@@ -84,10 +86,7 @@ def check_args(args):
     if args.stiffness and args.model:
         raise AmfeError("give --model or --stiffness, not both: --stiffness picks the shipped "
                         "full-stiffness model")
-    if args.stiffness and args.springs == "continuum":
-        raise AmfeError("no shipped full-stiffness model for the continuum springs: leave out "
-                        "--stiffness, or solve with amfe homogenize --springs continuum (its "
-                        "JSON has C and the shear moduli)")
+    check_springs(args.springs, args.stiffness)
     if args.output is not None:
         check_output(args.output, inputs=[*args.bed, args.model], allow_stdout=True)
     from amfe.model.tolerance import check_command_rtol, given_rtol

@@ -6,6 +6,7 @@ import time
 from amfe.cli.interrupt import launcher_rank
 from amfe.errors import AmfeError
 from amfe.io.result_meta import header, predict_block
+from amfe.model.continuum_springs import SPRING_CHOICES
 from amfe.model.material import resolve_material
 
 
@@ -45,9 +46,19 @@ def solve_bed(bed, springs="paper"):
                                             springs=chosen)).to_dict()
 
 
-def asked_springs(args):
-    """The springs ``--springs`` asked for ("paper", "continuum"), or None when not given."""
-    return getattr(args, "springs", None)
+def check_springs(springs, stiffness):
+    """``springs`` as amfe predict and amfe.predict take it: None (the paper's, or the given
+    model's own), "paper" or "continuum"; AmfeError for another, and for the continuum
+    springs with the full-stiffness model (none is shipped for them)."""
+    if springs is not None and springs not in SPRING_CHOICES:
+        raise AmfeError(f"predict: springs must be one of {', '.join(SPRING_CHOICES)}, not "
+                        f"{springs!r}")
+    if stiffness and springs == "continuum":
+        raise AmfeError("predict: no shipped full-stiffness model for the continuum springs: "
+                        "leave out --stiffness, or solve with amfe homogenize --springs "
+                        "continuum (amfe.homogenize(springs='continuum')): its JSON has C and "
+                        "the shear moduli")
+    return springs
 
 
 def given_notes(args):

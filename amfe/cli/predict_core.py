@@ -16,7 +16,6 @@ import time
 from amfe.cli.interrupt import launcher_rank
 from amfe.cli.predict_any import Models, needs_route, route_record
 from amfe.cli.predict_common import (
-    asked_springs,
     finish,
     finite_or_none,
     given_notes,
@@ -44,7 +43,7 @@ def predict_records(args, items, times, t_start, cache=None):
     records, beds, chosen = [None] * len(items), [None] * len(items), [None] * len(items)
     cache = {} if cache is None else cache
     models = cache.setdefault("routes", Models())
-    springs = asked_springs(args)
+    springs = args.springs   # None: the paper's, or the given model's own
     for k, item in enumerate(items):
         path = os.fspath(item) if isinstance(item, (str, os.PathLike)) else None
         try:
@@ -173,7 +172,7 @@ def _failed(args, item, error, times, t_start):
     from amfe.solvers.petsc import init_petsc
     init_petsc(args.petsc_args)
     t = time.perf_counter()
-    solver = solve_bed(bed, asked_springs(args) or "paper")
+    solver = solve_bed(bed, args.springs or "paper")
     times = {**times, "solve": time.perf_counter() - t}
     out = {"bed": path, "bc": "kubc", "properties": {k: float(solver["properties"][k])
                                                      for k in NINE},

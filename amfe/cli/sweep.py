@@ -15,6 +15,7 @@ import sys
 from amfe.cli.interrupt import launcher_rank
 from amfe.errors import AmfeError
 from amfe.io.units import length
+from amfe.model.continuum_springs import SPRING_CHOICES
 
 
 def register(sub):
@@ -47,7 +48,7 @@ def register(sub):
     p.add_argument("--rtol", type=float, default=None, help="as amfe homogenize --rtol")
     p.add_argument("--ranks-per-bed", type=int, default=None, metavar="K",
                    help="MPI ranks that solve one bed together (default 1)")
-    p.add_argument("--springs", choices=["paper", "continuum"], default=None,
+    p.add_argument("--springs", choices=SPRING_CHOICES, default=None,
                    help="the bond springs (as amfe homogenize --springs; default paper); with "
                         "--method surrogate, continuum takes the continuum springs' model "
                         "(0.6 mm beds)")

@@ -17,6 +17,7 @@ from dataclasses import asdict, dataclass, field
 
 from amfe.errors import AmfeError
 from amfe.io.units import parse_length
+from amfe.model.continuum_springs import SPRING_CHOICES
 
 #: Parameters a point may set, and how each is read: a length (bare in mm), a number.
 SCAN = ("track_width", "hatch_spacing", "angle", "layer_rotation", "skip_fraction",
@@ -27,8 +28,6 @@ LENGTHS = ("track_width", "hatch_spacing", "skip_length", "offset", "mean_radius
            "layer_thickness")
 PARAMETERS = SCAN + POWDER + MATERIAL
 METHODS = ("solver", "surrogate")
-#: the bond springs a sweep solves with (amfe.model.continuum_springs.SPRING_CHOICES)
-SPRINGS = ("paper", "continuum")
 
 
 @dataclass(frozen=True)
@@ -75,8 +74,8 @@ class SweepSpec:
                             "--method surrogate")
         for name, value in self.base.items():
             _check(name, value)
-        if self.springs not in SPRINGS:
-            raise AmfeError(f"sweep: springs must be one of {', '.join(SPRINGS)}, got "
+        if self.springs not in SPRING_CHOICES:
+            raise AmfeError(f"sweep: springs must be one of {', '.join(SPRING_CHOICES)}, got "
                             f"{self.springs!r}")
         if not (isinstance(self.ranks_per_bed, int) and self.ranks_per_bed >= 1):
             raise AmfeError(f"sweep: ranks per bed must be a positive integer, got "
