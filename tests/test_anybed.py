@@ -170,3 +170,26 @@ def test_a_material_given_for_the_bed_is_the_one_written_in_its_file(tmp_path):
     solved = amfe.homogenize(bed, material=Material(**given)).properties
     for k in ("Ex", "Ey", "Ez", "nu_yz", "nu_xz", "nu_xy"):
         assert rec["check"]["solver"][k] == pytest.approx(solved[k], rel=1e-6)
+
+
+def test_a_size_between_the_shipped_ones_is_the_rule_over_the_torch_networks(tmp_path):
+    """A 0.66 x 0.66 mm bed: the shipped models read its 22 x 22 image (fully convolutional),
+    and its prediction is the size rule's mix of their members, here recomputed with torch
+    (the numpy inference, amfe.training.npnet, must not refuse the other image size)."""
+    from amfe.training.ensemble import predict_raw
+    from amfe.training.predict import Surrogate
+    from amfe.training.shipped import SHIPPED, models_dir
+    bed = amfe.generate_bed(size=(0.66e-3, 0.66e-3, 0.3e-3), seed=2)
+    p = amfe.predict(bed)
+    assert p.source == "surrogate" and p.to_dict()["route"] == "size rule"
+    fill, bonds, box = bed_images(bed, bed.attrs["size"])
+    x = torch.from_numpy(np.concatenate([fill, bonds])[None])
+    members = 0.0
+    for size, w in size_weights(box[0] * 1e3, box[1] * 1e3):
+        name = SHIPPED[{0.6: "small", 1.2: "medium"}[size]]
+        sur = Surrogate.load(models_dir() / name, backend="torch")
+        members = members + w * np.stack([predict_raw(net, x, sur.norm, sur.tta).numpy()
+                                          for net in sur.nets])
+    want = members.mean(axis=0)[0]
+    got = np.array([p.properties[k] for k in ("Ex", "Ey", "Ez", "nu_yz", "nu_xz", "nu_xy")])
+    np.testing.assert_allclose(got, want, rtol=1e-5)

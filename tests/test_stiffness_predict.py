@@ -125,13 +125,15 @@ def test_six_constant_path_is_unchanged(models):
     """A six-constant model: the members' TTA-averaged decoded outputs, no stiffness keys."""
     from amfe.training.ensemble import predict_raw
     from amfe.training.predict import Surrogate
-    sur = Surrogate.load(models[0])
+    sur = Surrogate.load(models[0], backend="torch")
     x = images_of(models[2])
     res = sur.predict(x)
     assert "stiffness" not in res and "constants9" not in res
     want = np.mean([predict_raw(net, torch.from_numpy(x), sur.norm, sur.tta).numpy()
                     for net in sur.nets], axis=0)
     np.testing.assert_allclose(res["mean"], want, rtol=1e-12)
+    # the default, numpy inference (amfe.training.npnet): the same to float32 rounding
+    np.testing.assert_allclose(Surrogate.load(models[0]).predict(x)["mean"], want, rtol=1e-5)
 
 
 def test_amfe_predict_writes_stiffness_and_shear(models):

@@ -21,10 +21,8 @@ for the present layers, zero for the padding channels and the descriptors, so
 at the start it gives the small model's output bit for bit on a small bed.
 """
 import numpy as np
-import torch
 
 from amfe.errors import AmfeError
-from amfe.training.multiscale import MultiScaleNet
 
 #: The thickest bed, in layers, the input holds; the thinnest the network was trained on.
 MAX_LAYERS, MIN_LAYERS = 6, 2
@@ -83,6 +81,7 @@ def anybed_inputs(fill, bonds, nu, psi):
 
 def anybed_net(image_hw, width=0.5):
     """A fresh anybed network for (H, W) images (MultiScaleNet, the small model's widths)."""
+    from amfe.training.multiscale import MultiScaleNet  # torch: only to build or train one
     H, W = image_hw
     return MultiScaleNet((2 * MAX_LAYERS + len(DESCRIPTORS), H, W), width=width,
                          n_fill=MAX_LAYERS, features=len(DESCRIPTORS))
@@ -91,6 +90,7 @@ def anybed_net(image_hw, width=0.5):
 def from_small(state, image_hw, layers=3, width=0.5):
     """An anybed network whose output on a ``layers``-layer steel bed is that of the
     MultiScaleNet of ``state`` (its state_dict, fill + bond inputs of ``layers`` layers)."""
+    import torch
     net = anybed_net(image_hw, width)
     new = net.state_dict()
     old = {k: v.clone() for k, v in state.items()}

@@ -19,13 +19,11 @@ import json
 import time
 
 import numpy as np
-import torch
 
 from amfe.dataset.bondimage import bond_image
 from amfe.dataset.images import pixelate
 from amfe.errors import AmfeError
 from amfe.training.anybed import E_TRAINED, REFERENCE, anybed_inputs, check_bed_kind
-from amfe.training.anysize import HEIGHT_TOL, cropped_box
 from amfe.training.anystack import (
     STACK_FILE,
     STEEL_LAYERS,
@@ -37,7 +35,8 @@ from amfe.training.anystack import (
     window_starts,
 )
 from amfe.training.conformal import DEFAULT_COVERAGE, DEFAULT_FLAG_HALF_WIDTH, size_key
-from amfe.training.ensemble import predict_raw, relative_spread
+from amfe.training.ensemble import relative_spread
+from amfe.training.imagebox import HEIGHT_TOL, cropped_box
 from amfe.training.shipped import models_dir
 from amfe.training.sizerule import inverse_size, size_weights
 from amfe.vocab import LABEL_NAMES
@@ -62,8 +61,7 @@ def route_of(layers, lx_mm, ly_mm, nu, psi):
 
 def _members(sur, x):
     """(members, n, 6) raw outputs of a Surrogate's networks on inputs x (n, c, H, W)."""
-    xt = torch.as_tensor(np.ascontiguousarray(x, np.float32))
-    return np.stack([predict_raw(net, xt, sur.norm, sur.tta).numpy() for net in sur.nets])
+    return sur.run_members(np.ascontiguousarray(x, np.float32))
 
 
 def rule_members(shipped, fill, bonds, lx_mm, ly_mm):

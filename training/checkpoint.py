@@ -31,11 +31,11 @@ import pickle
 from collections import OrderedDict
 
 import numpy as np
-import torch
 
 from amfe.errors import AmfeError
 from amfe.io.atomic import atomic_write
-from amfe.training.nets import ARCHITECTURES, build_net
+from amfe.training import ARCH_NAMES, STIFFNESS_HEAD
+from amfe.training.torchfile import TensorArray, read_pickle, read_torch_file
 from amfe.training.validate import check_fields, check_members
 from amfe.version import __version__
 
@@ -47,6 +47,7 @@ REQUIRED = ("format", "format_version", "arch", "arch_args", "members", "normali
 
 def save_checkpoint(path, ckpt):
     """Write ``ckpt`` (a dict of plain data, see the module docstring) atomically to ``path``."""
+    import torch
     ckpt = dict(ckpt)
     ckpt.setdefault("format", FORMAT)
     ckpt.setdefault("format_version", FORMAT_VERSION)
@@ -65,10 +66,14 @@ def _plain(obj, where):
     """``obj`` as builtin plain data (numpy scalars and str subclasses converted); else AmfeError.
 
     A weights-only load reads back nothing else: a str subclass such as
-    torch.__version__ or a numpy float would be a pickled class.
+    torch.__version__ or a numpy float would be a pickled class. A TensorArray (a tensor
+    read without torch, :func:`load_checkpoint` with ``arrays``) is written as a tensor.
     """
+    import torch
     if isinstance(obj, torch.Tensor):
         return obj.detach().cpu()
+    if isinstance(obj, TensorArray):
+        return torch.from_numpy(np.array(obj))
     if obj is None or type(obj) in (bool, int, float, str):
         return obj
     if isinstance(obj, (bool, np.bool_)):
@@ -114,12 +119,15 @@ def _check_signature(path):
                     "amfe train wrote")
 
 
-def load_checkpoint(path):
+def load_checkpoint(path, arrays=False):
     """The checkpoint dict at ``path``, read with weights_only=True and validated.
 
     AmfeError for a missing file, a file torch cannot read, a file that holds
     pickled Python objects other than plain data (refused, never executed),
-    and a dict that is not an amfe surrogate checkpoint.
+    and a dict that is not an amfe surrogate checkpoint. ``arrays``: read it
+    without torch (amfe.training.torchfile), its tensors as numpy arrays
+    (TensorArray), with the same refusals: what the numpy inference of the
+    multi-scale network (amfe.training.npnet) takes.
     """
     path = os.fspath(path)
     if os.path.isdir(path):
@@ -128,7 +136,7 @@ def load_checkpoint(path):
         raise AmfeError(f"model file {path} does not exist")
     _check_signature(path)
     try:
-        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+        ckpt = _read(path, arrays)
     except pickle.UnpicklingError as exc:
         raise AmfeError(f"amfe refuses to load {path}: it holds pickled Python objects that a "
                         f"weights-only load will not execute ({_unpickler_reason(exc)}); not a "
@@ -148,12 +156,22 @@ def load_checkpoint(path):
     missing = [k for k in REQUIRED if k not in ckpt]
     if missing:
         raise AmfeError(f"{path} is not a complete amfe checkpoint: missing {', '.join(missing)}")
-    if not isinstance(ckpt["arch"], str) or ckpt["arch"] not in ARCHITECTURES:
+    if not isinstance(ckpt["arch"], str) or ckpt["arch"] not in ARCH_NAMES:
         raise AmfeError(f"{path}: unknown architecture {ckpt['arch']!r}")
     if not isinstance(ckpt["members"], list) or not ckpt["members"]:
         raise AmfeError(f"{path}: the checkpoint holds no network weights")
     check_fields(ckpt, path)
     return ckpt
+
+
+def _read(path, arrays):
+    """What ``torch.save`` wrote to ``path``: weights-only torch.load, or without torch."""
+    if arrays:
+        with open(path, "rb") as fh:
+            zipped = fh.read(4) == b"PK\x03\x04"
+        return read_torch_file(path) if zipped else read_pickle(path)
+    import torch
+    return torch.load(path, map_location="cpu", weights_only=True)
 
 
 def _unpickler_reason(exc):
@@ -170,12 +188,15 @@ def build_members(ckpt, path="checkpoint"):
     if not isinstance(ckpt, dict):   # amfe.Surrogate("model.pt"): a TypeError deep inside
         raise AmfeError(f"amfe.Surrogate takes a checkpoint dict, got {type(ckpt).__name__} "
                         f"{ckpt!r:.80}; read a model file with amfe.Surrogate.load(path)")
+    import torch
+
+    from amfe.training.nets import build_net
     check_members(ckpt, path)
     nets = []
     for k, state in enumerate(ckpt["members"]):
         net = build_net(ckpt["arch"], ckpt["image_shape"], ckpt["arch_args"])
-        try:
-            net.load_state_dict(state)
+        try:   # numpy weights (load_checkpoint with arrays) become tensors
+            net.load_state_dict({name: torch.as_tensor(v) for name, v in state.items()})
         except RuntimeError as exc:
             raise AmfeError(f"{path}: the weights of member {k} do not fit a {ckpt['arch']} net "
                             f"for images {tuple(ckpt['image_shape'])}: "
@@ -183,6 +204,35 @@ def build_members(ckpt, path="checkpoint"):
         net.eval()
         nets.append(net)
     return nets
+
+
+BACKENDS = ("auto", "numpy", "torch")
+
+
+def backend_for(ckpt, backend):
+    """The backend that runs ``ckpt``'s networks: "numpy" or "torch" (``backend`` "auto",
+    "numpy" or "torch"; see amfe.training.predict.Surrogate)."""
+    if backend not in BACKENDS:
+        raise AmfeError(f"backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
+    numpy_ok = isinstance(ckpt, dict) and ckpt.get("arch") == "multiscale" \
+        and ckpt.get("head") != STIFFNESS_HEAD
+    if backend == "numpy" and not numpy_ok:
+        raise AmfeError(f"the numpy backend runs six-constant multiscale models; this one is "
+                        f"{ckpt.get('arch') if isinstance(ckpt, dict) else ckpt!r}: use "
+                        "backend='torch'")
+    return "numpy" if backend == "numpy" or (backend == "auto" and numpy_ok) else "torch"
+
+
+def numpy_members(ckpt, path="checkpoint"):
+    """The ensemble's multi-scale networks for numpy inference (amfe.training.npnet), weights
+    checked as :func:`build_members` checks them."""
+    from amfe.training.npnet import NumpyMultiScale
+    if not isinstance(ckpt, dict):
+        raise AmfeError(f"amfe.Surrogate takes a checkpoint dict, got {type(ckpt).__name__} "
+                        f"{ckpt!r:.80}; read a model file with amfe.Surrogate.load(path)")
+    check_members(ckpt, path)
+    return [NumpyMultiScale(state, ckpt["image_shape"], ckpt["arch_args"])
+            for state in ckpt["members"]]
 
 
 def check_image_shape(ckpt, shape, what="the image", path="the model", bed=False):

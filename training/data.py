@@ -40,7 +40,7 @@ from amfe.dataset.parts import STATUS_OK
 from amfe.errors import AmfeError
 from amfe.io.h5damage import damaged
 from amfe.training import AUGMENTATIONS
-from amfe.training.checkpoint import check_image_shape
+from amfe.training.inputs import DEFAULT_INPUTS, INPUT_KINDS, check_inputs, image_array  # noqa: F401
 from amfe.vocab import LABEL_NAMES
 
 
@@ -48,23 +48,9 @@ def _damaged(path):
     """A damaged chunk of the data set ``path`` read below: one AmfeError line (issue 45)."""
     return damaged(path, "data set", DATA_SET_FIX)
 
-INPUT_KINDS = {"fill": "images", "bonds": "bond_images"}   # kind: data-set array
-DEFAULT_INPUTS = ("fill",)
 # Root attributes of a data set that say how its images were made (amfe.dataset.datafile).
 IMAGE_ATTRS = ("scale", "image_shape", "image_cell", "layer_thickness", "image_spacing",
                "bed_size", "seed", "count", "format_version", "springs")
-
-
-def check_inputs(inputs):
-    """``inputs`` as a tuple of known image kinds, without repeats (AmfeError otherwise)."""
-    if isinstance(inputs, str):
-        inputs = tuple(k.strip() for k in inputs.split(",") if k.strip())
-    inputs = tuple(str(k) for k in inputs)
-    bad = [k for k in inputs if k not in INPUT_KINDS]
-    if bad or not inputs or len(set(inputs)) != len(inputs):
-        raise AmfeError(f"inputs must be distinct image kinds from {', '.join(INPUT_KINDS)}, "
-                        f"got {','.join(inputs) or 'none'}")
-    return inputs
 
 
 def _require_inputs(f, path, inputs):
@@ -304,19 +290,8 @@ class Normalizer:
 # ---------------------------------------------------------------- symmetries
 
 def image_batch(images, ckpt, path="the model"):
-    """``images`` (n, channels, H, W) or one (channels, H, W) as a float32 tensor (n, channels,
-    H, W); AmfeError unless it is an array of numbers of the checkpoint's image shape."""
-    try:
-        x = torch.as_tensor(np.asarray(images, np.float32))
-    except (TypeError, ValueError) as exc:
-        raise AmfeError(f"images must be an array of numbers (n, layers, H, W), got "
-                        f"{type(images).__name__} ({exc})") from None
-    if x.ndim == 3:
-        x = x.unsqueeze(0)
-    if x.ndim != 4:
-        raise AmfeError(f"images must be (n, layers, H, W), got shape {tuple(x.shape)}")
-    check_image_shape(ckpt, x.shape[1:], "the image", path)
-    return x
+    """:func:`amfe.training.inputs.image_array` as a float32 tensor (n, channels, H, W)."""
+    return torch.as_tensor(image_array(images, ckpt, path))
 
 
 def transpose_labels(labels):

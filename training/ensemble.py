@@ -1,16 +1,15 @@
 """The ensemble's arithmetic: test-time augmentation, one network's averaged predictions, and
-the members' mean, spread and flag (docs/model.md, section 8).
+the members' mean, spread and flag (docs/model.md, section 8). Importing it imports
+no torch (only :func:`predict_raw` does), so numpy inference (amfe.training.npnet)
+shares it.
 
 The six-constant surrogate (amfe.training.predict) and the full-stiffness one
 (amfe.training.stiffness, stiffness_predict) both build on it; it imports
 neither, so the inference modules form no import circle.
 """
 import numpy as np
-import torch
 
 from amfe.errors import AmfeError
-from amfe.training.data import flip_images, transpose_labels
-from amfe.training.device import device_of
 
 TTA_MODES = ("none", "flips", "d4")
 
@@ -57,6 +56,10 @@ def predict_raw(net, images, norm, tta="none", batch_size=None):
     ``batch_size`` images (default: CPU_PASS_IMAGES on a CPU, GPU_PASS_IMAGES
     on a GPU).
     """
+    import torch  # here, not at the top: the numpy inference imports none of torch
+
+    from amfe.training.data import flip_images, transpose_labels
+    from amfe.training.device import device_of
     net.eval()
     dev = device_of(net)
     syms = symmetries(tta_mode(tta), images.shape[-1] == images.shape[-2])

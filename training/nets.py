@@ -44,7 +44,7 @@ import torch
 from torch import nn
 
 from amfe.errors import AmfeError
-from amfe.training import ARCH_NAMES
+from amfe.training import ARCH_NAMES, check_arch_args
 from amfe.training.multiscale import MultiScaleNet
 
 N_OUTPUTS = 6
@@ -224,26 +224,11 @@ class VGG(nn.Module):
 ARCHITECTURES = dict(zip(ARCH_NAMES, (CustomNet, LeNet5, AlexNet, VGG, MultiScaleNet)))
 DISPLAY_NAMES = {"custom": "Custom Net", "lenet5": "LeNet-5", "alexnet": "AlexNet", "vgg": "VGG",
                  "multiscale": "Multi-scale"}
-# Which keyword arguments each network takes, and their JSON-able types.
-ARCH_ARGS = {"custom": {"padding": str, "width": float, "convs": int},
-             "lenet5": {},
-             "alexnet": {"width": float, "hidden": list, "dropout": float},
-             "vgg": {"width": float, "hidden": list, "dropout": float, "batch_norm": bool},
-             "multiscale": {"width": float, "hidden": list, "n_fill": int, "outputs": int,
-                            "features": int}}
-
-
 def build_net(arch, image_shape, arch_args=None):
     """A fresh network ``arch`` (custom, lenet5, alexnet, vgg) for images of ``image_shape``."""
     if arch not in ARCHITECTURES:
         raise AmfeError(f"unknown architecture {arch!r}; choose one of {', '.join(ARCHITECTURES)}")
-    arch_args = dict(arch_args or {})
-    unknown = set(arch_args) - set(ARCH_ARGS[arch])
-    if unknown:
-        raise AmfeError(f"architecture {arch} takes no argument(s) {', '.join(sorted(unknown))} "
-                        f"(it takes: {', '.join(ARCH_ARGS[arch]) or 'none'})")
-    if "hidden" in arch_args:
-        arch_args["hidden"] = tuple(int(h) for h in arch_args["hidden"])
+    arch_args = check_arch_args(arch, arch_args)
     return ARCHITECTURES[arch](_check_shape(image_shape), **arch_args)
 
 

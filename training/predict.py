@@ -26,7 +26,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-import torch
 
 import amfe.version
 from amfe.dataset.bondimage import bond_image
@@ -35,14 +34,17 @@ from amfe.errors import AmfeError
 from amfe.io.bedfile import read_bed
 from amfe.model.carrying import rule1_factor
 from amfe.training.checkpoint import (
+    backend_for,
     build_members,
     check_image_shape,
     describe,
     load_checkpoint,
     model_springs,
+    numpy_members,
 )
-from amfe.training.data import DEFAULT_INPUTS, Normalizer, check_inputs, image_batch
-from amfe.training.ensemble import predict_raw, tta_mode
+from amfe.training.ensemble import symmetries, tta_mode
+from amfe.training.inputs import DEFAULT_INPUTS, check_inputs, image_array
+from amfe.training.npnet import predict_raw as predict_numpy
 from amfe.training.shipped import models_dir, shipped_model_for, unrecorded_size
 from amfe.training.stiffness_predict import is_stiffness, member_constants, summarize
 from amfe.vocab import LABEL_NAMES
@@ -82,17 +84,25 @@ def calibrate_fill(images, lo=0.5, hi=99.5):
 
 
 class Surrogate:
-    """The networks, normalisation and flag threshold of one checkpoint."""
+    """The networks, normalisation and flag threshold of one checkpoint.
 
-    def __init__(self, ckpt: dict, path: str = "model") -> None:
+    ``backend``: "numpy" runs the multi-scale network's inference in numpy
+    (amfe.training.npnet: no torch import, 2.5-4 s less start-up; the same
+    predictions to float32 rounding), "torch" in torch (a GPU, or large batches:
+    about 3x faster a bed); "auto" is numpy for a six-constant multi-scale
+    checkpoint (every shipped six-constant model), torch for any other.
+    """
+
+    def __init__(self, ckpt: dict, path: str = "model", backend: str = "auto") -> None:
         self.ckpt = ckpt
         self.path = os.fspath(path)
-        self.nets = build_members(ckpt, self.path)
-        for net in self.nets:
-            # Channels-last activations: faster, with the same results to rounding
-            # (docs/benchmarks.md, "Figures quoted in the code").
-            net.to(memory_format=torch.channels_last)
-        self.norm = Normalizer.from_dict(ckpt["normalizer"])
+        self.backend = backend_for(ckpt, backend)
+        self._nets = None
+        if self.backend == "numpy":
+            self._numpy_nets = numpy_members(ckpt, self.path)
+        else:
+            self._numpy_nets = None
+            _ = self.nets   # built now: junk weights are refused at load
         self.image_shape = tuple(int(s) for s in ckpt["image_shape"])
         self.inputs = check_inputs(ckpt.get("inputs", DEFAULT_INPUTS))
         self.n_fill = self.image_shape[0] // len(self.inputs)   # the fill layers come first
@@ -110,23 +120,54 @@ class Surrogate:
                        "trained on label rule 1, converted to rule 2 (moduli x V_hull / V_box)")
 
     @classmethod
-    def load(cls, path: str | os.PathLike | None = None) -> "Surrogate":
+    def load(cls, path: str | os.PathLike | None = None, backend: str = "auto") -> "Surrogate":
         if path is None:
             path = default_model_path()
             if not path.is_file():
                 raise AmfeError(f"the default model {path} is not installed; {TRAIN_HINT}")
-        return cls(load_checkpoint(path), path)
+        # Read without torch (its tensors as numpy arrays) unless torch runs the networks.
+        return cls(load_checkpoint(path, arrays=backend != "torch"), path, backend)
+
+    @property
+    def nets(self) -> list:
+        """The members as torch modules in eval mode (built when first asked for)."""
+        if self._nets is None:
+            import torch
+            self._nets = build_members(self.ckpt, self.path)
+            for net in self._nets:
+                # Channels-last activations: faster, with the same results to rounding
+                # (docs/benchmarks.md, "Figures quoted in the code").
+                net.to(memory_format=torch.channels_last)
+        return self._nets
+
+    @property
+    def norm(self) -> object:
+        """The labels' torch Normalizer (amfe.training.data), for the torch networks."""
+        from amfe.training.data import Normalizer
+        return Normalizer.from_dict(self.ckpt["normalizer"])
 
     @property
     def n_members(self) -> int:
-        return len(self.nets)
+        return len(self.ckpt["members"])
 
     def __repr__(self) -> str:
         return describe(self.ckpt, self.path, self.n_members, self.inputs)
 
     def member_outputs(self, images: np.ndarray, batch_size: int | None = None) -> np.ndarray:
         """Raw predictions of every member, float64 array (members, n, 6)."""
-        x = image_batch(images, self.ckpt, self.path)
+        return self.run_members(image_array(images, self.ckpt, self.path), batch_size)
+
+    def run_members(self, x: np.ndarray, batch_size: int | None = None) -> np.ndarray:
+        """:meth:`member_outputs` of inputs x (n, channels, H, W) float32 whose H x W is not
+        checked: the size rule reads beds of other sizes with a fully convolutional model."""
+        if self.backend == "numpy":
+            syms = symmetries(self.tta, x.shape[-1] == x.shape[-2])
+            return np.stack([predict_numpy(net, x, self.ckpt["normalizer"], syms, batch_size)
+                             for net in self._numpy_nets])
+        import torch
+
+        from amfe.training.ensemble import predict_raw
+        x = torch.as_tensor(x)
         if is_stiffness(self.ckpt):   # the six constants of each member's C
             return member_constants(self, x, batch_size)
         out = np.empty((self.n_members, x.shape[0], 6))
@@ -195,7 +236,8 @@ class Surrogate:
             return [self.predict_bed(beds[0])]
         made = [self.inputs_of(bed) for bed in beds]
         t = time.perf_counter()
-        res = self.predict(np.stack([x for x, _, _ in made]))
+        x = np.stack([x for x, _, _ in made])
+        res = self._with_bonds(self.predict(x), x)
         if self.label_rule < 2:
             for k, bed in enumerate(beds):
                 res["mean"][k, :3] *= rule1_factor(bed.centers, bed.radii, bed.attrs.get("size"))
@@ -208,15 +250,24 @@ class Surrogate:
         of a rule-1 checkpoint are converted with the bed's own volumes).
 
         Returns (result dict, volume-fraction image (layers, H, W), seconds
-        {pixelate, bonds (when the model reads bond images), predict}).
+        {pixelate, bonds (when the model reads bond images), predict}); the result holds
+        the bond image too ("bond_image", (1, layers, H, W)) when the model reads one.
         """
         x, image, times = self.inputs_of(bed)
         t2 = time.perf_counter()
-        res = self.predict(x[None])
+        res = self._with_bonds(self.predict(x[None]), x[None])
         if self.label_rule < 2:   # rule-1 moduli -> rule 2; spread is relative, unchanged
             res["mean"][:, :3] *= rule1_factor(bed.centers, bed.radii, bed.attrs.get("size"))
         times["predict"] = time.perf_counter() - t2
         return res, image, times
+
+    def _with_bonds(self, res, x):
+        """``res`` with "bond_image" (n, layers, H, W), the bond layers of the inputs x, when
+        the model reads them (the flag's risk features read them too: made once a bed)."""
+        if "bonds" in self.inputs:
+            k = self.inputs.index("bonds")
+            res["bond_image"] = x[:, k * self.n_fill:(k + 1) * self.n_fill]
+        return res
 
 
 def _is_bed(item):

@@ -17,7 +17,7 @@ import numpy as np
 import amfe.version
 from amfe.errors import AmfeError
 from amfe.model.scales import get_scale
-from amfe.training.anysize import whole_cells
+from amfe.training.imagebox import whole_cells
 
 #: scale name -> checkpoint file in amfe/models/ (docs/model_card.md, docs/surrogate.md)
 SHIPPED = {"small": "multiscale_small.pt", "medium": "multiscale_medium.pt",

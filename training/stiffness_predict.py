@@ -19,10 +19,8 @@ members whose 21 outputs are the Cholesky factor of C in the unit
 checkpoint goes through exactly the path it always took.
 """
 import numpy as np
-import torch
 
-from amfe.training.data import image_batch
-from amfe.training.device import device_of
+from amfe.training import STIFFNESS_HEAD
 from amfe.training.ensemble import (
     CPU_PASS_IMAGES,
     GPU_PASS_IMAGES,
@@ -30,9 +28,10 @@ from amfe.training.ensemble import (
     summarize_members,
     symmetries,
 )
-from amfe.training.stiffness import nine_from_stiffness, predict_stiffness
 
-HEAD = "stiffness"
+HEAD = STIFFNESS_HEAD
+# torch is imported by the functions that run a stiffness head, not here: the six-constant
+# models' numpy inference (amfe.training.npnet) imports this module and none of torch.
 
 
 def is_stiffness(ckpt):
@@ -43,6 +42,9 @@ def is_stiffness(ckpt):
 def nine_constants(C):
     """The nine constants (..., 9) float64 [Pa, -] of C (..., 6, 6) [Pa], in NINE order
     (amfe.training.stiffness.nine_from_stiffness); NaN for a C that is not finite."""
+    import torch
+
+    from amfe.training.stiffness import nine_from_stiffness
     C = np.asarray(C, np.float64)
     out = np.full(C.shape[:-2] + (9,), np.nan)
     ok = np.isfinite(C).all(axis=(-1, -2))
@@ -56,6 +58,8 @@ def member_stiffness(sur, x, batch_size=None):
 
     x: the validated image tensor (n, channels, H, W) float32.
     """
+    from amfe.training.device import device_of
+    from amfe.training.stiffness import predict_stiffness
     n_syms = len(symmetries(sur.tta, x.shape[-1] == x.shape[-2]))
     scale = float(sur.ckpt["stiffness_scale"])
     out = np.empty((sur.n_members, x.shape[0], 6, 6))
@@ -79,6 +83,7 @@ def summarize(sur, images, batch_size=None):
     if not is_stiffness(sur.ckpt):
         return summarize_members(sur.member_outputs(images, batch_size), sur.spread_scale,
                                  sur.threshold)
+    from amfe.training.data import image_batch
     Cm = member_stiffness(sur, image_batch(images, sur.ckpt, sur.path), batch_size)
     per_member = nine_constants(Cm)
     res = summarize_members(per_member[..., :6], sur.spread_scale, sur.threshold)

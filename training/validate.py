@@ -5,20 +5,21 @@ which refuses code but accepts any plain data: strings where tensors belong,
 weights of the wrong shape, a NaN threshold. :func:`check_fields` refuses
 such junk with one :class:`amfe.errors.AmfeError` line naming the field, and
 :func:`check_members` compares every member's weights with the network the
-checkpoint describes, built on torch's "meta" device (shapes only, no memory:
-a junk image shape or width cannot make it allocate).
+checkpoint describes (the multi-scale network's shapes from amfe.training.npnet,
+any other built on torch's "meta" device: shapes only, no memory, so a junk
+image shape or width cannot make it allocate).
 
 Non-finite *weights* are not refused here: the prediction they give is
 flagged as non-finite (:mod:`amfe.training.predict`), so ``amfe predict
 --fallback`` can still solve the bed instead.
 """
 import math
+import sys
 from collections.abc import Mapping
 
-import torch
+import numpy as np
 
 from amfe.errors import AmfeError
-from amfe.training.nets import build_net
 
 MAX_SAMPLES_PER_CELL_SIDE = 64   # pixelation sample lines per cell side (data sets use 12)
 
@@ -100,20 +101,12 @@ def check_fields(ckpt, path):
 def check_members(ckpt, path):
     """AmfeError unless every member holds exactly the weights of the network ``ckpt`` describes.
 
-    The network is built on the meta device (no memory); each member must be
-    a dict with its parameter names, floating-point tensors of its shapes.
+    The weights' shapes come from amfe.training.npnet for the multi-scale network (no
+    torch), else from the network built on torch's meta device (no memory); each member
+    must be a dict with its parameter names, floating-point tensors (or the numpy
+    arrays of amfe.training.torchfile) of its shapes.
     """
-
-    try:
-        with torch.device("meta"):
-            template = build_net(ckpt["arch"], ckpt["image_shape"], ckpt["arch_args"])
-    except AmfeError as exc:
-        raise AmfeError(f"{path}: {exc}") from None
-    except Exception as exc:  # noqa: BLE001 - junk arch_args (a string width, negative sizes)
-        raise AmfeError(f"{path}: cannot build a {ckpt['arch']} net from arch_args "
-                        f"{ckpt['arch_args']!r} ({type(exc).__name__}: {exc}); not a valid amfe "
-                        "checkpoint") from None
-    want = {k: tuple(v.shape) for k, v in template.state_dict().items()}
+    want = _template_shapes(ckpt, path)
     where = f"for images {tuple(ckpt['image_shape'])}"
     for k, state in enumerate(ckpt["members"]):
         if not isinstance(state, Mapping):
@@ -126,15 +119,45 @@ def check_members(ckpt, path):
                             f"{where}: missing {_few(missing)}, unexpected {_few(extra)}")
         for name, shape in want.items():
             value = state[name]
-            if not (isinstance(value, torch.Tensor) and value.is_floating_point()):
-                kind = (f"tensor of {value.dtype}" if isinstance(value, torch.Tensor)
-                        else type(value).__name__)
+            floating, kind = _weight_kind(value)
+            if not floating:
                 raise AmfeError(f"{path}: weight {name!r} of member {k} is a {kind}, not a "
                                 "floating-point tensor; not a valid amfe checkpoint")
             if tuple(value.shape) != shape:
                 raise AmfeError(f"{path}: weight {name!r} of member {k} has shape "
                                 f"{tuple(value.shape)}, a {ckpt['arch']} net {where} needs "
                                 f"{shape}")
+
+
+def _template_shapes(ckpt, path):
+    """{name: shape} of the weights of the network ``ckpt`` describes (AmfeError for junk)."""
+    arch, args = ckpt["arch"], ckpt["arch_args"]
+    try:
+        if arch == "multiscale":
+            from amfe.training import check_arch_args
+            from amfe.training.npnet import multiscale_shapes
+            return multiscale_shapes(ckpt["image_shape"], **check_arch_args(arch, args))
+        import torch
+
+        from amfe.training.nets import build_net
+        with torch.device("meta"):
+            template = build_net(arch, ckpt["image_shape"], args)
+        return {k: tuple(v.shape) for k, v in template.state_dict().items()}
+    except AmfeError as exc:
+        raise AmfeError(f"{path}: {exc}") from None
+    except Exception as exc:  # noqa: BLE001 - junk arch_args (a string width, negative sizes)
+        raise AmfeError(f"{path}: cannot build a {arch} net from arch_args {args!r} "
+                        f"({type(exc).__name__}: {exc}); not a valid amfe checkpoint") from None
+
+
+def _weight_kind(value):
+    """(is floating point, what it is) of a weight: a torch tensor or a numpy array."""
+    if isinstance(value, np.ndarray):
+        return value.dtype.kind == "f", f"array of {value.dtype}"
+    torch = sys.modules.get("torch")   # a tensor exists only once torch is imported
+    if torch is not None and isinstance(value, torch.Tensor):
+        return value.is_floating_point(), f"tensor of {value.dtype}"
+    return False, type(value).__name__
 
 
 def _few(names, limit=3):

@@ -73,7 +73,10 @@ def register(sub):
     p.add_argument("--threshold", type=nonnegative_float,
                    help="flag threshold on the spread score, a finite number >= 0 (default: the "
                         "model's, calibrated on its validation beds)")
-    p.add_argument("--threads", type=thread_count, help="torch CPU threads (default: torch's)")
+    p.add_argument("--threads", type=thread_count,
+                   help="CPU threads of a model that runs in torch (a full-stiffness model, "
+                   "another architecture; default: torch's); the shipped six-constant models "
+                   "run in numpy")
     add_material_args(p, "for every bed, instead of its file's")
     p.set_defaults(func=run)
 
@@ -99,13 +102,12 @@ def run(args):
     t_start = time.perf_counter()
     age = process_age()
     check_args(args)
-    import torch
-
     from amfe.cli.predict_core import predict_records
 
-    if args.threads:
+    if args.threads:   # torch only then: the shipped six-constant models run in numpy
+        import torch
         torch.set_num_threads(args.threads)
-    # start-up: the interpreter, amfe's and torch's imports (before any work on the bed)
+    # start-up: the interpreter and amfe's imports (before any work on the bed)
     times = {"start_up": time.perf_counter() - t_start + age} if age is not None else {}
     args.material, args.material_source = given_material(args), "command line"
     records, failed = predict_records(args, args.bed, times, t_start)
@@ -240,7 +242,7 @@ def summary(out, output=None):
     lines.append(f"time {out['seconds']:.3g} s: " + ", ".join(parts))
     if "start_up" in t:
         imaging = t.get("pixelate", 0.0) + t.get("bonds", 0.0)
-        lines.append(f"one call: start-up {t['start_up']:.3g} s (Python, amfe and torch imports), "
+        lines.append(f"one call: start-up {t['start_up']:.3g} s (Python and the imports), "
                      f"model {t['load_model']:.3g} s, imaging {imaging:.3g} s, "
                      f"network {t['predict']:.3g} s")
     if output:

@@ -46,7 +46,7 @@ def needs_route(bed):
     so that its route predicts it; AmfeError (quoting the bed's own values and the ranges)
     for a bed outside every range."""
     from amfe.training.anypredict import CELL, LAYER, PAPER_NU, PAPER_PSI, route_of
-    from amfe.training.anysize import cropped_box
+    from amfe.training.imagebox import cropped_box
     from amfe.training.sizerule import SIZES, check_size, size_weights
     size, material, _ = bed_kind(bed)
     check_size(size[0] * 1e3, size[1] * 1e3)      # quoting the bed's own size, not the cropped

@@ -295,7 +295,9 @@ def _risk(sur, bed, res, image, factor):
     if model is None or tuple(image.shape[1:]) != tuple(sur.ckpt["image_shape"][1:]) \
             or image.shape[0] * 2 != sur.ckpt["image_shape"][0]:
         return None
-    bonds = bond_image_like_training(bed, sur.ckpt) / factor   # at the model's E
+    bonds = res["bond_image"][0] if "bond_image" in res else \
+        bond_image_like_training(bed, sur.ckpt)
+    bonds = bonds / factor   # at the model's E
     mean = res["mean"][0].copy()
     mean[:3] /= factor
     return {**bed_risk(model, image, bonds, mean, res["spread"][0]),

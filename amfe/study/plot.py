@@ -29,13 +29,16 @@ def plot(table, path, y="Ex", x=None, hue=None):
     if f"{y}_mean" not in table.points:
         have = sorted(k[:-5] for k in table.points if k.endswith("_mean"))
         raise AmfeError(f"sweep plot: no {y!r} in the table; choose from {', '.join(have)}")
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    # The Figure and its Agg canvas, not pyplot: pyplot's import (its backends, its state)
+    # took 0.27 s more of a surrogate sweep's 4 s (docs/benchmarks.md, "Parameter sweeps").
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
 
     pts = table.points
     xs, xunit = _scaled(x, pts[x])
-    fig, ax = plt.subplots(figsize=(6.4, 4.4), dpi=120)
+    fig = Figure(figsize=(6.4, 4.4), dpi=120)
+    FigureCanvasAgg(fig)
+    ax = fig.subplots()
     groups = [None] if hue is None else sorted(set(pts[hue].tolist()))
     for g in groups:
         sel = np.ones(len(xs), bool) if g is None else pts[hue] == g
@@ -57,7 +60,6 @@ def plot(table, path, y="Ex", x=None, hue=None):
     fig.tight_layout()
     buf = io.BytesIO()
     fig.savefig(buf, format="png")
-    plt.close(fig)
     atomic_write(os.fspath(path), lambda fh: fh.write(buf.getvalue()))
     return os.fspath(path)
 

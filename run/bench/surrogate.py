@@ -3,12 +3,14 @@
     python -m run.bench.surrogate [--model MODEL.pt] [--data /work/data/small_test.h5]
 
 1. Batched: Surrogate.predict on the data set's images (all members and
-   test-time symmetries the model uses), torch on 1 and on 2 threads,
-   best of several repeats, in ms per bed for batches of 1, 100 and all.
+   test-time symmetries the model uses), in numpy (the default backend) and
+   in torch on 1 and on 2 threads, best of several repeats, in ms per bed for
+   batches of 1, 100 and all.
 2. One bed, in process: read the bed file, pixelate it, image its bonds (a
    model with the bond input), predict (each timed).
 3. One bed, the whole command: wall time of `amfe predict BED.h5` in a fresh
-   process (Python start-up and the torch import included).
+   process (Python start-up and imports included; the shipped six-constant
+   models import no torch).
 
 The bed of 2. and 3. is record 0 of the data set, regenerated with
 `amfe pack --scale SCALE --seed <its seed>`. Not a timed test: numbers for
@@ -26,13 +28,18 @@ from run.common import ROOT, parser  # noqa: E402
 
 
 def bench_batched(sur, images, threads=(1, 2), batches=(1, 100, None), repeats=5):
-    """{(threads, batch): ms per bed} of Surrogate.predict, best of ``repeats``."""
-    import torch
+    """{(threads, batch): ms per bed} of Surrogate.predict, best of ``repeats``; ``threads``
+    are torch's (a Surrogate whose backend is numpy runs on its BLAS's threads whatever
+    they say)."""
+    torch = None
+    if sur.backend == "torch":
+        import torch
     out = {}
-    old = torch.get_num_threads()
+    old = torch.get_num_threads() if torch else None
     try:
         for t in threads:
-            torch.set_num_threads(t)
+            if torch:
+                torch.set_num_threads(t)
             for b in batches:
                 n = len(images) if b is None else min(b, len(images))
                 x = images[:n]
@@ -40,7 +47,8 @@ def bench_batched(sur, images, threads=(1, 2), batches=(1, 100, None), repeats=5
                 best = min(_timed(lambda: sur.predict(x)) for _ in range(repeats))
                 out[(t, n)] = 1e3 * best / n
     finally:
-        torch.set_num_threads(old)
+        if torch:
+            torch.set_num_threads(old)
     return out
 
 
@@ -62,14 +70,11 @@ def make_bed(data_path, directory):
     return path
 
 
-def bench_bed(model, bed_path, repeats=5, threads=1):
+def bench_bed(model, bed_path, repeats=5):
     """In-process seconds of reading, pixelating and predicting one bed (best of ``repeats``)."""
-    import torch
-
     from amfe.io.bedfile import read_bed
     from amfe.training.predict import Surrogate
 
-    torch.set_num_threads(threads)
     t0 = time.perf_counter()
     sur = Surrogate.load(model)
     load = time.perf_counter() - t0
@@ -89,8 +94,8 @@ def bench_bed(model, bed_path, repeats=5, threads=1):
 
 
 def bench_cli(model, bed_path, repeats=3):
-    """Wall seconds of `amfe predict BED.h5 --model MODEL --threads 1` in a fresh process."""
-    cmd = [sys.executable, "-m", "amfe.cli", "predict", bed_path, "--threads", "1"]
+    """Wall seconds of `amfe predict BED.h5 --model MODEL` in a fresh process."""
+    cmd = [sys.executable, "-m", "amfe.cli", "predict", bed_path]
     if model:
         cmd += ["--model", str(model)]
     times = []
@@ -117,10 +122,15 @@ def run_all(model, data_path, log=print):
 
     sur = Surrogate.load(model)
     images, _ = read_rows(data_path, inputs=sur.inputs)
+    # "batched": torch on 1 and 2 threads (what train_surrogate and surrogate_docs read),
+    # "batched_numpy": the default backend of the shipped six-constant models
     res = {"model": str(sur.path), "members": sur.n_members, "tta": sur.tta,
-           "batched": bench_batched(sur, images)}
-    for (t, n), ms in res["batched"].items():
-        log(f"batched: {t} thread(s), batch {n:4d}: {ms:.4f} ms per bed")
+           "batched": bench_batched(Surrogate.load(model, backend="torch"), images)}
+    if sur.backend == "numpy":
+        res["batched_numpy"] = bench_batched(sur, images, threads=(1,))
+    for key, what in (("batched_numpy", "numpy"), ("batched", "torch on {t} thread(s)")):
+        for (t, n), ms in res.get(key, {}).items():
+            log(f"batched: {what.format(t=t)}, batch {n:4d}: {ms:.4f} ms per bed")
     with tempfile.TemporaryDirectory() as tmp:
         bed = make_bed(data_path, tmp)
         res["bed"] = bench_bed(model, bed)
