@@ -118,7 +118,7 @@ def main(argv=None):
 
     torch.set_num_threads(1)
     ck = load_checkpoint(args.model)
-    sur = Surrogate(ck, args.model)
+    sur = Surrogate(ck, args.model, backend="torch")   # timed on torch threads below
     models = {"shipped": args.model,
               **({"shipped before": args.previous} if args.previous else {}),
               **({"round 1": args.baseline} if args.baseline else {})}

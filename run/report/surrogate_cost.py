@@ -72,7 +72,7 @@ def surrogate_vs_solver(test_path, models_dir, n_solver_beds, rtols, log=print):
     scale = get_scale(scale.decode() if isinstance(scale, bytes) else str(scale))
     out = {"n_test": int(len(ok)), "networks": {}, "solver": []}
     for name, (ck, desc) in find_models(models_dir).items():
-        sur = Surrogate(ck, name)
+        sur = Surrogate(ck, name, backend="torch")   # timed on torch threads below
         images, _ = read_rows(test_path, ok, sur.inputs)
         pred = sur.predict(images)["mean"]
         m = property_metrics(pred, labels)

@@ -154,7 +154,7 @@ def evaluate(args, runs, log):
     models["bonds"] = (ckpts["bonds"], runs["bonds"][0])
     data = {}
     for n, (ck, desc) in models.items():
-        sur = Surrogate(ck, f"{n}")
+        sur = Surrogate(ck, f"{n}", backend="torch")   # timed on torch threads below
         if sur.inputs not in data:
             data[sur.inputs] = read_rows(args.test, inputs=sur.inputs)
         images, labels = data[sur.inputs]
