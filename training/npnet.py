@@ -3,9 +3,9 @@
 :class:`NumpyMultiScale` computes what amfe.training.multiscale.MultiScaleNet
 computes (docs/model.md, section 8), from the same state dict (numpy arrays,
 amfe.training.torchfile), in float32 like torch on a CPU: 3x3 convolutions
-with same padding as one matrix product over the nine shifted copies of the
-(n, H, W, C) activations, ReLU, 2x2 max pooling (floor), the hole maps, the
-per-stage mean and maximum, the head. It agrees with torch to float32
+with same padding as matrix products over shifted copies or slices of the
+(n, H, W, C) activations (:func:`_conv3x3`), ReLU, 2x2 max pooling (floor),
+the hole maps, the per-stage mean and maximum, the head. It agrees with torch to float32
 rounding (tests/test_npnet.py: 1e-5 relative on the shipped models). Only
 the forward pass lives here; training stays in torch.
 
@@ -48,16 +48,36 @@ def multiscale_shapes(image_shape, width=1.0, channels=(32, 64, 128, 256),
 
 
 def _conv3x3(x, w, b):
-    """ReLU(3x3 convolution, same padding) of x (n, H, W, C): (n, H, W, out); w (9 C, out)."""
+    """ReLU(3x3 convolution, same padding) of x (n, H, W, C): (n, H, W, out); w (9 C, out).
+
+    Maps larger than 10 x 10: nine products of the zero-padded activations, flattened over
+    (n, H + 2, W + 2), each shifted by one tap's offset, which is a contiguous slice, so
+    nothing is copied nine times (the outputs on the padding are computed and dropped);
+    smaller maps: one product of the nine shifted copies side by side (im2col), which
+    keeps the product wide. The faster of the two at each size: the shipped small model's
+    128 images took 42 ms against 50-61 ms with im2col alone (one process, 2026-12-06).
+    """
     n, H, W, C = x.shape
-    xp = np.zeros((n, H + 2, W + 2, C), np.float32)
-    xp[:, 1:-1, 1:-1] = x
-    cols = np.concatenate([xp[:, dy:dy + H, dx:dx + W] for dy in range(3) for dx in range(3)],
-                          axis=3)
-    y = cols.reshape(n * H * W, 9 * C) @ w
-    y += b
+    if H * W <= 100:
+        xp = np.zeros((n, H + 2, W + 2, C), np.float32)
+        xp[:, 1:-1, 1:-1] = x
+        cols = np.concatenate([xp[:, dy:dy + H, dx:dx + W] for dy in range(3)
+                               for dx in range(3)], axis=3)
+        y = cols.reshape(n * H * W, 9 * C) @ w
+        y += b
+        np.maximum(y, 0, out=y)
+        return y.reshape(n, H, W, -1)
+    rows = n * (H + 2) * (W + 2)
+    xp = np.zeros((rows + 2 * (W + 2) + 2, C), np.float32)   # the last taps read past the end
+    xp[:rows].reshape(n, H + 2, W + 2, C)[:, 1:-1, 1:-1] = x
+    taps = w.reshape(9, C, -1)
+    y = xp[:rows] @ taps[0]
+    for k in range(1, 9):
+        off = (k // 3) * (W + 2) + k % 3
+        y += xp[off:off + rows] @ taps[k]
+    y = y.reshape(n, H + 2, W + 2, -1)[:, :H, :W] + b
     np.maximum(y, 0, out=y)
-    return y.reshape(n, H, W, -1)
+    return y
 
 
 def _pool(x):
