@@ -99,3 +99,4 @@ def test_a_surrogate_prints_what_it_reads_and_where_it_holds():
     text = repr(amfe.Surrogate.load())
     assert text.startswith("Surrogate(multiscale_small.pt: ")
     assert "0.6 x 0.6 x 0.3 mm" in text and "90 % intervals at 0.6x0.6 mm" in text
+    assert text.endswith("; runs in numpy)")

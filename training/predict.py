@@ -151,7 +151,8 @@ class Surrogate:
         return len(self.ckpt["members"])
 
     def __repr__(self) -> str:
-        return describe(self.ckpt, self.path, self.n_members, self.inputs)
+        return describe(self.ckpt, self.path, self.n_members, self.inputs)[:-1] \
+            + f"; runs in {self.backend})"
 
     def member_outputs(self, images: np.ndarray, batch_size: int | None = None) -> np.ndarray:
         """Raw predictions of every member, float64 array (members, n, 6)."""
