@@ -162,7 +162,8 @@ def decode(z, normalizer):
     y = np.asarray(z, np.float64) * np.asarray(normalizer["std"], np.float64) \
         + np.asarray(normalizer["mean"], np.float64)
     log = np.asarray(normalizer["log"], bool)
-    return np.where(log, np.exp(np.where(log, y, 0.0)), y)
+    with np.errstate(over="ignore"):   # an overflow is inf, flagged non-finite (as in torch)
+        return np.where(log, np.exp(np.where(log, y, 0.0)), y)
 
 
 def predict_raw(net, images, normalizer, syms, batch_size=None):
