@@ -15,7 +15,7 @@ import numpy as np
 
 from amfe.errors import AmfeError
 from amfe.model.bedparams import SEED_LIMIT, BedParams, check_seed  # noqa: F401 - re-exported
-from amfe.model.bonds import bonded_among, contact_geometry, find_bonds, validate_particles
+from amfe.model.bonds import find_bonds, validate_particles
 from amfe.model.material import STEEL, Material, material_from_attrs
 from amfe.model.memory import check_memory, generation_bytes, lattice_counts
 from amfe.model.scanpath import ScanPath, scanned_mask
@@ -194,15 +194,19 @@ def limit_a_star(centers, radii, a_star_max, max_passes=50, box=None):
     """
     radii = np.array(radii, dtype=float)
     shrunk = np.zeros(radii.size, dtype=bool)
-    bonds = None
+    bonds, changed = None, None
     for passes in range(max_passes + 1):
         if box is not None:
             bonds = find_periodic_bonds(centers, radii, box)[0]
         elif bonds is None:
             bonds = find_bonds(centers, radii)
-        else:  # shrinking only removes bonds: the last pass's pairs hold every one left
-            bonds = contact_geometry(centers, radii, *bonded_among(centers, radii, bonds.i,
-                                                                   bonds.j))
+        else:
+            # Shrinking only removes bonds, and only a bond with a shrunk particle changes its
+            # a*: those are recomputed (pair_a_star is contact_geometry's arithmetic, bit for
+            # bit; a pair that no longer overlaps gets 0), the others keep theirs.
+            touched = np.flatnonzero(changed[bonds.i] | changed[bonds.j])
+            i, j = bonds.i[touched], bonds.j[touched]
+            bonds.a_star[touched] = pair_a_star(bonds.length[touched], radii[i], radii[j])
         bad = np.flatnonzero(bonds.a_star > a_star_max)
         if bad.size == 0:
             return radii, int(shrunk.sum()), passes
