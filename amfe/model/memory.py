@@ -7,8 +7,10 @@ resident set sizes (Linux ru_maxrss or VmHWM minus the interpreter's) on
 generated beds of 900 to 130 000 particles, rounded up by about 10 %:
 
 - generation (:func:`amfe.model.bed.generate_bed`, a* limiting included):
-  1.44-1.54 kB per lattice site, plus the index grid of
-  :func:`amfe.model.bed.hcp_lattice` (about 120 B per grid point);
+  0.55-0.62 kB per lattice site on 4 000-142 000 sites (1.0-1.3 kB until
+  the a* limit's checking pass stopped rebuilding every bond's geometry),
+  plus the index grid of :func:`amfe.model.bed.hcp_lattice` (about 120 B
+  per grid point);
 - reading a bed: its float64 arrays, twice (a converted copy);
 - homogenizing (frame, assembly, GAMG, six solves, averages): 17.4-17.7 kB
   per particle on one rank, 13.9-14.9 kB per particle on each of two ranks:
@@ -28,8 +30,8 @@ import os
 
 from amfe.errors import AmfeError
 
-SITE_BYTES = 1700
-"""Bytes per lattice site generated (measured 1.44-1.54 kB)."""
+SITE_BYTES = 700
+"""Bytes per lattice site generated, beside the grid (measured 0.55-0.62 kB)."""
 GRID_BYTES = 128
 """Bytes per point of the lattice index grid (int64 indices, coordinates, masks)."""
 READ_BYTES = 64
