@@ -5,15 +5,8 @@ import torch
 from test_training import _tiny_bed
 
 from amfe.errors import AmfeError
-from amfe.training.anysize import (
-    AnySizeNet,
-    bed_size,
-    cropped_box,
-    image_any_size,
-    predict_any_size,
-    size_features,
-    whole_cells,
-)
+from amfe.training.anysize import AnySizeNet, predict_any_size, size_features
+from amfe.training.imagebox import bed_size, cropped_box, image_any_size, whole_cells
 
 CELL = (30e-6, 30e-6)
 PX = {"image_cell": CELL, "layer_thickness": 0.1e-3, "image_spacing": 2.5e-6}

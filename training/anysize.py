@@ -12,21 +12,14 @@ six constants. One network reads 0.6 mm (20 x 20), 1.2 mm (40 x 40) and
 3 mm (100 x 100) beds.
 
 The whole-cell rule (docs/surrogate.md, "Any size") lives in amfe.training.imagebox
-(no torch), re-exported here.
+(no torch).
 """
 import numpy as np
 import torch
 from torch import nn
 
 from amfe.errors import AmfeError
-from amfe.training.imagebox import (  # noqa: F401 - the rule's names, re-exported
-    HEIGHT_TOL,
-    WHOLE_CELL_TOL,
-    bed_size,
-    cropped_box,
-    image_any_size,
-    whole_cells,
-)
+from amfe.training.imagebox import bed_size, image_any_size
 from amfe.training.stiffness import constants_from_stiffness, predict_stiffness
 
 

@@ -100,15 +100,16 @@ def _plain(obj, where):
 
 
 def _check_signature(path):
-    """AmfeError when ``path`` is not a torch file (a zip archive, or a legacy pickle) but,
-    say, an HDF5 bed or data set or a text file: named for what it is, not "pickled objects"."""
+    """True for a zip archive (torch's format), False for a legacy pickle; AmfeError when
+    ``path`` is neither but, say, an HDF5 bed or data set or a text file: named for what it
+    is, not "pickled objects"."""
     try:
         with open(path, "rb") as fh:
             head = fh.read(8)
     except OSError as exc:
         raise AmfeError(f"cannot read model file {path}: {exc.strerror}") from None
     if head.startswith(b"PK\x03\x04") or head[:1] == b"\x80":
-        return
+        return head[:1] == b"P"
     if head == b"\x89HDF\r\n\x1a\n":
         what = "an HDF5 file (a bed or a data set?), not a model"
     elif not head:
@@ -134,9 +135,9 @@ def load_checkpoint(path, arrays=False):
         raise AmfeError(f"model file {path} is a directory; give the .pt file (amfe train -o)")
     if not os.path.isfile(path):
         raise AmfeError(f"model file {path} does not exist")
-    _check_signature(path)
+    zipped = _check_signature(path)
     try:
-        ckpt = _read(path, arrays)
+        ckpt = _read(path, arrays, zipped)
     except pickle.UnpicklingError as exc:
         raise AmfeError(f"amfe refuses to load {path}: it holds pickled Python objects that a "
                         f"weights-only load will not execute ({_unpickler_reason(exc)}); not a "
@@ -164,11 +165,10 @@ def load_checkpoint(path, arrays=False):
     return ckpt
 
 
-def _read(path, arrays):
-    """What ``torch.save`` wrote to ``path``: weights-only torch.load, or without torch."""
+def _read(path, arrays, zipped):
+    """What ``torch.save`` wrote to ``path`` (``zipped``: a zip archive, else a bare pickle):
+    weights-only torch.load, or without torch."""
     if arrays:
-        with open(path, "rb") as fh:
-            zipped = fh.read(4) == b"PK\x03\x04"
         return read_torch_file(path) if zipped else read_pickle(path)
     import torch
     return torch.load(path, map_location="cpu", weights_only=True)
@@ -185,9 +185,7 @@ def _unpickler_reason(exc):
 
 def build_members(ckpt, path="checkpoint"):
     """The ensemble's networks, weights loaded, in eval mode (AmfeError for junk weights)."""
-    if not isinstance(ckpt, dict):   # amfe.Surrogate("model.pt"): a TypeError deep inside
-        raise AmfeError(f"amfe.Surrogate takes a checkpoint dict, got {type(ckpt).__name__} "
-                        f"{ckpt!r:.80}; read a model file with amfe.Surrogate.load(path)")
+    _require_dict(ckpt)
     import torch
 
     from amfe.training.nets import build_net
@@ -204,6 +202,14 @@ def build_members(ckpt, path="checkpoint"):
         net.eval()
         nets.append(net)
     return nets
+
+
+def _require_dict(ckpt):
+    """AmfeError unless ``ckpt`` is a dict (amfe.Surrogate("model.pt"): a TypeError deep
+    inside otherwise)."""
+    if not isinstance(ckpt, dict):
+        raise AmfeError(f"amfe.Surrogate takes a checkpoint dict, got {type(ckpt).__name__} "
+                        f"{ckpt!r:.80}; read a model file with amfe.Surrogate.load(path)")
 
 
 BACKENDS = ("auto", "numpy", "torch")
@@ -227,9 +233,7 @@ def numpy_members(ckpt, path="checkpoint"):
     """The ensemble's multi-scale networks for numpy inference (amfe.training.npnet), weights
     checked as :func:`build_members` checks them."""
     from amfe.training.npnet import NumpyMultiScale
-    if not isinstance(ckpt, dict):
-        raise AmfeError(f"amfe.Surrogate takes a checkpoint dict, got {type(ckpt).__name__} "
-                        f"{ckpt!r:.80}; read a model file with amfe.Surrogate.load(path)")
+    _require_dict(ckpt)
     check_members(ckpt, path)
     return [NumpyMultiScale(state, ckpt["image_shape"], ckpt["arch_args"])
             for state in ckpt["members"]]

@@ -40,7 +40,7 @@ from amfe.dataset.parts import STATUS_OK
 from amfe.errors import AmfeError
 from amfe.io.h5damage import damaged
 from amfe.training import AUGMENTATIONS
-from amfe.training.inputs import DEFAULT_INPUTS, INPUT_KINDS, check_inputs, image_array  # noqa: F401
+from amfe.training.inputs import DEFAULT_INPUTS, INPUT_KINDS, check_inputs, image_array
 from amfe.vocab import LABEL_NAMES
 
 

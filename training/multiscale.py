@@ -23,6 +23,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from amfe.errors import AmfeError
+from amfe.training.npnet import CHANNELS, HIDDEN
 
 
 class MultiScaleNet(nn.Module):
@@ -37,8 +38,8 @@ class MultiScaleNet(nn.Module):
     descriptors), read as their means; image_shape counts them.
     """
 
-    def __init__(self, image_shape, width=1.0, channels=(32, 64, 128, 256),
-                 hidden=(512, 256, 128), n_fill=None, outputs=6, features=0):
+    def __init__(self, image_shape, width=1.0, channels=CHANNELS, hidden=HIDDEN, n_fill=None,
+                 outputs=6, features=0):
         super().__init__()
         layers_in, H, W = (int(s) for s in image_shape)
         layers_in -= int(features)   # the descriptor planes go to the head, not the encoder

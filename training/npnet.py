@@ -16,12 +16,14 @@ import numpy as np
 
 from amfe.errors import AmfeError
 
+#: MultiScaleNet's default stage widths and head (amfe.training.multiscale takes them from here).
+CHANNELS, HIDDEN = (32, 64, 128, 256), (512, 256, 128)
 #: Images per matrix product: about the fastest on one CPU thread (20 x 20 inputs).
 PASS_IMAGES = 128
 
 
-def multiscale_shapes(image_shape, width=1.0, channels=(32, 64, 128, 256),
-                      hidden=(512, 256, 128), n_fill=None, outputs=6, features=0):
+def multiscale_shapes(image_shape, width=1.0, channels=CHANNELS, hidden=HIDDEN, n_fill=None,
+                      outputs=6, features=0):
     """{parameter name: shape} of MultiScaleNet(image_shape, ...) (its state dict's keys).
 
     Mirrors MultiScaleNet.__init__; AmfeError for the sizes it refuses."""
@@ -96,7 +98,7 @@ class NumpyMultiScale:
         self.features = int(args.get("features", 0))
         layers_in = int(image_shape[0]) - self.features
         self.n_fill = layers_in if args.get("n_fill") is None else int(args["n_fill"])
-        channels = args.get("channels", (32, 64, 128, 256))
+        channels = args.get("channels", CHANNELS)
         hw = (int(image_shape[1]), int(image_shape[2]))
         self.convs, self.pool_after = [], []
         for k in range(len(channels)):
@@ -111,7 +113,7 @@ class NumpyMultiScale:
             self.pool_after.append(pool)
             if pool:
                 hw = (hw[0] // 2, hw[1] // 2)
-        n_head = len(args.get("hidden", (512, 256, 128))) + 1
+        n_head = len(args.get("hidden", HIDDEN)) + 1
         self.head = [(np.ascontiguousarray(np.asarray(state[f"head.{2 * k}.weight"],
                                                       np.float32).T),
                       np.asarray(state[f"head.{2 * k}.bias"], np.float32))

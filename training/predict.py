@@ -171,9 +171,9 @@ class Surrogate:
         x = torch.as_tensor(x)
         if is_stiffness(self.ckpt):   # the six constants of each member's C
             return member_constants(self, x, batch_size)
-        out = np.empty((self.n_members, x.shape[0], 6))
+        out, norm = np.empty((self.n_members, x.shape[0], 6)), self.norm
         for k, net in enumerate(self.nets):
-            out[k] = predict_raw(net, x, self.norm, self.tta, batch_size).numpy()
+            out[k] = predict_raw(net, x, norm, self.tta, batch_size).numpy()
         return out
 
     def predict(self, images: "np.ndarray | str | os.PathLike | object | list",

@@ -29,14 +29,13 @@ from amfe.training.ensemble import (
     symmetries,
 )
 
-HEAD = STIFFNESS_HEAD
 # torch is imported by the functions that run a stiffness head, not here: the six-constant
 # models' numpy inference (amfe.training.npnet) imports this module and none of torch.
 
 
 def is_stiffness(ckpt):
     """True for a checkpoint whose members output the full stiffness (21 Cholesky entries)."""
-    return ckpt.get("head") == HEAD
+    return ckpt.get("head") == STIFFNESS_HEAD
 
 
 def nine_constants(C):

@@ -36,6 +36,7 @@ import torch
 
 from amfe.dataset.parts import label_rule
 from amfe.errors import AmfeError
+from amfe.training import STIFFNESS_HEAD
 from amfe.training.data import dataset_hash, dataset_info, flip_images, read_rows, split_indices
 from amfe.training.finetune import check_grid, load_init, widened_fill_range
 from amfe.training.nets import build_net, count_parameters
@@ -48,7 +49,7 @@ from amfe.training.stiffness import (
     transform_stiffness,
 )
 from amfe.training.stiffness_fit import read_stiffness, stiffness_loss
-from amfe.training.stiffness_predict import HEAD, is_stiffness
+from amfe.training.stiffness_predict import is_stiffness
 from amfe.training.train import pixelation_of
 
 STIFFNESS_LOSSES = ("constants", "mse")
@@ -281,7 +282,7 @@ def train_stiffness(data_path, cfg, log=print):
         "image_shape": [int(s) for s in info["image_shape"]],
         "arch_args": arch_args, "n_parameters": count_parameters(nets[0]),
         "members": [n.state_dict() for n in nets], "member_seeds": seeds,
-        "head": HEAD, "outputs": "cholesky21", "stiffness_scale": scale,
+        "head": STIFFNESS_HEAD, "outputs": "cholesky21", "stiffness_scale": scale,
         "pixelation": pixelation_of(info), "tta": cfg.tta, "spread": None,
         "dataset": {"path": str(data_path), "sha256": dataset_hash(data_path, info["ok"], inputs),
                     "seed": info.get("seed"), "scale": info.get("scale"),

@@ -295,15 +295,12 @@ def _risk(sur, bed, res, image, factor):
     """The bed's risk block (amfe.training.flagrisk.bed_risk, with the bin's "coverage") when
     ``sur`` is a shipped model with a flag model and the bed is of its size, else None."""
     from amfe.training.flagrisk import bed_risk, shipped_flag
-    from amfe.training.predict import bond_image_like_training
     from amfe.training.shipped import SHIPPED, models_dir
     model = shipped_flag(sur.path, models_dir(), SHIPPED)
     if model is None or tuple(image.shape[1:]) != tuple(sur.ckpt["image_shape"][1:]) \
             or image.shape[0] * 2 != sur.ckpt["image_shape"][0]:
         return None
-    bonds = res["bond_image"][0] if "bond_image" in res else \
-        bond_image_like_training(bed, sur.ckpt)
-    bonds = bonds / factor   # at the model's E
+    bonds = res["bond_image"][0] / factor   # the bed's bond image, at the model's E
     mean = res["mean"][0].copy()
     mean[:3] /= factor
     return {**bed_risk(model, image, bonds, mean, res["spread"][0]),
