@@ -210,9 +210,8 @@ def test_moduli_scale_exactly_with_E():
 
 def test_a_side_of_no_whole_cells_is_cropped_as_the_surrogate_reads_it(tmp_path):
     """0.16 x 0.17 mm: 5 x 5 whole cells, the strips cropped; the record's image is the one
-    training/anysize.py's whole-cell rule makes of the same bed."""
-    pytest.importorskip("torch")
-    from training.anysize import cropped_box, image_any_size
+    training/imagebox.py's whole-cell rule makes of the same bed."""
+    from amfe.training.imagebox import cropped_box, image_any_size
 
     name = box_name((0.16, 0.17, 0.3), "AlSi10Mg")
     sc = get_scale(name)

@@ -178,7 +178,7 @@ CELL, LAYER, SPACING = (30e-6, 30e-6), 100e-6, 2.5e-6
 
 def bed_images(bed, size):
     """(fill, bonds) (layers, H, W) float32 and the imaged box (3,) [m] of a bed of size
-    ``size`` (3,) [m]: whole cells from the origin (amfe.training.anysize), whole layers."""
+    ``size`` (3,) [m]: whole cells from the origin (amfe.training.imagebox), whole layers."""
     layers = int(round(float(size[2]) / LAYER))
     if layers < 1 or abs(float(size[2]) / LAYER - layers) > HEIGHT_TOL:
         raise AmfeError(f"the bed is {float(size[2]) * 1e3:g} mm high, not a whole number of "

@@ -6,7 +6,7 @@ well as on its image (KUBC's boundary layer is a smaller share of a larger
 bed), so each size the package predicts has its own fine-tuned checkpoint in
 amfe/models/, named for its scale (amfe.model.scales), with its own
 calibrated intervals. A bed is matched by its imaged in-plane size: the
-recorded size cut to whole cells (amfe.training.anysize.whole_cells); a bed
+recorded size cut to whole cells (amfe.training.imagebox.whole_cells); a bed
 file without a recorded size by its spheres' bounding box cut the same way
 (issue 46; the record's notes say so).
 """
