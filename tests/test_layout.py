@@ -146,6 +146,26 @@ def test_import_amfe_pulls_in_neither_petsc_nor_torch(tmp_path):
     assert out.stdout.strip() == "[]"
 
 
+def test_a_command_line_loads_its_own_command_only(tmp_path):
+    """`amfe sweep ...` registers the sweep's parser alone (the other commands' modules, and
+    the solver's that homogenize pulls in, cost 0.1-0.2 s of every rank's start); a line
+    that names no command gets the whole parser, every command in its usage."""
+    code = ("import sys\n"
+            "from amfe.cli import build_parser, parse\n"
+            "args = parse(['sweep', '-o', 'x', '--grid', 'hatch_spacing=0.1'])\n"
+            "print(args.command, sorted(m.rsplit('.', 1)[1] for m in sys.modules\n"
+            "      if m.startswith('amfe.cli.') and m.rsplit('.', 1)[1] in\n"
+            "      ('pack', 'homogenize', 'dataset', 'train', 'predict', 'view', 'sweep')))\n"
+            "print(sorted(build_parser().subcommands))\n")
+    out = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True,
+                         text=True)
+    assert out.returncode == 0, out.stderr
+    first, every = out.stdout.splitlines()
+    assert first == "sweep ['sweep']"
+    assert every == str(sorted(["pack", "homogenize", "dataset", "train", "predict", "view",
+                                "sweep"]))
+
+
 @pytest.mark.parametrize("name", ["homogenize", "Result", "Fields", "read_bed", "Bed",
                                   "generate_bed", "Surrogate", "homogenize_bed", "SolveOptions",
                                   "AmfeError", "predict", "Prediction"])

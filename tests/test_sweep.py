@@ -220,3 +220,28 @@ def test_a_sweep_with_the_continuum_springs(tmp_path):
         assert abs(float(row["Ex [Pa]"]) / float(truth["Ex [Pa]"]) - 1) < 0.15
     with pytest.raises(AmfeError, match="springs must be one of"):
         SweepSpec(points=spec.points, seeds=(0,), springs="voxel")
+
+
+def test_ranks_claim_every_bed_once_and_give_the_one_rank_table(swept, tmp_path):
+    """Three ranks (on two cores) claim the chunks as they finish them: every bed is done
+    once, the table is the one-rank sweep's, and no claim is left behind."""
+    out, _ = swept
+    many = tmp_path / "m"
+    proc = run_cli(["sweep", "-o", str(many), *GRID, *TINY], ranks=3)
+    assert proc.returncode == 0, proc.stderr
+    assert read_csv(many / "beds.csv") == read_csv(out / "beds.csv")
+    assert sorted(os.listdir(many / "rows")) == [f"row_{k:06d}.json" for k in range(8)]
+    assert not (many / ".claims").exists()
+
+
+@pytest.mark.parametrize("n, groups, step", [(36, 2, 16), (8, 3, 1), (1, 4, 16), (0, 2, 16),
+                                             (100, 1, 16), (37, 5, 4)])
+def test_the_chunks_cover_the_beds_once_in_order(n, groups, step):
+    from amfe.study.run import _chunks
+
+    todo = list(range(3, 3 + n))
+    chunks = _chunks(todo, groups, step)
+    assert [k for c in chunks for k in c] == todo
+    sizes = [len(c) for c in chunks]
+    assert all(1 <= s <= step for s in sizes)
+    assert sizes == sorted(sizes, reverse=True)   # guided: the last chunks are the small ones

@@ -86,7 +86,7 @@ def run(args):
     from mpi4py import MPI
 
     from amfe.solvers.petsc import init_petsc
-    from amfe.study.plot import plot
+    from amfe.study.plot import plot, preload
     from amfe.study.run import run_sweep
     from amfe.study.table import tables, write_tables
 
@@ -95,7 +95,8 @@ def run(args):
         init_petsc(args.petsc_args)
     rows = run_sweep(spec, args.output, comm=MPI.COMM_WORLD,
                      progress=not args.no_progress and launcher_rank() == 0,
-                     petsc_args=args.petsc_args)
+                     petsc_args=args.petsc_args,
+                     before=preload if MPI.COMM_WORLD.size > 1 else None)
     if MPI.COMM_WORLD.rank != 0:
         return 0
     table = tables(rows, spec.to_dict())

@@ -64,6 +64,20 @@ def plot(table, path, y="Ex", x=None, hue=None):
     return os.fspath(path)
 
 
+def preload():
+    """Import what :func:`plot` needs (matplotlib's Figure and Agg canvas, and the PNG writer
+    PIL loads at the first save): under mpirun rank 0 does it before its first bed, while
+    the other ranks take more of the beds (amfe.study.run), not after the last."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: F401
+    from matplotlib.figure import Figure  # noqa: F401
+
+    try:
+        from PIL import Image
+    except ImportError:   # matplotlib without PIL writes its PNGs another way
+        return
+    Image.preinit()
+
+
 def _scaled(name, values):
     unit = UNITS.get(name, "")
     factor, shown = _SCALE.get(unit, (1.0, unit))

@@ -6,21 +6,23 @@ atomically: a kill loses only the beds in flight, and the same command resumes),
 and the tables (:mod:`amfe.study.table`) once every row is there. One run at a
 time writes a directory (its lock ``sweep.lock``, :mod:`amfe.dataset.lock`).
 
-Under ``mpirun -n N`` the ranks form groups of ``ranks_per_bed``; group g takes
-the beds k with k % groups == g among those still to do. A solve is
+Under ``mpirun -n N`` the ranks form groups of ``ranks_per_bed``; the beds still to
+do are cut into chunks, which the groups claim one at a time as they finish
+the last (a file each in ``.claims``, created exclusively; removed at the end,
+and a killed run's at the next start): a group slowed by hard beds, or rank 0
+by the plot's imports, takes fewer. A solve is
 :func:`amfe.homogenize` on the group's communicator: the row of a bed equals
 ``amfe homogenize`` of that bed on as many ranks, with the same solver.
 """
 import json
 import logging
 import os
+import shutil
 import sys
 import time
 
 import numpy as np
-from tqdm import tqdm
 
-from amfe.api import homogenize
 from amfe.dataset.density import solid_fraction
 from amfe.dataset.lock import DatasetLock, _alive, read_lock, this_process
 from amfe.errors import AmfeError
@@ -32,7 +34,7 @@ from amfe.model.scanpath import ScanPath
 from amfe.study.spec import SCAN, SweepSpec
 from amfe.vocab import CONSTANT_NAMES
 
-SPEC_FILE, ROWS_DIR = "sweep.json", "rows"
+SPEC_FILE, ROWS_DIR, CLAIMS_DIR = "sweep.json", "rows", ".claims"
 #: Beds a rank predicts in one network pass (--method surrogate); a kill loses at most these.
 BATCH = 16
 
@@ -58,8 +60,12 @@ def bed_of(spec: SweepSpec, k: int):
     return bed, point_index, seed
 
 
-def run_sweep(spec: SweepSpec, output, *, comm=None, progress=False, petsc_args=()):
+def run_sweep(spec: SweepSpec, output, *, comm=None, progress=False, petsc_args=(),
+              before=None):
     """Solve (or predict) every bed of ``spec`` not yet in ``output``; the rows, on every rank.
+
+    before: a callable rank 0 runs once before its first bed (the plot's imports: the other
+    ranks take more beds meanwhile, :func:`_claimed`).
 
     Returns the list of row dicts of all the sweep's beds (rank 0's view; the
     same on every rank after the final broadcast).
@@ -76,6 +82,7 @@ def run_sweep(spec: SweepSpec, output, *, comm=None, progress=False, petsc_args=
             lock = DatasetLock(os.path.join(os.fspath(output), "sweep"), ranks)
             _acquire(lock)
             _check_spec(spec, output)
+            _fresh_claims(output)   # a killed run's claims: its unfinished beds are to do
         except (AmfeError, OSError) as exc:
             if lock is not None:
                 lock.release()
@@ -91,13 +98,14 @@ def run_sweep(spec: SweepSpec, output, *, comm=None, progress=False, petsc_args=
         group = world.Split(color, world.rank)
         bar = _bar(progress and world.rank == 0, spec.n_beds, len(done))
         try:
-            mine = todo[color::groups]
+            if before is not None and world.rank == 0:
+                before()
             worker = _Worker(spec, group, petsc_args)
             # the surrogate takes its beds in batches (one network pass each); the solver one
             # at a time
             step = BATCH if spec.method == "surrogate" else 1
-            for start in range(0, len(mine), step):
-                for k, row in zip(mine[start:start + step], worker.rows(mine[start:start + step])):
+            for chunk in _claimed(_chunks(todo, groups, step), output, group, groups):
+                for k, row in zip(chunk, worker.rows(chunk)):
                     if group.rank == 0:
                         write_json(os.path.join(rows_dir, f"row_{k:06d}.json"), row)
                     if bar is not None:
@@ -107,11 +115,61 @@ def run_sweep(spec: SweepSpec, output, *, comm=None, progress=False, petsc_args=
                 bar.close()
             group.Free()
         world.Barrier()
+        if world.rank == 0:
+            shutil.rmtree(os.path.join(os.fspath(output), CLAIMS_DIR), ignore_errors=True)
         rows = _read_rows(rows_dir, spec.n_beds) if world.rank == 0 else None
         return world.bcast(rows, root=0)
     finally:
         if lock is not None:
             lock.release()
+
+
+def _chunks(todo, groups, step):
+    """``todo`` (bed indices) cut into the chunks the groups claim: guided sizes (a chunk is
+    1/(2 groups) of the beds after it, so the last chunks are small and the groups end
+    together), at most ``step`` beds, at least one."""
+    chunks, k = [], 0
+    while k < len(todo):
+        n = max(1, min(step, -(-(len(todo) - k) // (2 * groups))))
+        chunks.append(todo[k:k + n])
+        k += n
+    return chunks
+
+
+def _fresh_claims(output):
+    path = os.path.join(os.fspath(output), CLAIMS_DIR)
+    shutil.rmtree(path, ignore_errors=True)
+    os.makedirs(path)
+
+
+def _claimed(chunks, output, group, groups):
+    """The chunks this rank's group takes: each group's rank 0 claims the next free chunk by
+    creating its file in ``output``/.claims exclusively (O_EXCL: one group wins each, on any
+    file system the rows share), so a group that is slower (a harder bed, rank 0's plot)
+    takes fewer, and the sweep ends when the last chunk does, not the slowest group's static
+    share. One group takes them all in order, without files."""
+    if groups == 1:
+        yield from chunks
+        return
+    next_id = 0
+    while True:
+        if group.rank == 0:
+            while next_id < len(chunks) and not _claim(output, next_id):
+                next_id += 1
+        next_id = group.bcast(next_id, root=0)
+        if next_id >= len(chunks):
+            return
+        yield chunks[next_id]
+        next_id += 1
+
+
+def _claim(output, chunk_id):
+    try:
+        os.close(os.open(os.path.join(os.fspath(output), CLAIMS_DIR, f"{chunk_id:06d}"),
+                         os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+    except FileExistsError:
+        return False
+    return True
 
 
 def _acquire(lock):
@@ -159,6 +217,8 @@ def _read_rows(rows_dir, n):
 def _bar(enabled, total, initial):
     if not enabled:
         return None
+    from tqdm import tqdm  # noqa: PLC0415 (loaded when used: a bar is asked for)
+
     return tqdm(total=total, initial=initial, unit="bed", file=sys.stderr, desc="amfe sweep",
                 dynamic_ncols=True, mininterval=0.5)
 
@@ -213,6 +273,9 @@ class _Worker:
         return rows
 
     def _solve(self, bed):
+        # the solver's modules only for a bed that is solved: a surrogate sweep's ranks start
+        # without them
+        from amfe.api import homogenize  # noqa: PLC0415
 
         options = {} if not self.petsc_args else {"petsc_options": _as_dict(self.petsc_args)}
         logger = logging.getLogger(LOGGER)

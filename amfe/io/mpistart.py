@@ -1,0 +1,36 @@
+"""Open MPI's start on one host: the ob1 messaging layer unless the user chose one.
+
+Open MPI 4.1 (Debian 12's) picks its UCX layer by default, and UCX probes every
+network device at MPI_Init: 0.2 s of a rank's start on the build machine (mpi4py's
+import under ``mpirun -n 2``: 0.46-0.47 s, against 0.25-0.27 s with ob1; a single
+process: 0.30 s against 0.12 s). On one host the ranks talk through shared memory
+either way (UCX's, or ob1's vader), so :func:`prefer_ob1_on_one_host` asks for ob1
+there, before mpi4py starts MPI. It sets nothing when the user chose a layer
+(``OMPI_MCA_pml``, which ``mpirun --mca pml ucx`` sets too), when the ranks span
+hosts (``OMPI_COMM_WORLD_LOCAL_SIZE`` below ``OMPI_COMM_WORLD_SIZE``: there UCX's
+network transports matter), or under another launcher (srun's PMI, MPICH's
+``PMI_RANK``), which leaves the choice to Open MPI. A sweep of small beds starts
+once per rank, so this is most of what separates its surrogate rows from a bare
+Python start (docs/benchmarks.md, "Parameter sweeps").
+"""
+import os
+
+#: Variables that another launcher than Open MPI's mpirun sets: a rank of a job whose hosts
+#: amfe cannot count from the environment.
+_OTHER_LAUNCHERS = ("PMIX_RANK", "PMI_RANK", "PMI_SIZE", "SLURM_PROCID", "HYDRA_CONTROL_FD")
+
+
+def prefer_ob1_on_one_host(environ=None):
+    """Set ``OMPI_MCA_pml=ob1`` in ``environ`` (default os.environ) where every rank of the job
+    is on this host and no layer was chosen; True when it did. Call before mpi4py's import."""
+    env = os.environ if environ is None else environ
+    if "OMPI_MCA_pml" in env:
+        return False
+    size, local = env.get("OMPI_COMM_WORLD_SIZE"), env.get("OMPI_COMM_WORLD_LOCAL_SIZE")
+    if size is None:   # not started by Open MPI's mpirun: a single process, or another launcher
+        one_host = not any(name in env for name in _OTHER_LAUNCHERS)
+    else:
+        one_host = local is not None and local == size
+    if one_host:
+        env["OMPI_MCA_pml"] = "ob1"
+    return one_host

@@ -1,0 +1,41 @@
+"""amfe.io.mpistart: Open MPI's ob1 layer asked for where every rank is on this host."""
+import subprocess
+import sys
+
+import pytest
+from helpers import MPI_ENV, ROOT
+
+from amfe.io.mpistart import prefer_ob1_on_one_host
+
+
+@pytest.mark.parametrize("env, chosen", [
+    ({}, True),                                                           # one process
+    ({"OMPI_COMM_WORLD_SIZE": "2", "OMPI_COMM_WORLD_LOCAL_SIZE": "2"}, True),
+    ({"OMPI_COMM_WORLD_SIZE": "4", "OMPI_COMM_WORLD_LOCAL_SIZE": "2"}, False),   # two hosts
+    ({"OMPI_COMM_WORLD_SIZE": "4"}, False),
+    ({"SLURM_PROCID": "0"}, False),                                      # srun: can't count
+    ({"PMI_RANK": "0"}, False),                                          # MPICH's hydra
+])
+def test_ob1_only_on_one_host(env, chosen):
+    env = dict(env)
+    assert prefer_ob1_on_one_host(env) is chosen
+    assert env.get("OMPI_MCA_pml") == ("ob1" if chosen else None)
+
+
+def test_the_users_choice_stands():
+    env = {"OMPI_MCA_pml": "ucx", "OMPI_COMM_WORLD_SIZE": "2", "OMPI_COMM_WORLD_LOCAL_SIZE": "2"}
+    assert prefer_ob1_on_one_host(env) is False
+    assert env["OMPI_MCA_pml"] == "ucx"
+
+
+@pytest.mark.mpi
+def test_ranks_on_one_host_start_with_ob1_and_talk():
+    """Under mpirun -n 2 on this host, `import amfe` asks for ob1 before MPI starts, and the
+    ranks still exchange data (an allreduce of their ranks)."""
+    code = ("import os, amfe; from mpi4py import MPI; "
+            "print(os.environ['OMPI_MCA_pml'], MPI.COMM_WORLD.allreduce(MPI.COMM_WORLD.rank))")
+    proc = subprocess.run(["mpirun", "-n", "2", sys.executable, "-c", code], cwd=ROOT,
+                          env={k: v for k, v in MPI_ENV.items() if k != "OMPI_MCA_pml"},
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.split("\n")[:2] == ["ob1 1", "ob1 1"]
