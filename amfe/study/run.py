@@ -10,7 +10,10 @@ Under ``mpirun -n N`` the ranks form groups of ``ranks_per_bed``; the beds still
 do are cut into chunks, which the groups claim one at a time as they finish
 the last (a file each in ``.claims``, created exclusively; removed at the end,
 and a killed run's at the next start): a group slowed by hard beds, or rank 0
-by the plot's imports, takes fewer. A solve is
+by the plot's imports, takes fewer. The chunks depend on the beds to do and the
+number of groups only, and a chunk is one network pass of the surrogate: its rows
+are the same on a rerun with as many ranks, and within about 1e-8 (float32 sums
+batched otherwise) with other ranks or after a resume. A solve is
 :func:`amfe.homogenize` on the group's communicator: the row of a bed equals
 ``amfe homogenize`` of that bed on as many ranks, with the same solver.
 """
