@@ -5,11 +5,12 @@ The functions here only gather the input and hand it to the layers below
 broadcast), the frame built, the load cases solved with PETSc, and the Bagi
 averages turned into the constants.
 """
+import logging
 import os
 from dataclasses import replace
 
 from amfe.errors import AmfeError
-from amfe.io.console import messages
+from amfe.io.console import LOGGER, messages
 from amfe.io.mpi import on_root, same_on_every_rank
 from amfe.io.result import Result
 from amfe.io.result_meta import describe_input
@@ -17,6 +18,7 @@ from amfe.io.vtu import write_fields_vtu
 from amfe.io.vtuset import clear_stale_sets
 from amfe.model.bed import Bed
 from amfe.model.conditions import CONDITIONS, condition_names
+from amfe.model.continuum_springs import fraction_warnings
 from amfe.model.material import Material, resolve_material
 from amfe.model.options import SolveOptions, check_choice, check_flag, check_petsc_options
 
@@ -172,6 +174,12 @@ def homogenize(bed: Bed | str | os.PathLike | tuple, *, bc: str = "kubc",
         result.extra["density"] = result_density(bed.centers, bed.radii,
                                                  result.extra["volume_box"],
                                                  options.material.density)
+        # the continuum springs' range is one of solid fraction, known only now
+        for line in fraction_warnings(result.extra["density"]["solid_fraction"],
+                                      options.springs):
+            result.extra.setdefault("warnings", []).append(line)
+            if mpi.rank == 0:
+                logging.getLogger(LOGGER).warning(line)
         return result
 
     # --- voxel model dispatch (issue 35): its own solver, nothing of the frame's path ---

@@ -171,6 +171,26 @@ def test_a_bed_outside_the_fits_range_is_warned_and_one_inside_is_not():
     assert len(warned) == 1 and "--model voxel" in warned[0]
 
 
+def test_a_bed_outside_the_fits_solid_fractions_is_warned_once_and_one_inside_is_not(capfd):
+    """The fit's solid fractions (the shipped file's 0.2-0.8) are where the springs hold; a
+    bed outside them is told to use the voxel model, in the result and once on the terminal,
+    whatever its neck share (the sparse beds' lie inside the fit's neck shares)."""
+    assert load_params().fraction_range == (0.2, 0.8)
+    bed = bed_for("tiny", 7)
+    fraction = amfe.homogenize(bed).extra["density"]["solid_fraction"]
+    inside = ContinuumSprings(0.1, 0.2, 1.0, fraction_range=(fraction - 0.01, fraction + 0.01))
+    above = ContinuumSprings(0.1, 0.2, 1.0, fraction_range=(0.0, fraction - 0.01))
+    capfd.readouterr()
+    assert not [w for w in amfe.homogenize(bed, springs=inside).extra["warnings"]
+                if "solid fraction" in w]
+    warned = [w for w in amfe.homogenize(bed, springs=above).extra["warnings"]
+              if "solid fraction" in w]
+    assert len(warned) == 1 and "--model voxel" in warned[0] and f"{fraction:.3f}" in warned[0]
+    assert capfd.readouterr().err.count("solid fractions") == 1
+    assert not [w for w in amfe.homogenize(bed, springs="paper").extra["warnings"]
+                if "solid fraction" in w]
+
+
 def test_the_continuum_moduli_scale_exactly_with_E_and_not_with_the_length_unit():
     """Every continuum spring is E times a function of the geometry (the body's compliance
     is phi / (E R^m)): half the E halves the moduli and keeps the Poisson ratios, which is

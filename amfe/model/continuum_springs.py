@@ -25,7 +25,7 @@ assembly and the solvers do not change, only the spring values.
 """
 import json
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -49,6 +49,10 @@ class ContinuumSprings:
     source: str = "given"
     #: the bed-mean neck share (:func:`neck_share`) of the beds fitted on, (lo, hi), or None
     phi_range: tuple = None
+    #: the solid fractions of V's box the fit took its beds from, (lo, hi), or None (the
+    #: parameter file's fit; not part of the record, nor of equality: a data set's springs
+    #: compare as before)
+    fraction_range: tuple = field(default=None, compare=False)
 
     def __post_init__(self):
         for name in ("beta_n", "beta_t", "alpha"):
@@ -86,9 +90,12 @@ def load_params(path=None) -> ContinuumSprings:
         raise AmfeError(f"{path}: continuum springs of format {got!r}; this amfe reads format "
                         f"{SPRINGS_FORMAT} (upgrade amfe or refit the springs)")
     try:
+        fit = data.get("fit") if isinstance(data.get("fit"), dict) else {}
         return ContinuumSprings(data["beta_n"], data["beta_t"], data["alpha"],
                                 str(data["version"]), str(path.name),
-                                tuple(data["phi_range"]) if "phi_range" in data else None)
+                                tuple(data["phi_range"]) if "phi_range" in data else None,
+                                tuple(fit["solid_fraction_range"])
+                                if "solid_fraction_range" in fit else None)
     except KeyError as exc:
         raise AmfeError(f"{path}: no {exc.args[0]!r} in the continuum springs' parameters") \
             from None
@@ -186,4 +193,21 @@ def springs_warnings(frame, springs):
     return [f"the continuum springs were fitted on beds whose mean neck share (the necks' "
             f"radii over the particle's, summed) lies in [{lo:.2f}, {hi:.2f}]; this bed's is "
             f"{phi:.2f}, so its constants extrapolate the fit: check them with --model voxel "
+            "(docs/model.md, section 11)"]
+
+
+def fraction_warnings(fraction, springs):
+    """[str]: a warning when continuum springs are used on a bed whose solid fraction of V's
+    box (``fraction``, as the result's density block gives it) lies outside the fit's range;
+    [] otherwise. Below it (sparse beds, a few dozen particles in a box) the frame is
+    20-45 % off the continuum with either springs (docs/model.md, section 11)."""
+    params = resolve_springs(springs)
+    if params is None or params.fraction_range is None or fraction is None:
+        return []
+    lo, hi = params.fraction_range
+    if lo <= fraction <= hi:
+        return []
+    return [f"the continuum springs hold for solid fractions {lo:g}-{hi:g} of V's box, where "
+            f"they were fitted; this bed's is {fraction:.3f}, where the frame is far from the "
+            "continuum with either springs (20-45 % on the moduli below 0.2): use --model voxel "
             "(docs/model.md, section 11)"]
