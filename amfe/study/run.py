@@ -111,13 +111,16 @@ def run_sweep(spec: SweepSpec, output, *, comm=None, progress=False, petsc_args=
                 for k, row in zip(chunk, worker.rows(chunk)):
                     if group.rank == 0:
                         write_json(os.path.join(rows_dir, f"row_{k:06d}.json"), row)
-                    if bar is not None:
-                        bar.update(1)
+                    if bar is not None:   # every group's rows so far, not rank 0's alone
+                        bar.update(len(_finished(rows_dir, spec.n_beds)) - bar.n
+                                   if groups > 1 else 1)
+            world.Barrier()   # every group's rows are written
+            if bar is not None:
+                bar.update(len(_finished(rows_dir, spec.n_beds)) - bar.n)
         finally:
             if bar is not None:
                 bar.close()
             group.Free()
-        world.Barrier()
         if world.rank == 0:
             shutil.rmtree(os.path.join(os.fspath(output), CLAIMS_DIR), ignore_errors=True)
         rows = _read_rows(rows_dir, spec.n_beds) if world.rank == 0 else None
