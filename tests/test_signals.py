@@ -177,9 +177,9 @@ def test_sighup_and_sigquit_end_a_solve_with_one_line(bed, tmp_path, sig):
 
 KICK = """
 import importlib.abc, os, signal, sys
-class Kick(importlib.abc.MetaPathFinder):   # SIGINT while amfe's subcommands are imported
+class Kick(importlib.abc.MetaPathFinder):   # SIGINT while the subcommand's module is imported
     def find_spec(self, name, path, target=None):
-        if name == "amfe.cli.pack":
+        if name == "amfe.cli.homogenize":
             os.kill(os.getpid(), signal.SIGINT)
         return None
 sys.meta_path.insert(0, Kick())

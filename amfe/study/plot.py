@@ -72,7 +72,7 @@ def preload():
     from matplotlib.figure import Figure  # noqa: F401
 
     try:
-        from PIL import Image
+        from PIL import Image  # noqa: PLC0415 (matplotlib's PNG writer, loaded when used)
     except ImportError:   # matplotlib without PIL writes its PNGs another way
         return
     Image.preinit()
