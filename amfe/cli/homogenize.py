@@ -9,7 +9,12 @@ import json
 import os
 import sys
 
-from amfe.cli.options import add_solver_args
+from amfe.cli.options import (
+    add_material_args,
+    add_memory_arg,
+    add_solver_args,
+    given_material,
+)
 from amfe.errors import AmfeError
 from amfe.io.units import length
 from amfe.model.conditions import CONDITIONS
@@ -67,28 +72,6 @@ def register(sub):
                         "matrix-free (elements on the fly, two-grid preconditioner: a few kB "
                         "a node instead of about 16)")
     p.set_defaults(func=run)
-
-
-def add_material_args(p, what):
-    """--E, --nu, --psi: the particles' elastic material (shared with `amfe pack`)."""
-    p.add_argument("--E", type=float, metavar="PA", help=f"Young's modulus in Pa ({what}; "
-                   "default: the bed file's, else steel's 210e9)")
-    p.add_argument("--nu", type=float, metavar="NU", help=f"Poisson's ratio ({what}; "
-                   "default: the bed file's, else 0.28)")
-    p.add_argument("--psi", type=float, metavar="PSI", help=f"psi of paper eqs. 1 and 4 ({what}; "
-                   "default: the bed file's, else 0.08)")
-
-
-def add_memory_arg(p):
-    """--max-memory SIZE (shared with `amfe pack`)."""
-    p.add_argument("--max-memory", metavar="SIZE", default=None,
-                   help="refuse work estimated to need more memory than SIZE (e.g. 8G, 500M), "
-                        "in total over the ranks; default: half the machine's memory")
-
-
-def given_material(args):
-    """{"E": ..., "nu": ..., "psi": ...} of the material options given (maybe empty)."""
-    return {k: getattr(args, k) for k in ("E", "nu", "psi") if getattr(args, k) is not None}
 
 
 def run(args):

@@ -1,5 +1,9 @@
 """Option value types for the subcommands' parsers: a bad value is refused while parsing.
 
+Also the options several commands share (the material, the memory limit): here, not in
+one command's module, so that a command imports only its own (`amfe predict` does not
+pull in homogenize's boundary conditions and their scipy modules, 0.2 s of its start).
+
 Each is an argparse ``type``: it returns the converted value or raises
 argparse.ArgumentTypeError, which argparse reports as one line under the
 subcommand's usage (exit 2) before any work starts. ``float("nan")`` and
@@ -67,3 +71,25 @@ def add_solver_args(p):
     p.add_argument("--springs", choices=SPRING_CHOICES, default="paper",
                    help="the bonds' springs: paper (eqs. 1-4, default) or continuum (calibrated "
                         "on the voxel model of the same spheres, docs/model.md, section 11)")
+
+
+def add_material_args(p, what):
+    """--E, --nu, --psi: the particles' elastic material (shared with `amfe pack`)."""
+    p.add_argument("--E", type=float, metavar="PA", help=f"Young's modulus in Pa ({what}; "
+                   "default: the bed file's, else steel's 210e9)")
+    p.add_argument("--nu", type=float, metavar="NU", help=f"Poisson's ratio ({what}; "
+                   "default: the bed file's, else 0.28)")
+    p.add_argument("--psi", type=float, metavar="PSI", help=f"psi of paper eqs. 1 and 4 ({what}; "
+                   "default: the bed file's, else 0.08)")
+
+
+def add_memory_arg(p):
+    """--max-memory SIZE (shared with `amfe pack`)."""
+    p.add_argument("--max-memory", metavar="SIZE", default=None,
+                   help="refuse work estimated to need more memory than SIZE (e.g. 8G, 500M), "
+                        "in total over the ranks; default: half the machine's memory")
+
+
+def given_material(args):
+    """{"E": ..., "nu": ..., "psi": ...} of the material options given (maybe empty)."""
+    return {k: getattr(args, k) for k in ("E", "nu", "psi") if getattr(args, k) is not None}

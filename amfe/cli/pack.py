@@ -9,7 +9,7 @@ from decimal import Decimal
 
 import numpy as np
 
-from amfe.cli.homogenize import add_material_args, add_memory_arg, given_material
+from amfe.cli.options import add_material_args, add_memory_arg, given_material
 from amfe.dataset.density import PRECISION, solid_fraction
 from amfe.errors import AmfeError
 from amfe.io.paths import check_output

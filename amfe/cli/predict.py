@@ -32,8 +32,7 @@ import os
 import sys
 import time
 
-from amfe.cli.homogenize import add_material_args, given_material
-from amfe.cli.options import nonnegative_float, thread_count
+from amfe.cli.options import add_material_args, given_material, nonnegative_float, thread_count
 from amfe.cli.predict_common import check_springs
 from amfe.cli.predict_core import NINE, SIX, flag_reasons, interval_of  # noqa: F401 (re-exported)
 from amfe.errors import AmfeError
