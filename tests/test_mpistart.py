@@ -20,22 +20,26 @@ def test_ob1_only_on_one_host(env, chosen):
     env = dict(env)
     assert prefer_ob1_on_one_host(env) is chosen
     assert env.get("OMPI_MCA_pml") == ("ob1" if chosen else None)
+    assert env.get("OMPI_MCA_btl") == ("self,vader" if chosen else None)
 
 
-def test_the_users_choice_stands():
-    env = {"OMPI_MCA_pml": "ucx", "OMPI_COMM_WORLD_SIZE": "2", "OMPI_COMM_WORLD_LOCAL_SIZE": "2"}
+@pytest.mark.parametrize("given", [{"OMPI_MCA_pml": "ucx"}, {"OMPI_MCA_btl": "tcp,self"}])
+def test_the_users_choice_stands(given):
+    env = {**given, "OMPI_COMM_WORLD_SIZE": "2", "OMPI_COMM_WORLD_LOCAL_SIZE": "2"}
     assert prefer_ob1_on_one_host(env) is False
-    assert env["OMPI_MCA_pml"] == "ucx"
+    assert env == {**given, "OMPI_COMM_WORLD_SIZE": "2", "OMPI_COMM_WORLD_LOCAL_SIZE": "2"}
 
 
 @pytest.mark.mpi
 def test_ranks_on_one_host_start_with_ob1_and_talk():
-    """Under mpirun -n 2 on this host, `import amfe` asks for ob1 before MPI starts, and the
-    ranks still exchange data (an allreduce of their ranks)."""
+    """Under mpirun -n 3 on this host (oversubscribed), `import amfe` asks for ob1 over
+    shared memory before MPI starts, and the ranks still exchange data (an allreduce)."""
     code = ("import os, amfe; from mpi4py import MPI; "
-            "print(os.environ['OMPI_MCA_pml'], MPI.COMM_WORLD.allreduce(MPI.COMM_WORLD.rank))")
-    proc = subprocess.run(["mpirun", "-n", "2", sys.executable, "-c", code], cwd=ROOT,
-                          env={k: v for k, v in MPI_ENV.items() if k != "OMPI_MCA_pml"},
+            "print(os.environ['OMPI_MCA_pml'], os.environ['OMPI_MCA_btl'], "
+            "MPI.COMM_WORLD.allreduce(MPI.COMM_WORLD.rank))")
+    proc = subprocess.run(["mpirun", "-n", "3", sys.executable, "-c", code], cwd=ROOT,
+                          env={k: v for k, v in MPI_ENV.items()
+                               if k not in ("OMPI_MCA_pml", "OMPI_MCA_btl")},
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
-    assert proc.stdout.split("\n")[:2] == ["ob1 1", "ob1 1"]
+    assert proc.stdout.split("\n")[:3] == ["ob1 self,vader 3"] * 3
