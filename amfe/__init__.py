@@ -41,7 +41,7 @@ from amfe.io.mpi import abort_on_uncaught
 from amfe.io.mpistart import prefer_ob1_on_one_host
 from amfe.version import __version__
 
-prefer_ob1_on_one_host()   # before any mpi4py import: MPI starts 0.2 s sooner on one host
+prefer_ob1_on_one_host()   # before any mpi4py import: MPI starts 0.3 s sooner on one host
 abort_on_uncaught()   # under mpirun, an uncaught exception on one rank ends every rank
 
 _FACE = {

@@ -96,7 +96,7 @@ def run(args):
     rows = run_sweep(spec, args.output, comm=MPI.COMM_WORLD,
                      progress=not args.no_progress and launcher_rank() == 0,
                      petsc_args=args.petsc_args,
-                     before=preload if MPI.COMM_WORLD.size > 1 else None)
+                     before=preload)
     if MPI.COMM_WORLD.rank != 0:
         return 0
     table = tables(rows, spec.to_dict())

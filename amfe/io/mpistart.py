@@ -1,9 +1,11 @@
 """Open MPI's start on one host: ob1 over shared memory unless the user chose a transport.
 
 Open MPI 4.1 (Debian 12's) picks its UCX layer by default, and UCX probes every
-network device at MPI_Init: 0.2 s of a rank's start on the build machine (mpi4py's
-import under ``mpirun -n 2``: 0.46-0.47 s, against 0.25-0.27 s with ob1; a single
-process: 0.30 s against 0.12 s). On one host the ranks talk through shared memory
+network device at MPI_Init; ob1 then opens every transport it has. On the build
+machine that is 0.3 s of a rank's start (``mpirun -n 2 python -c "import numpy,
+mpi4py.MPI"``: 0.46-0.47 s by default, 0.25-0.27 s with ob1; ``import amfe,
+mpi4py.MPI``: 0.16 s with ob1 over self and vader; a single process: 0.30 s against
+0.12 s with ob1). On one host the ranks talk through shared memory
 either way (UCX's, or ob1's vader), so :func:`prefer_ob1_on_one_host` asks for ob1
 with the self and vader transports alone there, before mpi4py starts MPI. The
 transports are named too because ob1 would otherwise try the openib one on a host
@@ -13,9 +15,7 @@ when the user chose a layer or transports (``OMPI_MCA_pml``, ``OMPI_MCA_btl``, w
 ``mpirun --mca pml ucx`` and ``--mca btl ...`` set too), when the ranks span
 hosts (``OMPI_COMM_WORLD_LOCAL_SIZE`` below ``OMPI_COMM_WORLD_SIZE``: there UCX's
 network transports matter), or under another launcher (srun's PMI, MPICH's
-``PMI_RANK``), which leaves the choice to Open MPI. A sweep of small beds starts
-once per rank, so this is most of what separates its surrogate rows from a bare
-Python start (docs/benchmarks.md, "Parameter sweeps").
+``PMI_RANK``), which leaves the choice to Open MPI (docs/benchmarks.md, "Parameter sweeps").
 """
 import os
 

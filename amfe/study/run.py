@@ -67,8 +67,8 @@ def run_sweep(spec: SweepSpec, output, *, comm=None, progress=False, petsc_args=
               before=None):
     """Solve (or predict) every bed of ``spec`` not yet in ``output``; the rows, on every rank.
 
-    before: a callable rank 0 runs once before its first bed (the plot's imports: the other
-    ranks take more beds meanwhile, :func:`_claimed`).
+    before: a callable rank 0 runs once before its first bed when there are several rank
+    groups (the plot's imports: the other groups take more beds meanwhile, :func:`_claimed`).
 
     Returns the list of row dicts of all the sweep's beds (rank 0's view; the
     same on every rank after the final broadcast).
@@ -101,8 +101,8 @@ def run_sweep(spec: SweepSpec, output, *, comm=None, progress=False, petsc_args=
         group = world.Split(color, world.rank)
         bar = _bar(progress and world.rank == 0, spec.n_beds, len(done))
         try:
-            if before is not None and world.rank == 0:
-                before()
+            if before is not None and world.rank == 0 and groups > 1:
+                before()   # meanwhile the other groups claim more of the beds
             worker = _Worker(spec, group, petsc_args)
             # the surrogate takes its beds in batches (one network pass each); the solver one
             # at a time
