@@ -15,6 +15,7 @@ import pytest
 from amfe.errors import AmfeError
 from amfe.training.anybed import anybed_inputs
 from amfe.training.anystack import (
+    EXTRA_READS,
     FORMAT,
     FORMAT_VERSION,
     Reads,
@@ -41,7 +42,8 @@ def _outputs(rng, m=2, n=40, w=3):
 def test_a_stack_that_reads_log_d_gives_the_members_bit_for_bit():
     direct, windows, nu, psi, means = _outputs(np.random.default_rng(0))
     p = design(0, direct[0], windows[0], nu, psi, means).shape[1]
-    assert p == n_columns(windows.shape[1] + 2)
+    layers = windows.shape[1] + 2
+    assert p == n_columns(layers) - EXTRA_READS.get(layers, 0)   # no extra reads given here
     coefs = np.zeros((6, p))
     coefs[:, 1] = 1.0          # column 1 is log d_k
     np.testing.assert_allclose(stack(coefs, Reads(direct, windows, nu, psi, means)), direct,
@@ -121,7 +123,7 @@ def test_a_stack_fitted_to_another_network_is_refused(tmp_path):
     path.write_text(json.dumps({"format": FORMAT, "format_version": FORMAT_VERSION,
                                 "network_created": "A",
                                 "layers": {"5": {"coefs": [[0.0] * 9] * 6, "calibration": {}}}}))
-    with pytest.raises(AmfeError, match=r"\(6, 9\), not \(6, 31\): refit"):
+    with pytest.raises(AmfeError, match=rf"\(6, 9\), not \(6, {n_columns(5)}\): refit"):
         layer_entry(load_stack(path, "A"), 5)
     path.write_text("{")
     with pytest.raises(AmfeError, match="not a readable anybed stack"):
@@ -135,15 +137,41 @@ def test_a_missing_stack_is_an_error_not_the_network_alone(tmp_path, monkeypatch
     anybed = Surrogate.load(models_dir() / "anybed_small.pt")
     monkeypatch.setattr(anypredict, "models_dir", lambda: tmp_path)
     with pytest.raises(AmfeError, match="anybed_stack.json is not installed; reinstall"):
-        anypredict.load_stack_for(anybed)
+        anypredict.load_stack_for(anybed, {})
+
+
+def test_a_stack_fitted_to_other_networks_of_one_thickness_is_refused():
+    from amfe.training.anypredict import load_stack_for
+    from amfe.training.predict import Surrogate
+    from amfe.training.shipped import models_dir
+    from amfe.training.thicknets import load_thick
+    anybed, thick = Surrogate.load(models_dir() / "anybed_small.pt"), load_thick()
+    assert load_stack_for(anybed, thick) is not None
+    with pytest.raises(AmfeError, match="fitted to the networks of one thickness"):
+        load_stack_for(anybed, {})
+
+
+def test_a_two_layer_stack_can_take_the_two_layer_networks_reading():
+    """At 2 layers the extra read is the 2-layer network t: coefficient 1 on its column
+    (the last) and 0 elsewhere gives t member by member."""
+    rng = np.random.default_rng(5)
+    direct, _, nu, psi, means = _outputs(rng, w=0)
+    own = direct[None] * np.exp(rng.normal(0, 0.1, (1,) + direct.shape))
+    p = n_columns(2)
+    assert p == design(0, direct[0], None, nu, psi, means).shape[1] + 1   # log t_k
+    coefs = np.zeros((6, p))
+    coefs[:, -1] = 1.0
+    got = stack(coefs, Reads(direct, None, nu, psi, means, own))
+    np.testing.assert_allclose(got, own[0], rtol=1e-12)
 
 
 def test_the_shipped_stack_is_the_networks_and_calibrated_per_thickness():
     from amfe.training.anypredict import load_stack_for
     from amfe.training.predict import Surrogate
     from amfe.training.shipped import models_dir
+    from amfe.training.thicknets import load_thick
     anybed = Surrogate.load(models_dir() / "anybed_small.pt")
-    data = load_stack_for(anybed)
+    data = load_stack_for(anybed, load_thick())
     assert data is not None
     for layers in (2, 3, 4, 5, 6):
         entry = layer_entry(data, layers)
@@ -157,19 +185,20 @@ def test_the_shipped_stack_is_the_networks_and_calibrated_per_thickness():
                 < np.mean(list(raw["mre_network"].values())))
 
 
-def _by_hand(layers, steel_too):
+def _by_hand(layers):
     """(amfe.predict's record, the stack's constants computed step by step) of a drawn-material
-    bed of ``layers`` layers: the network on the bed and its windows and, with
-    ``steel_too``, the small model and the network at steel's nu and psi."""
+    bed of ``layers`` layers: the network on the bed and its windows and, at 3 layers, the
+    small model and the network at steel's nu and psi, at 2 the 2-layer network."""
     import amfe
     from amfe.model.scales import bed_for, record_seed
     from amfe.training.anypredict import _members, bed_images, load_stack_for
     from amfe.training.predict import Surrogate
     from amfe.training.shipped import models_dir
+    from amfe.training.thicknets import load_thick, thick_inputs
     bed = bed_for(f"box600x600x{layers}00um_nu250to400psi40to120", record_seed(7, 0))
     p = amfe.predict(bed).to_dict()
-    anybed = Surrogate.load(models_dir() / "anybed_small.pt")
-    entry = layer_entry(load_stack_for(anybed), layers)
+    anybed, thick = Surrogate.load(models_dir() / "anybed_small.pt"), load_thick()
+    entry = layer_entry(load_stack_for(anybed, thick), layers)
     fill, bonds, _ = bed_images(bed, bed.attrs["size"])
     nu = np.array([float(bed.attrs["material_nu"])])
     psi = np.array([float(bed.attrs["material_psi"])])
@@ -178,12 +207,14 @@ def _by_hand(layers, steel_too):
     windows = None if layers < 4 else np.stack(
         [_members(anybed, anybed_inputs(f[:, s:s + 3], b[:, s:s + 3], nu, psi))
          for s in range(layers - 2)], axis=1)
-    steel = None
-    if steel_too:
+    extra = None
+    if layers == 3:
         small = Surrogate.load(models_dir() / "multiscale_small.pt")
-        steel = np.stack([_members(small, np.concatenate([f, b], axis=1)),
+        extra = np.stack([_members(small, np.concatenate([f, b], axis=1)),
                           _members(anybed, anybed_inputs(f, b, [0.28], [0.08]))])
-    want = stack(entry["coefs"], Reads(direct, windows, nu, psi, image_means(f, b), steel))
+    elif layers == 2:
+        extra = _members(thick[2], thick_inputs(f, b, nu, psi))[None]
+    want = stack(entry["coefs"], Reads(direct, windows, nu, psi, image_means(f, b), extra))
     want = want.mean(axis=0)[0]
     want[:3] *= float(bed.attrs["material_E"]) / 210e9
     return bed, p, want
@@ -199,7 +230,7 @@ def test_a_thick_bed_is_predicted_through_its_windows_as_the_stack_says(tmp_path
     from helpers import run_cli
 
     import amfe
-    bed, p, want = _by_hand(4, steel_too=False)
+    bed, p, want = _by_hand(4)
     assert p["route"] == "anybed" and any("3-layer windows" in n for n in p["notes"])
     np.testing.assert_allclose(_constants(p), want, rtol=1e-6)
     path = tmp_path / "thick.h5"
@@ -213,6 +244,14 @@ def test_a_thick_bed_is_predicted_through_its_windows_as_the_stack_says(tmp_path
 def test_a_three_layer_alloy_bed_is_read_by_the_small_model_too_as_the_stack_says():
     """A 3-layer bed of another nu and psi: the stack of the network's members, the small
     model's and the network's at steel's nu and psi, computed here step by step."""
-    _, p, want = _by_hand(3, steel_too=True)
+    _, p, want = _by_hand(3)
     assert p["route"] == "anybed"
+    np.testing.assert_allclose(_constants(p), want, rtol=1e-6)
+
+
+def test_a_two_layer_bed_is_read_by_the_two_layer_network_too_as_the_stack_says():
+    """A 2-layer bed: the stack of the network's members and the 2-layer network's,
+    computed here step by step; the record says so."""
+    _, p, want = _by_hand(2)
+    assert p["route"] == "anybed" and any("2-layer network" in n for n in p["notes"])
     np.testing.assert_allclose(_constants(p), want, rtol=1e-6)

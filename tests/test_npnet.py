@@ -24,7 +24,8 @@ from amfe.training.torchfile import TensorArray, read_torch_file
 # skipped below 2 x 2, odd maps pooled with floor), the anybed network's descriptor planes
 CASES = [((6, 20, 20), {"n_fill": 3, "width": 0.5}),
          ((2, 7, 5), {"width": 0.25, "hidden": [16, 8]}),
-         ((15, 12, 12), {"n_fill": 6, "width": 0.25, "features": 3, "hidden": [32]})]
+         ((15, 12, 12), {"n_fill": 6, "width": 0.25, "features": 3, "hidden": [32]}),
+         ((6, 20, 20), {"n_fill": 2, "features": 2, "channels": [6, 10, 12], "hidden": [8]})]
 
 
 def _random_net(shape, args, seed, std=0.3):
@@ -68,7 +69,8 @@ def test_numpy_tta_is_torchs():
 
 
 @pytest.mark.parametrize("name", ["multiscale_small.pt", "anybed_small.pt",
-                                  "multiscale_small_continuum.pt"])
+                                  "multiscale_small_continuum.pt", "thick_2layers.pt",
+                                  "thick_5layers.pt"])
 def test_shipped_models_predict_the_same_in_numpy(name):
     numpy_, torch_ = (Surrogate.load(models_dir() / name, backend=b) for b in ("numpy", "torch"))
     assert (numpy_.backend, torch_.backend) == ("numpy", "torch")

@@ -38,11 +38,11 @@ ARCH_ARGS = {"custom": {"padding": str, "width": float, "convs": int},
              "alexnet": {"width": float, "hidden": list, "dropout": float},
              "vgg": {"width": float, "hidden": list, "dropout": float, "batch_norm": bool},
              "multiscale": {"width": float, "hidden": list, "n_fill": int, "outputs": int,
-                            "features": int}}
+                            "features": int, "channels": list}}
 
 
 def check_arch_args(arch, arch_args):
-    """``arch_args`` as a dict for network ``arch`` ("hidden" as a tuple of ints); AmfeError
+    """``arch_args`` as a dict for network ``arch`` (hidden, channels as int tuples); AmfeError
     for an unknown network or argument."""
     if arch not in ARCH_ARGS:
         raise AmfeError(f"unknown architecture {arch!r}; choose one of {', '.join(ARCH_ARGS)}")
@@ -51,6 +51,7 @@ def check_arch_args(arch, arch_args):
     if unknown:
         raise AmfeError(f"architecture {arch} takes no argument(s) {', '.join(sorted(unknown))} "
                         f"(it takes: {', '.join(ARCH_ARGS[arch]) or 'none'})")
-    if "hidden" in arch_args:
-        arch_args["hidden"] = tuple(int(h) for h in arch_args["hidden"])
+    for key in ("hidden", "channels"):
+        if key in arch_args:
+            arch_args[key] = tuple(int(h) for h in arch_args[key])
     return arch_args

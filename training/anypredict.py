@@ -39,6 +39,7 @@ from amfe.training.ensemble import relative_spread
 from amfe.training.imagebox import HEIGHT_TOL, cropped_box
 from amfe.training.shipped import models_dir
 from amfe.training.sizerule import inverse_size, size_weights
+from amfe.training.thicknets import created_stamps, thick_members
 from amfe.vocab import LABEL_NAMES
 
 #: nu and psi this close to the paper's are the shipped models' material.
@@ -87,12 +88,21 @@ def anybed_members(models, fill, bonds, nu, psi, stacked=True):
 def stack_reads(models, fill, bonds, nu, psi):
     """amfe.training.anystack.Reads of n beds (fill, bonds (n, layers, H, W); nu, psi (n,)):
     the network on the beds, on their 3-layer windows and, on 3-layer beds, at steel's nu
-    and psi beside the small model."""
+    and psi beside the small model; on beds of a thickness with a network of its own
+    (amfe.training.thicknets), that network's outputs."""
     nu, psi = np.asarray(nu, np.float64), np.asarray(psi, np.float64)
     direct = _members(models["anybed"], anybed_inputs(fill, bonds, nu, psi))
-    steel = steel_members(models, fill, bonds) if fill.shape[1] in STEEL_LAYERS else None
+    if fill.shape[1] in STEEL_LAYERS:
+        extra = steel_members(models, fill, bonds)
+    else:
+        own = thick_members(models, fill, bonds, nu, psi)
+        extra = None if own is None else own[None]
+    if extra is not None and extra.shape[1] != direct.shape[0]:
+        raise AmfeError(f"the stack pairs members, but the anybed network has "
+                        f"{direct.shape[0]} and the other network {extra.shape[1]}; "
+                        "reinstall amfe")
     return Reads(direct, window_members(models, fill, bonds, nu, psi), nu, psi,
-                 image_means(fill, bonds), steel)
+                 image_means(fill, bonds), extra)
 
 
 def steel_members(models, fill, bonds):
@@ -128,14 +138,19 @@ def anybed_calibration(models, layers):
     return models["anybed"].ckpt["conformal"]["sizes"]["0.6x0.6"]
 
 
-def load_stack_for(anybed):
-    """The installed stack (amfe/models/anybed_stack.json) of the Surrogate ``anybed``;
+def load_stack_for(anybed, thick):
+    """The installed stack (amfe/models/anybed_stack.json) of the Surrogate ``anybed`` and the
+    networks of one thickness ``thick`` ({layers: Surrogate}, amfe.training.thicknets);
     AmfeError where it is missing (the network alone would be used silently, with the
-    intervals of no thickness)."""
+    intervals of no thickness) or was fitted to other networks."""
     path = models_dir() / STACK_FILE
     data = load_stack(path, anybed.ckpt.get("created"))
     if data is None:
         raise AmfeError(f"the anybed stack {path} is not installed; reinstall amfe")
+    if data.get("thick_networks", {}) != created_stamps(thick):
+        raise AmfeError(f"{path} was fitted to the networks of one thickness of "
+                        f"{data.get('thick_networks')}, not to the installed "
+                        f"{created_stamps(thick)}: refit it (run/train/fit_anybed_stack.py)")
     return data
 
 

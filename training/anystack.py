@@ -25,7 +25,9 @@ A 3-layer bed is also read by the small model, trained on 40 000 steel beds:
 its stack has two more columns, log s_k of the small model's output and log
 r_k of the network's at steel's nu and psi, so that it can take the small
 model's reading of the geometry and the network's of the material
-(s_k d_k / r_k; :data:`STEEL_LAYERS`).
+(s_k d_k / r_k; :data:`STEEL_LAYERS`). A 2-layer bed is also read by the
+network of its own thickness (amfe.training.thicknets): one more column, log t_k.
+These other networks' reads are the stack's *extra* reads (:data:`EXTRA_READS`).
 
 Pure numpy: amfe.training.anypredict runs the network and calls these.
 """
@@ -35,6 +37,7 @@ from typing import NamedTuple, Optional
 import numpy as np
 
 from amfe.errors import AmfeError
+from amfe.training.thicknets import THICK_FILES
 
 #: The stack's file in amfe/models/ (run/train/fit_anybed_stack.py writes it).
 STACK_FILE = "anybed_stack.json"
@@ -44,6 +47,9 @@ MIN_STACKED = 4
 #: The thicknesses whose stack also reads the small model and the network at steel (the
 #: small model's own beds: 3 layers).
 STEEL_LAYERS = (3,)
+#: How many other networks' outputs the stack reads at each thickness: at 3 layers the small
+#: model and the network at steel, at those with a network of their own that network.
+EXTRA_READS = {**{layers: 1 for layers in THICK_FILES}, **{layers: 2 for layers in STEEL_LAYERS}}
 
 
 class Reads(NamedTuple):
@@ -51,15 +57,16 @@ class Reads(NamedTuple):
 
     direct (m, n, 6): the network's outputs on the whole beds; windows (m, w, n, 6): on
     their 3-layer windows, or None (2-3 layers); nu, psi (n,); means (n, q):
-    :func:`image_means`; steel (2, m, n, 6) or None: on a 3-layer bed (:data:`STEEL_LAYERS`)
-    the small model's member m and the network's at steel's nu and psi.
+    :func:`image_means`; extra (q, m, n, 6) or None: other networks' member m on the beds,
+    q = :data:`EXTRA_READS` of their thickness (3 layers: the small model and the network
+    at steel's nu and psi; 2 layers: the network of that thickness).
     """
     direct: np.ndarray
     windows: Optional[np.ndarray]
     nu: np.ndarray
     psi: np.ndarray
     means: np.ndarray
-    steel: Optional[np.ndarray] = None
+    extra: Optional[np.ndarray] = None
 
     def rows(self, sel):
         """The same reads of the beds ``sel`` (bool or index array over the n beds)."""
@@ -69,13 +76,13 @@ class Reads(NamedTuple):
         def cut(a, axis):
             return None if a is None else np.take(np.asarray(a, np.float64), idx, axis=axis)
         return Reads(cut(self.direct, 1), cut(self.windows, 2), cut(self.nu, 0),
-                     cut(self.psi, 0), cut(self.means, 0), cut(self.steel, 2))
+                     cut(self.psi, 0), cut(self.means, 0), cut(self.extra, 2))
 
     def design(self, k, m):
         """:func:`design` of constant k for member m."""
         return design(k, self.direct[m], None if self.windows is None else self.windows[m],
                       self.nu, self.psi, self.means,
-                      None if self.steel is None else self.steel[:, m])
+                      None if self.extra is None else self.extra[:, m])
 
 
 def window_starts(layers):
@@ -91,15 +98,15 @@ def image_means(fill, bonds):
     return np.column_stack([fm, bm, fm.min(axis=1), bm.min(axis=1)])
 
 
-def design(k, direct, windows, nu, psi, means, steel=None):
+def design(k, direct, windows, nu, psi, means, extra=None):
     """(n, p) design of constant k for one member's outputs.
 
     direct (n, 6) > 0 on the whole beds; windows (w, n, 6) > 0 on their 3-layer windows, or
     None for a bed of 2 or 3 layers; nu, psi (n,); means (n, q): :func:`image_means`;
-    steel (2, n, 6) > 0 or None: the small model's output and the network's at steel.
+    extra (q, n, 6) > 0 or None: the other networks' outputs (:class:`Reads`).
     Columns: 1, log d_k, and, with windows, mean, min, max, bottom and top of log w_k and
     mean log w of the five other constants; then log d of the five others, nu, psi and
-    the image means; with steel, log s_k and log r_k last.
+    the image means; with extra reads, the log of each one's output k last.
     """
     ld = np.log(np.asarray(direct, np.float64))
     cols = [np.ones(ld.shape[0]), ld[:, k]]
@@ -109,8 +116,8 @@ def design(k, direct, windows, nu, psi, means, steel=None):
                  lw[-1, :, k], *np.delete(lw.mean(0), k, axis=1).T]
     cols += [*np.delete(ld, k, axis=1).T, np.asarray(nu, np.float64),
              np.asarray(psi, np.float64), *np.asarray(means, np.float64).T]
-    if steel is not None:
-        cols += list(np.log(np.asarray(steel, np.float64)[:, :, k]))
+    if extra is not None:
+        cols += list(np.log(np.asarray(extra, np.float64)[:, :, k]))
     return np.column_stack(cols)
 
 
@@ -120,8 +127,9 @@ def n_columns(layers):
     starts = window_starts(layers)
     windows = np.ones((len(starts), 1, 6)) if starts else None
     means = image_means(np.ones((1, int(layers), 1, 1)), np.ones((1, int(layers), 1, 1)))
-    steel = np.ones((2, 1, 6)) if int(layers) in STEEL_LAYERS else None
-    return design(0, np.ones((1, 6)), windows, [0.3], [0.08], means, steel).shape[1]
+    q = EXTRA_READS.get(int(layers))
+    extra = np.ones((q, 1, 6)) if q else None
+    return design(0, np.ones((1, 6)), windows, [0.3], [0.08], means, extra).shape[1]
 
 
 def _positive(reads):
@@ -129,8 +137,8 @@ def _positive(reads):
     ok = np.all(np.asarray(reads.direct) > 0, axis=(0, 2))
     if reads.windows is not None:
         ok &= np.all(np.asarray(reads.windows) > 0, axis=(0, 1, 3))
-    if reads.steel is not None:
-        ok &= np.all(np.asarray(reads.steel) > 0, axis=(0, 1, 3))
+    if reads.extra is not None:
+        ok &= np.all(np.asarray(reads.extra) > 0, axis=(0, 1, 3))
     return ok
 
 

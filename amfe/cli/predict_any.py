@@ -64,7 +64,8 @@ def needs_route(bed):
 
 
 class Models:
-    """The shipped size models and the anybed network, loaded once, when first needed."""
+    """The shipped size models, the anybed network, the networks of one thickness and the
+    stack, loaded once, when first needed."""
 
     def __init__(self):
         self._models = None
@@ -77,13 +78,15 @@ class Models:
             from amfe.training.predict import Surrogate
             from amfe.training.shipped import SHIPPED, models_dir
             from amfe.training.sizerule import SIZES
+            from amfe.training.thicknets import load_thick
             path = models_dir() / ANYBED
             if not path.is_file():
                 raise AmfeError(f"the any-bed model {path} is not installed; reinstall amfe")
-            anybed = Surrogate.load(path)
+            anybed, thick = Surrogate.load(path), load_thick()
             self._models = {"shipped": {s: Surrogate.load(models_dir() / SHIPPED[name])
                                         for s, name in zip(SIZES, ("small", "medium", "paper"))},
-                            "anybed": anybed, "stack": load_stack_for(anybed)}
+                            "anybed": anybed, "thick": thick,
+                            "stack": load_stack_for(anybed, thick)}
             self.seconds = time.perf_counter() - t
         return self._models
 
@@ -94,6 +97,7 @@ def route_record(args, models, item, times, t_start):
     from amfe.training.anypredict import predict_any_bed
     from amfe.training.anystack import STEEL_LAYERS
     from amfe.training.conformal import interval_block
+    from amfe.training.thicknets import THICK_FILES
     path, bed, t_read = item
     size, material, note = bed_kind(bed)
     got = predict_any_bed(models.get(), bed, size, material)
@@ -113,7 +117,9 @@ def route_record(args, models, item, times, t_start):
     if got["stacked"]:
         notes.append(f"anybed's stack for {got['layers']} layers"
                      + (", with the bed's 3-layer windows" if got["layers"] >= 4 else "")
-                     + (", with the small model" if got["layers"] in STEEL_LAYERS else ""))
+                     + (", with the small model" if got["layers"] in STEEL_LAYERS else "")
+                     + (f", with the {got['layers']}-layer network"
+                        if got["layers"] in THICK_FILES else ""))
     out = {"bed": None if path is None else os.fspath(path), "bc": "kubc",
            "properties": props, "spread": finite_or_none(dict(zip(SIX, map(float, spread)))),
            "spread_score": None, "threshold": None,

@@ -15,20 +15,23 @@ from amfe.training.conformal import interval_block
 from amfe.training.ensemble import relative_spread
 from amfe.training.predict import Surrogate
 from amfe.training.sizerule import SIZES
+from amfe.training.thicknets import load_thick
 from amfe.vocab import LABEL_NAMES
 from run.common import ROOT, md_table, parser, write_json
 
 
 def load_models(anybed_path, stack_path=None):
-    """The shipped models, anybed and its stack (None: the installed one; "none": without)."""
+    """The shipped models, anybed, the installed networks of one thickness and the stack
+    (None: the installed one; "none": without)."""
     shipped = {s: Surrogate.load(f"{ROOT}/amfe/models/multiscale_{name}.pt")
                for s, name in zip(SIZES, ("small", "medium", "paper"))}
     anybed = Surrogate.load(anybed_path) if anybed_path else None
+    thick = load_thick() if anybed is not None else {}
     stack = None
     if anybed is not None and stack_path != "none":
-        stack = (load_stack_for(anybed) if stack_path is None
+        stack = (load_stack_for(anybed, thick) if stack_path is None
                  else load_stack(stack_path, anybed.ckpt.get("created")))
-    return {"shipped": shipped, "anybed": anybed, "stack": stack}
+    return {"shipped": shipped, "anybed": anybed, "thick": thick, "stack": stack}
 
 
 def read_kind(path):

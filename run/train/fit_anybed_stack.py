@@ -6,10 +6,16 @@ set's records from START on, ``PATH:A-B,C-D`` those ranges (the records the netw
 was not trained on). Per thickness, the stack's coefficients are a ridge fit on them and its
 intervals are calibrated on cross-fitted predictions (each bed by a fit without it); a
 constant whose cross-fitted error the stack does not lower keeps the network's value.
+A thickness with a network of its own (amfe.training.thicknets, the installed ones)
+reads it as one more column; its beds must be unseen by that network too.
 
     python -m run.train.fit_anybed_stack --data L5.h5:1000 L6.h5:300 ... \
-        [--anybed amfe/models/anybed_small.pt] [-o amfe/models/anybed_stack.json]
+        [--anybed amfe/models/anybed_small.pt] [-o amfe/models/anybed_stack.json] [--update]
+
+``--update`` refits only the thicknesses of ``--data`` and keeps the other entries of the
+stack file ``-o`` (fitted to the same anybed network), with their data records.
 """
+import json
 import os
 import time
 
@@ -17,11 +23,13 @@ import h5py
 import numpy as np
 import torch
 
+from amfe.model.scales import get_scale
 from amfe.training.anybed import E_TRAINED
 from amfe.training.anypredict import stack_reads
 from amfe.training.anystack import FORMAT, FORMAT_VERSION, STACK_FILE, cross_fitted, fit
 from amfe.training.conformal import calibrate
 from amfe.training.ensemble import relative_spread
+from amfe.training.thicknets import THICK_FILES, created_stamps
 from amfe.vocab import LABEL_NAMES
 from run.common import ROOT, md_table, parser, record_spec, write_json
 from run.report.anybed_eval import load_models, read_kind
@@ -48,6 +56,11 @@ def data_record(spec):
             **{k: v.item() if hasattr(v, "item") else str(v) for k, v in attrs.items()}}
 
 
+def layers_of(record):
+    """The thickness [layers, as the stack's key] of a data record of :func:`data_record`."""
+    return str(int(get_scale(record["scale"]).image_shape[0]))
+
+
 def mre(members, labels):
     """Mean relative error per constant of the members' mean."""
     return np.mean(np.abs(members.mean(axis=0) - labels) / np.abs(labels), axis=0)
@@ -64,17 +77,29 @@ def fit_layers(models, sets, args):
         reads = stack_reads(models, f, b, nu, psi)
         coefs = fit(reads, y, args.ridge)
         out = cross_fitted(reads, y, args.folds, args.ridge)
-        direct = reads.direct
-        # A constant the stack does not improve on these beds (cross-fitted) keeps the
-        # network's own value: its row picks log d_k, which gives it bit for bit.
-        kept = mre(out, y) < mre(direct, y)
-        coefs[~kept] = 0.0
-        coefs[~kept, 1] = 1.0
-        out[..., ~kept] = direct[..., ~kept]
+        # A constant the stack does not improve on these beds (cross-fitted) keeps the value of
+        # the better network: its row picks that network's log column (1: the anybed network,
+        # the last: the network of this thickness), which gives it bit for bit.
+        alone = {"network": (reads.direct, 1)}
+        if n_layers in THICK_FILES:
+            alone["own network"] = (reads.extra[-1], coefs.shape[1] - 1)
+        read = []
+        for k in range(6):
+            best = min(alone, key=lambda a: mre(alone[a][0], y)[k])
+            if mre(alone[best][0], y)[k] > mre(out, y)[k]:
+                read.append("stack")
+                continue
+            members, column = alone[best]
+            coefs[k] = 0.0
+            coefs[k, column] = 1.0
+            out[..., k] = members[..., k]
+            read.append(best)
         entries[str(n_layers)] = {
-            "n": int(len(y)), "mre_network": dict(zip(LABEL_NAMES, mre(direct, y))),
+            "n": int(len(y)), "mre_network": dict(zip(LABEL_NAMES, mre(reads.direct, y))),
             "mre_stack_cross_fitted": dict(zip(LABEL_NAMES, mre(out, y))),
-            "stacked": dict(zip(LABEL_NAMES, map(bool, kept))), "coefs": coefs.tolist(),
+            **({"mre_own_network": dict(zip(LABEL_NAMES, mre(alone["own network"][0], y)))}
+               if "own network" in alone else {}),
+            "read": dict(zip(LABEL_NAMES, read)), "coefs": coefs.tolist(),
             "calibration": calibrate(out.mean(axis=0), y, list(LABEL_NAMES),
                                      relative_spread(out))}
     return entries
@@ -88,12 +113,23 @@ def main():
     p.add_argument("-o", "--output", default=os.path.join(ROOT, "amfe", "models", STACK_FILE))
     p.add_argument("--ridge", type=float, default=1e-4)
     p.add_argument("--folds", type=int, default=5)
+    p.add_argument("--update", action="store_true",
+                   help="keep the other thicknesses' entries of the stack file -o")
     args = p.parse_args()
     torch.set_num_threads(1)
     t0 = time.perf_counter()
     models = load_models(args.anybed, "none")   # the shipped models beside it (3 layers)
     anybed = models["anybed"]
     entries = fit_layers(models, [read_unseen(s) for s in args.data], args)
+    data = [data_record(s) for s in args.data]
+    if args.update:   # read as it is: the entries refitted may have had other columns
+        with open(args.output) as f:
+            old = json.load(f)
+        if old.get("network_created") != anybed.ckpt.get("created"):
+            raise SystemExit(f"error: --update: {args.output} was fitted to another network")
+        kept = {n: e for n, e in old["layers"].items() if n not in entries}
+        entries = dict(sorted({**kept, **entries}.items(), key=lambda kv: int(kv[0])))
+        data = [d for d in old["data"] if layers_of(d) in kept] + data
     rows = []
     for n_layers, e in entries.items():
         for what in ("mre_network", "mre_stack_cross_fitted"):
@@ -105,7 +141,8 @@ def main():
         "network": os.path.relpath(args.anybed, ROOT),
         "network_created": anybed.ckpt.get("created"),
         "ridge": args.ridge, "folds": args.folds,
-        "data": [data_record(s) for s in args.data], "layers": entries,
+        "data": data, "layers": entries,
+        "thick_networks": created_stamps(models["thick"]),
         "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         "seconds": time.perf_counter() - t0})
     print(f"wrote {args.output}")

@@ -1,0 +1,77 @@
+"""Networks of one thickness each, read by the anybed stack beside the anybed network (issue 46).
+
+The anybed network (amfe.training.anybed) reads 2-6 layers and every material
+with one set of weights, fine-tuned from the 3-layer small model. On 2-layer
+beds a network of their own, trained from scratch on those beds alone with its
+outputs in log space, reads them better, nu_xy most (docs/surrogate.md, "Any
+bed"). Its output is one more column of the stack at its thickness
+(amfe.training.anystack), as the small model's is at 3 layers, so the stack
+weighs the two networks on beds neither saw.
+
+Its input is the bed's own image stack, then the descriptors nu and psi as
+constant planes (:class:`amfe.training.multiscale.MultiScaleNet` with
+``features`` 2, as anybed's, without the padding to six layers):
+(2 L + 2, H, W) for a bed of L layers.
+
+The checkpoints are ordinary surrogate checkpoints (arch ``multiscale``, run in
+numpy by amfe.training.npnet) named in :data:`THICK_FILES`, with a ``thick``
+block: the layers, the descriptors and the training data
+(run/train/train_thick.py writes them).
+"""
+import numpy as np
+
+from amfe.errors import AmfeError
+from amfe.training.anybed import REFERENCE, SCALE
+
+#: The thicknesses [layers] with a network of their own, and its checkpoint in amfe/models/.
+THICK_FILES = {2: "thick_2layers.pt", 5: "thick_5layers.pt"}
+#: The descriptors the head reads, after the image layers.
+THICK_DESCRIPTORS = ("nu", "psi")
+
+
+def thick_inputs(fill, bonds, nu, psi):
+    """(n, 2 L + 2, H, W) float32 inputs of n beds: fill, bonds (n, L, H, W); nu, psi (n,)."""
+    fill, bonds = np.asarray(fill, np.float32), np.asarray(bonds, np.float32)
+    n, _, H, W = fill.shape
+    d = np.stack([(np.asarray(v, np.float64) - REFERENCE[k]) / SCALE[k]
+                  for k, v in zip(THICK_DESCRIPTORS, (nu, psi))], axis=-1).astype(np.float32)
+    planes = np.broadcast_to(d.reshape(n, len(THICK_DESCRIPTORS), 1, 1),
+                             (n, len(THICK_DESCRIPTORS), H, W))
+    return np.ascontiguousarray(np.concatenate([fill, bonds, planes], axis=1))
+
+
+def check_thick(sur, layers):
+    """AmfeError unless the Surrogate ``sur`` is the network of ``layers`` layers."""
+    block = sur.ckpt.get("thick") or {}
+    if int(block.get("layers", -1)) != int(layers):
+        raise AmfeError(f"{THICK_FILES.get(int(layers), 'the model')} is not a network of "
+                        f"{int(layers)} layers (it says {block.get('layers')}); reinstall amfe")
+
+
+def thick_members(models, fill, bonds, nu, psi):
+    """(members, n, 6) outputs at 210 GPa of the network of the beds' thickness, or None where
+    that thickness has none. models: {"thick": {layers: Surrogate}, ...}."""
+    sur = (models.get("thick") or {}).get(int(np.shape(fill)[1]))
+    if sur is None:
+        return None
+    return sur.run_members(thick_inputs(fill, bonds, nu, psi))
+
+
+def load_thick(directory=None):
+    """{layers: Surrogate} of the installed networks of :data:`THICK_FILES` (in ``directory``,
+    default amfe/models/); AmfeError for one missing or of another thickness."""
+    from amfe.training.predict import Surrogate  # noqa: PLC0415 (predict imports the routes)
+    from amfe.training.shipped import models_dir  # noqa: PLC0415
+    out = {}
+    for layers, name in THICK_FILES.items():
+        path = (models_dir() if directory is None else directory) / name
+        if not path.exists():
+            raise AmfeError(f"the {layers}-layer network {path} is not installed; reinstall amfe")
+        out[layers] = Surrogate.load(path)
+        check_thick(out[layers], layers)
+    return out
+
+
+def created_stamps(thick):
+    """{"layers": created} of networks {layers: Surrogate}: what a stack records it read."""
+    return {str(layers): sur.ckpt.get("created") for layers, sur in sorted(thick.items())}
