@@ -1,5 +1,6 @@
 """The plumbing every script in run/ shares: the repository's root, an argument parser,
-markdown tables and JSON output, so that no script carries its own copy.
+markdown tables, JSON output, data-set record ranges and the joining of members trained
+apart, so that no script carries its own copy.
 
 Scripts run from the repository root as modules (``python -m run.bench.solver``), so they
 import this module and each other as ``run.<folder>.<script>``: no ``sys.path`` edits.
@@ -69,3 +70,22 @@ def record_spec(spec):
         return np.any([(pos >= lo) & ((pos <= hi) if hi is not None else True)
                        for lo, hi in bounds], axis=0)
     return path, keep
+
+
+def join_members(parts, data, block):
+    """(states, histories, seeds, seconds, the last part's ``block``) of the checkpoints
+    ``parts``, members trained apart (``--members K`` in each) on ``data`` (the ``--data``
+    list); ``block``: the checkpoint's key holding its training record ("anybed", "thick").
+    SystemExit for a part trained on other data."""
+    from amfe.training.checkpoint import load_checkpoint
+    states, histories, seeds, seconds, record = [], [], [], 0.0, None
+    for part in parts:
+        c = load_checkpoint(part)
+        record = c[block]
+        if record["data"] != list(data):
+            raise SystemExit(f"error: {part} was trained on {record['data']}, not --data")
+        states += c["members"]
+        histories += c["history"]
+        seeds += c["member_seeds"]
+        seconds += record["seconds"]
+    return states, histories, seeds, seconds, record

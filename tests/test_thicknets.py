@@ -47,12 +47,7 @@ def test_the_shipped_networks_are_of_their_thickness_and_unseen_by_the_stack():
         assert fitted and trained and not trained & fitted
 
 
-def _records(specs):
-    """The records of PATH:A-B,C-D specs (of one data set, seed 46012 at 2 layers)."""
-    out = set()
-    for spec in specs:
-        _, _, ranges = spec.rpartition(":")
-        for part in ranges.split(","):
-            a, b = part.split("-")
-            out |= set(range(int(a), int(b) + 1))
-    return out
+def _records(specs, n=100_000):
+    """The record positions (below n) that PATH:A-B,C-D specs of one data set select."""
+    from run.common import record_spec
+    return {int(k) for spec in specs for k in np.flatnonzero(record_spec(spec)[1](np.arange(n)))}

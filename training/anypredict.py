@@ -96,11 +96,8 @@ def stack_reads(models, fill, bonds, nu, psi):
         extra = steel_members(models, fill, bonds)
     else:
         own = thick_members(models, fill, bonds, nu, psi)
-        extra = None if own is None else own[None]
-    if extra is not None and extra.shape[1] != direct.shape[0]:
-        raise AmfeError(f"the stack pairs members, but the anybed network has "
-                        f"{direct.shape[0]} and the other network {extra.shape[1]}; "
-                        "reinstall amfe")
+        name = f"{fill.shape[1]}-layer network"
+        extra = None if own is None else _paired(own, direct, name)[None]
     return Reads(direct, window_members(models, fill, bonds, nu, psi), nu, psi,
                  image_means(fill, bonds), extra)
 
@@ -113,10 +110,16 @@ def steel_members(models, fill, bonds):
     small = _members(models["shipped"][0.6], np.concatenate([fill, bonds], axis=1))
     ref = _members(models["anybed"], anybed_inputs(fill, bonds, np.full(n, REFERENCE["nu"]),
                                                    np.full(n, REFERENCE["psi"])))
-    if small.shape[0] != ref.shape[0]:
-        raise AmfeError(f"the small model has {small.shape[0]} members and the anybed network "
-                        f"{ref.shape[0]}: the stack pairs them; reinstall amfe")
-    return np.stack([small, ref])
+    return np.stack([_paired(small, ref, "small model"), ref])
+
+
+def _paired(other, anybed, name):
+    """``other`` (members, n, 6), checked to have as many members as the anybed network's
+    ``anybed``: the stack reads member m of each beside the other."""
+    if other.shape[0] != anybed.shape[0]:
+        raise AmfeError(f"the {name} has {other.shape[0]} members and the anybed network "
+                        f"{anybed.shape[0]}: the stack pairs them; reinstall amfe")
+    return other
 
 
 def window_members(models, fill, bonds, nu, psi):

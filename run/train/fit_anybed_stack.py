@@ -83,10 +83,12 @@ def fit_layers(models, sets, args):
         alone = {"network": (reads.direct, 1)}
         if n_layers in THICK_FILES:
             alone["own network"] = (reads.extra[-1], coefs.shape[1] - 1)
+        errors = {a: mre(members, y) for a, (members, _) in alone.items()}
+        stacked = mre(out, y)
         read = []
         for k in range(6):
-            best = min(alone, key=lambda a: mre(alone[a][0], y)[k])
-            if mre(alone[best][0], y)[k] > mre(out, y)[k]:
+            best = min(alone, key=lambda a: errors[a][k])
+            if errors[best][k] > stacked[k]:
                 read.append("stack")
                 continue
             members, column = alone[best]

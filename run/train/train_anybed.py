@@ -28,7 +28,7 @@ from amfe.training.data import Normalizer, augment_batch
 from amfe.training.ensemble import predict_raw, relative_spread
 from amfe.training.predict import Surrogate
 from amfe.vocab import LABEL_NAMES
-from run.common import ROOT, parser, record_spec
+from run.common import ROOT, join_members, parser, record_spec
 
 SMALL = os.path.join(ROOT, "amfe", "models", "multiscale_small.pt")
 
@@ -134,17 +134,10 @@ def main():
     y = np.concatenate([b for _, b in parts])
     hw = x.shape[-2:]
     print(f"{x.shape[0]} beds from {len(args.data)} data sets, input {x.shape[1:]}", flush=True)
-    states, histories, seeds, seconds = [], [], [], 0.0
     t0 = time.perf_counter()
-    for part in args.join or []:
-        c = load_checkpoint(part)
-        if c["anybed"]["data"] != list(args.data):
-            raise SystemExit(f"error: {part} was trained on {c['anybed']['data']}, not --data")
-        states += c["members"]
-        histories += c["history"]
-        seeds += c["member_seeds"]
-        seconds += c["anybed"]["seconds"]
-        args.epochs, args.lr = c["anybed"]["epochs"], c["anybed"]["lr"]
+    states, histories, seeds, seconds, joined = join_members(args.join or [], args.data, "anybed")
+    if joined is not None:
+        args.epochs, args.lr = joined["epochs"], joined["lr"]
     for k, start in enumerate([] if args.join else build_members(small)):
         if args.members is not None and k not in args.members:
             continue

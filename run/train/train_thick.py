@@ -23,7 +23,7 @@ from amfe.training.checkpoint import load_checkpoint, save_checkpoint
 from amfe.training.multiscale import MultiScaleNet
 from amfe.training.thicknets import THICK_DESCRIPTORS, thick_inputs
 from amfe.vocab import LABEL_NAMES
-from run.common import ROOT, parser
+from run.common import ROOT, join_members, parser
 from run.train.fit_anybed_stack import read_unseen
 
 ANYBED = os.path.join(ROOT, "amfe", "models", "anybed_small.pt")
@@ -95,15 +95,7 @@ def main():
     z = ((t - mean) / std).astype(np.float32)
     print(f"{len(x)} beds of {layers} layers, input {x.shape[1:]}", flush=True)
     t0 = time.perf_counter()
-    states, histories, seeds, seconds = [], [], [], 0.0
-    for part in args.join or []:
-        c = load_checkpoint(part)
-        if c["thick"]["data"] != list(args.data):
-            raise SystemExit(f"error: {part} was trained on {c['thick']['data']}, not --data")
-        states += c["members"]
-        histories += c["history"]
-        seeds += c["member_seeds"]
-        seconds += c["thick"]["seconds"]
+    states, histories, seeds, seconds, _ = join_members(args.join or [], args.data, "thick")
     for k in [] if args.join else args.members:
         state, hist = train_member(x, z, layers, args, k)
         states.append(state)
