@@ -51,3 +51,65 @@ def _records(specs, n=100_000):
     """The record positions (below n) that PATH:A-B,C-D specs of one data set select."""
     from run.common import record_spec
     return {int(k) for spec in specs for k in np.flatnonzero(record_spec(spec)[1](np.arange(n)))}
+
+
+def test_turning_a_bed_upside_down_reverses_its_layers_and_keeps_the_planes():
+    from amfe.training.thicknets import upside_down
+    assert upside_down(3, 8) == [2, 1, 0, 5, 4, 3, 6, 7]
+    order = upside_down(5, 12)
+    assert [order[i] for i in order] == list(range(12))      # an involution
+
+
+def test_the_training_symmetries_carry_their_labels():
+    """Each sample of an augmented batch is one of the 16 symmetries of its bed (mirrors in x
+    and y, upside down, x <-> y), and its labels are the bed's, permuted where x and y swap
+    (amfe.training.data.transpose_labels); mirrored or turned beds keep theirs."""
+    import torch
+
+    from amfe.training.data import transpose_labels
+    from amfe.training.thicknets import upside_down
+    from run.train.train_thick import augment
+    layers, n = 2, 64
+    x = torch.as_tensor(np.random.default_rng(1).random((n, 2 * layers + 2, 5, 5)),
+                        dtype=torch.float32)
+    y = torch.as_tensor(np.random.default_rng(2).random((n, 6)) + 0.2, dtype=torch.float64)
+    t = y.log()
+    mean, std = t.mean(0).numpy(), t.std(0).numpy()
+    z = ((t - torch.as_tensor(mean)) / torch.as_tensor(std)).float()
+    xb, zb = augment(x, z, layers, "d4z", (mean, std), np.random.default_rng(3))
+    yb = torch.exp(zb.double() * torch.as_tensor(std) + torch.as_tensor(mean))
+    seen = set()
+    for i in range(n):
+        matches = []
+        for fx, fy, down, tr in np.ndindex(2, 2, 2, 2):
+            v = x[i:i + 1, upside_down(layers, x.shape[1])] if down else x[i:i + 1]
+            v = v.flip(3) if fx else v
+            v = v.flip(2) if fy else v
+            v = v.transpose(2, 3) if tr else v
+            if torch.equal(v, xb[i:i + 1]):
+                matches.append((fx, fy, down, tr))
+        assert len(matches) == 1
+        seen.add(matches[0])
+        want = transpose_labels(y[i:i + 1]) if matches[0][3] else y[i:i + 1]
+        torch.testing.assert_close(yb[i:i + 1], want, rtol=1e-5, atol=0)
+    assert len(seen) > 8     # the batch holds many of the 16
+
+
+def test_a_network_trained_both_ways_up_reads_a_bed_as_its_upside_down_twin():
+    """The 5-layer network learned beds turned over too (and x <-> y swapped): it averages a
+    bed with its upside-down twin, so the twin gets the same six constants (an exact
+    invariance, to float32 rounding)."""
+    from amfe.training.thicknets import thick_members
+    thick = load_thick()
+    assert thick[5].ckpt["thick"]["augment"] == "d4z"
+    rng = np.random.default_rng(4)
+    fill = rng.random((3, 5, 20, 20)).astype(np.float32) * 0.6
+    bonds = rng.random((3, 5, 20, 20)).astype(np.float32) * 0.3
+    nu, psi = np.array([0.28, 0.3, 0.35]), np.array([0.08, 0.1, 0.05])
+    models = {"thick": thick}
+    out = thick_members(models, fill, bonds, nu, psi)
+    np.testing.assert_allclose(thick_members(models, fill[:, ::-1], bonds[:, ::-1], nu, psi),
+                               out, rtol=2e-5)
+    # and not by construction of the test: one way up alone differs
+    one_way = thick[5].run_members(thick_inputs(fill, bonds, nu, psi))
+    assert np.max(np.abs(one_way / out - 1)) > 1e-4

@@ -40,6 +40,16 @@ def thick_inputs(fill, bonds, nu, psi):
     return np.ascontiguousarray(np.concatenate([fill, bonds, planes], axis=1))
 
 
+def upside_down(layers, channels):
+    """The channel order (list) of the inputs (:func:`thick_inputs`, ``channels`` of them) of a
+    bed of ``layers`` layers turned upside down: its fill and bond layers in reverse order,
+    the descriptor planes as they are. The six constants of a bed of whole layers do not
+    change when it is turned over (its stiffness is reflected, which leaves every normal
+    component), so a network trained on both ways reads both and averages them."""
+    down = list(range(int(layers)))[::-1]
+    return down + [int(layers) + i for i in down] + list(range(2 * int(layers), int(channels)))
+
+
 def check_thick(sur, layers):
     """AmfeError unless the Surrogate ``sur`` is the network of ``layers`` layers."""
     block = sur.ckpt.get("thick") or {}
@@ -54,7 +64,12 @@ def thick_members(models, fill, bonds, nu, psi):
     sur = (models.get("thick") or {}).get(int(np.shape(fill)[1]))
     if sur is None:
         return None
-    return sur.run_members(thick_inputs(fill, bonds, nu, psi))
+    x = thick_inputs(fill, bonds, nu, psi)
+    out = sur.run_members(x)
+    if (sur.ckpt.get("thick") or {}).get("augment") == "d4z":   # trained upside down too
+        flipped = np.ascontiguousarray(x[:, upside_down(fill.shape[1], x.shape[1])])
+        out = (out + sur.run_members(flipped)) / 2
+    return out
 
 
 def load_thick(directory=None):

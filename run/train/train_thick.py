@@ -5,13 +5,17 @@ A multi-scale network (arch ``multiscale``, run in numpy by amfe.training.npnet)
 bed's fill and bond layers and nu, psi as constant planes. Each member is trained from
 its own seed on the same beds: squared error of the standardised log labels, AdamW,
 one-cycle learning rate, mirror augmentation (the six constants do not change under x or
-y mirrors), mirror-averaged prediction. The anybed stack reads its output as one more
+y mirrors), mirror-averaged prediction; with ``--augment d4z`` also the x <-> y swap and
+the bed upside down, which the network then reads both ways up
+(amfe.training.thicknets.thick_members). The anybed stack reads its output as one more
 column (run/train/fit_anybed_stack.py), on beds it never saw.
 
     python -m run.train.train_thick --data L2.h5:0-999,2000-7999 --members 0 -o p0.pt
     python -m run.train.train_thick --data L2.h5:0-999,2000-7999 --members 1 -o p1.pt
     python -m run.train.train_thick --data L2.h5:0-999,2000-7999 --join p0.pt p1.pt \
         -o amfe/models/thick_2layers.pt
+    python -m run.train.train_thick --data L5.h5:0-999,3000-12999 --augment d4z --epochs 60 \
+        --members 0 -o p0.pt     (and 1, then --join as above: thick_5layers.pt)
 """
 import os
 import time
@@ -20,8 +24,9 @@ import numpy as np
 import torch
 
 from amfe.training.checkpoint import load_checkpoint, save_checkpoint
+from amfe.training.data import transpose_labels
 from amfe.training.multiscale import MultiScaleNet
-from amfe.training.thicknets import THICK_DESCRIPTORS, thick_inputs
+from amfe.training.thicknets import THICK_DESCRIPTORS, thick_inputs, upside_down
 from amfe.vocab import LABEL_NAMES
 from run.common import ROOT, join_members, parser
 from run.train.fit_anybed_stack import read_unseen
@@ -42,8 +47,37 @@ def read_sets(specs):
     return x, np.concatenate([p[2] for p in parts]), layers.pop()
 
 
-def train_member(x, z, layers, args, seed):
-    """A MultiScaleNet trained on inputs x, standardised log labels z; (state, history)."""
+#: Training augmentations: x and y mirrors (the shipped networks'), and with "d4z" also the
+#: x <-> y swap (labels permuted, amfe.training.data.transpose_labels) and the bed upside
+#: down (its layers in reverse order): both are exact symmetries of the six constants on a
+#: square bed of whole layers (docs/surrogate.md, "The networks of one thickness").
+AUGMENTS = ("flips", "d4z")
+
+
+def augment(xb, zb, layers, mode, norm, rng):
+    """A batch's inputs (B, 2 L + 2, H, W) and standardised log labels (B, 6), each sample
+    under random symmetries of ``mode``; norm: (mean, std) (6,) of the log labels."""
+    if mode == "flips":     # the whole batch mirrored alike (the shipped networks' training)
+        if rng.random() < 0.5:
+            xb = xb.flip(3)
+        if rng.random() < 0.5:
+            xb = xb.flip(2)
+        return xb, zb
+    B = len(xb)
+    pick = torch.as_tensor(rng.random((4, B)) < 0.5)
+    xb = torch.where(pick[0].view(B, 1, 1, 1), xb.flip(3), xb)
+    xb = torch.where(pick[1].view(B, 1, 1, 1), xb.flip(2), xb)
+    xb = torch.where(pick[2].view(B, 1, 1, 1), xb[:, upside_down(layers, xb.shape[1])], xb)
+    xb = torch.where(pick[3].view(B, 1, 1, 1), xb.transpose(2, 3), xb)
+    mean, std = (torch.as_tensor(a, dtype=zb.dtype) for a in norm)
+    swapped = transpose_labels((zb * std + mean).exp()).log()
+    zb = torch.where(pick[3].view(B, 1), (swapped - mean) / std, zb)
+    return xb, zb
+
+
+def train_member(x, z, layers, args, seed, norm):
+    """A MultiScaleNet trained on inputs x, standardised log labels z (norm: their (mean, std)
+    of the logs); (state, history)."""
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
     net = MultiScaleNet(x.shape[1:], width=args.width, n_fill=layers,
@@ -57,12 +91,8 @@ def train_member(x, z, layers, args, seed):
         net.train()
         total = 0.0
         for b in torch.randperm(len(xt)).split(args.batch_size):
-            xb = xt[b]
-            if rng.random() < 0.5:
-                xb = xb.flip(3)
-            if rng.random() < 0.5:
-                xb = xb.flip(2)
-            loss = ((net(xb) - zt[b]) ** 2).mean()
+            xb, zb = augment(xt[b], zt[b], layers, args.augment, norm, rng)
+            loss = ((net(xb) - zb) ** 2).mean()
             opt.zero_grad()
             loss.backward()
             opt.step()
@@ -87,6 +117,7 @@ def main():
     p.add_argument("--channels", type=int, nargs="+", default=[48, 96, 128])
     p.add_argument("--hidden", type=int, nargs="+", default=[128])
     p.add_argument("--threads", type=int, default=1)
+    p.add_argument("--augment", choices=AUGMENTS, default="flips")
     args = p.parse_args()
     torch.set_num_threads(args.threads)
     x, y, layers = read_sets(args.data)
@@ -97,7 +128,7 @@ def main():
     t0 = time.perf_counter()
     states, histories, seeds, seconds, _ = join_members(args.join or [], args.data, "thick")
     for k in [] if args.join else args.members:
-        state, hist = train_member(x, z, layers, args, k)
+        state, hist = train_member(x, z, layers, args, k, (mean, std))
         states.append(state)
         histories.append(hist)
         seeds.append(k)
@@ -112,7 +143,7 @@ def main():
         members=states, member_seeds=seeds, image_shape=list(x.shape[1:]),
         inputs=["fill", "bonds"],
         thick={"layers": layers, "descriptors": list(THICK_DESCRIPTORS), "data": list(args.data),
-               "n_beds": len(x), "epochs": args.epochs, "lr": args.lr,
+               "n_beds": len(x), "epochs": args.epochs, "lr": args.lr, "augment": args.augment,
                "seconds": seconds + time.perf_counter() - t0},
         history=histories, created=time.strftime("%Y-%m-%dT%H:%M:%S+00:00", time.gmtime()))
     save_checkpoint(args.output, ckpt)
