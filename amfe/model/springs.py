@@ -10,8 +10,11 @@ A spring model (:data:`SPRING_MODELS`) is two plain functions: ``coefficients``
 helpers it calls use only arithmetic, ``**`` and np.sqrt, the same on numpy
 arrays and on floats, so the numba kernel of the bond image
 (amfe.dataset._jit) compiles these very functions and gives the same floats
-bit for bit (cubes are written ``**3.0``: numba's ``**3`` multiplies, numpy's
-calls pow). A second model is a second entry here; the kernel reads the table.
+bit for bit. Cubes are written as products (``R * R * R``): a power is not the
+same floats on both sides (numba's ``**3`` multiplies; its ``**3.0`` calls the C
+library's pow, which numpy 1.24's own power loop differs from in the last bit on
+about a quarter of the values). A second model is a second entry here; the
+kernel reads the table.
 """
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -53,8 +56,9 @@ def paper_springs(a, R, coef):
     num, root, den = _paper_parts(s, k_br, psi)
     k_n = E * a / one_m_nu2 * num / den
     k_t = 2.0 * E * a / two_m_nu_one_p_nu * num / root
-    kappa_n = 8.0 * E * R**3.0 * s**3.0 / two_m_nu_one_p_nu * num / root
-    kappa_t = 2.0 * E * R**3.0 * s**3.0 / one_m_nu2 * num / den
+    cubes = (R * R * R) * (s * s * s)
+    kappa_n = 8.0 * E * cubes / two_m_nu_one_p_nu * num / root
+    kappa_t = 2.0 * E * cubes / one_m_nu2 * num / den
     return k_n, k_t, kappa_n, kappa_t
 
 
