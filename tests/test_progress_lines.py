@@ -164,3 +164,28 @@ def test_help_and_docs_give_the_threshold():
     assert code == 0 and shown in " ".join(out.split()) and "--quiet" in out
     with open(Path(__file__).resolve().parents[1] / "docs" / "diagnostics.md") as fh:
         assert f"more than {shown} particles" in fh.read()
+
+
+def test_a_warning_on_a_closed_stderr_does_not_fail_the_work(monkeypatch):
+    """A rank whose mpirun was killed has no reader on stderr: its warnings raise
+    BrokenPipeError on write. The console drops them instead of raising into the solve,
+    which `amfe dataset` recorded as a failed bed and kept on resume (tests/
+    test_dataset_faults.py caught it on a fast machine)."""
+    import io
+    import logging
+
+    from amfe.io.console import LOGGER, Console
+
+    class Closed(io.StringIO):
+        def write(self, text):
+            raise BrokenPipeError(32, "Broken pipe")
+
+    monkeypatch.setattr("sys.stderr", Closed())
+    logger = logging.getLogger(LOGGER)
+    handler = Console()
+    logger.addHandler(handler)
+    try:
+        logger.warning("a warning nobody can read")    # raised BrokenPipeError before
+        handler.emit(logging.makeLogRecord({"msg": "direct", "levelno": logging.WARNING}))
+    finally:
+        logger.removeHandler(handler)

@@ -28,7 +28,13 @@ class Console(logging.Handler):
         text = record.getMessage()
         line = (f"[{time.perf_counter() - self.start:7.2f} s] {text}" if self.progress
                 else f"amfe: warning: {text}")
-        print(line, file=sys.stderr, flush=True)
+        try:
+            print(line, file=sys.stderr, flush=True)
+        except OSError:
+            # stderr is gone (the mpirun or terminal that read it was killed): a message that
+            # cannot be shown must not fail the work, which a data set would record as a
+            # failed bed and keep on resume.
+            pass
 
 
 def print_warnings():
