@@ -188,7 +188,8 @@ def test_the_shipped_stack_is_the_networks_and_calibrated_per_thickness():
 def _by_hand(layers):
     """(amfe.predict's record, the stack's constants computed step by step) of a drawn-material
     bed of ``layers`` layers: the network on the bed and its windows and, at 3 layers, the
-    small model and the network at steel's nu and psi, at 2 the 2-layer network."""
+    small model and the network at steel's nu and psi, at 2 the 2-layer network (5 layers is
+    not built here)."""
     import amfe
     from amfe.model.scales import bed_for, record_seed
     from amfe.training.anypredict import _members, bed_images, load_stack_for

@@ -25,8 +25,8 @@ A 3-layer bed is also read by the small model, trained on 40 000 steel beds:
 its stack has two more columns, log s_k of the small model's output and log
 r_k of the network's at steel's nu and psi, so that it can take the small
 model's reading of the geometry and the network's of the material
-(s_k d_k / r_k; :data:`STEEL_LAYERS`). A 2-layer bed is also read by the
-network of its own thickness (amfe.training.thicknets): one more column, log t_k.
+(s_k d_k / r_k; :data:`STEEL_LAYERS`). A bed of 2 or 5 layers is also read by
+the network of its own thickness (amfe.training.thicknets): one more column, log t_k.
 These other networks' reads are the stack's *extra* reads (:data:`EXTRA_READS`).
 
 Pure numpy: amfe.training.anypredict runs the network and calls these.
@@ -59,7 +59,7 @@ class Reads(NamedTuple):
     their 3-layer windows, or None (2-3 layers); nu, psi (n,); means (n, q):
     :func:`image_means`; extra (q, m, n, 6) or None: other networks' member m on the beds,
     q = :data:`EXTRA_READS` of their thickness (3 layers: the small model and the network
-    at steel's nu and psi; 2 layers: the network of that thickness).
+    at steel's nu and psi; 2 and 5 layers: the network of that thickness).
     """
     direct: np.ndarray
     windows: Optional[np.ndarray]

@@ -15,8 +15,10 @@ constant planes (:class:`amfe.training.multiscale.MultiScaleNet` with
 
 The checkpoints are ordinary surrogate checkpoints (arch ``multiscale``, run in
 numpy by amfe.training.npnet) named in :data:`THICK_FILES`, with a ``thick``
-block: the layers, the descriptors and the training data
-(run/train/train_thick.py writes them).
+block: the layers, the descriptors, the training data and its augmentation
+(run/train/train_thick.py writes them). A network trained with the bed turned
+upside down too (:data:`BOTH_WAYS_UP`, the 5-layer one) reads each bed both ways
+up and averages the two.
 """
 import numpy as np
 
@@ -27,6 +29,9 @@ from amfe.training.anybed import REFERENCE, SCALE
 THICK_FILES = {2: "thick_2layers.pt", 5: "thick_5layers.pt"}
 #: The descriptors the head reads, after the image layers.
 THICK_DESCRIPTORS = ("nu", "psi")
+#: The training augmentation (the ``thick`` block's ``augment``) with every symmetry of a
+#: square bed of whole layers, upside down included: such a network reads both ways up.
+BOTH_WAYS_UP = "d4z"
 
 
 def thick_inputs(fill, bonds, nu, psi):
@@ -66,7 +71,7 @@ def thick_members(models, fill, bonds, nu, psi):
         return None
     x = thick_inputs(fill, bonds, nu, psi)
     out = sur.run_members(x)
-    if (sur.ckpt.get("thick") or {}).get("augment") == "d4z":   # trained upside down too
+    if (sur.ckpt.get("thick") or {}).get("augment") == BOTH_WAYS_UP:
         flipped = np.ascontiguousarray(x[:, upside_down(fill.shape[1], x.shape[1])])
         out = (out + sur.run_members(flipped)) / 2
     return out

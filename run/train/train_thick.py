@@ -26,7 +26,7 @@ import torch
 from amfe.training.checkpoint import load_checkpoint, save_checkpoint
 from amfe.training.data import transpose_labels
 from amfe.training.multiscale import MultiScaleNet
-from amfe.training.thicknets import THICK_DESCRIPTORS, thick_inputs, upside_down
+from amfe.training.thicknets import BOTH_WAYS_UP, THICK_DESCRIPTORS, thick_inputs, upside_down
 from amfe.vocab import LABEL_NAMES
 from run.common import ROOT, join_members, parser
 from run.train.fit_anybed_stack import read_unseen
@@ -47,17 +47,17 @@ def read_sets(specs):
     return x, np.concatenate([p[2] for p in parts]), layers.pop()
 
 
-#: Training augmentations: x and y mirrors (the shipped networks'), and with "d4z" also the
+#: Training augmentations: x and y mirrors (the 2-layer network's), and with "d4z" also the
 #: x <-> y swap (labels permuted, amfe.training.data.transpose_labels) and the bed upside
 #: down (its layers in reverse order): both are exact symmetries of the six constants on a
 #: square bed of whole layers (docs/surrogate.md, "The networks of one thickness").
-AUGMENTS = ("flips", "d4z")
+AUGMENTS = ("flips", BOTH_WAYS_UP)
 
 
 def augment(xb, zb, layers, mode, norm, rng):
     """A batch's inputs (B, 2 L + 2, H, W) and standardised log labels (B, 6), each sample
     under random symmetries of ``mode``; norm: (mean, std) (6,) of the log labels."""
-    if mode == "flips":     # the whole batch mirrored alike (the shipped networks' training)
+    if mode == "flips":     # the whole batch mirrored alike (the 2-layer network's training)
         if rng.random() < 0.5:
             xb = xb.flip(3)
         if rng.random() < 0.5:
