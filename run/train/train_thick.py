@@ -44,7 +44,14 @@ def read_sets(specs):
     if len(layers) != 1:
         raise SystemExit(f"error: the data sets hold beds of {sorted(layers)} layers, not one")
     x = np.concatenate([thick_inputs(f, b, nu, psi) for f, b, _, nu, psi in parts])
-    return x, np.concatenate([p[2] for p in parts]), layers.pop()
+    y = np.concatenate([p[2] for p in parts])
+    keep = np.all(y > 0, axis=1)
+    if not keep.any():
+        raise SystemExit("error: every bed has a non-positive constant: nothing to learn in logs")
+    if not keep.all():   # an auxetic direction: a network of the constants' logs cannot learn it
+        print(f"leaving out {int((~keep).sum())} of {len(y)} beds with a non-positive constant "
+              f"(the network learns their logs)", flush=True)
+    return x[keep], y[keep], layers.pop()
 
 
 #: Training augmentations: x and y mirrors (the 2-layer network's), and with "d4z" also the
