@@ -433,6 +433,53 @@ def test_hdf5_full_disk_is_one_error(tmp_path, monkeypatch):
     assert target.read_text() == "old" and os.listdir(tmp_path) == ["data.h5"]
 
 
+def test_an_error_of_the_machine_is_not_recorded_as_the_beds(tmp_path, monkeypatch, capsys,
+                                                             reference):
+    """A MemoryError in a solve is not the bed's fault: the record is not written as failed (a
+    failed record is never retried), the run stops with one line, and the same command then
+    computes it: the file equals the uninterrupted run's."""
+    import amfe.dataset.record as record
+    out, real, calls = tmp_path / "d.h5", record.homogenize_bed, []
+
+    def short_of_memory(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 3:
+            raise MemoryError("cannot allocate 8 GB")
+        return real(*args, **kwargs)
+    monkeypatch.setattr(record, "homogenize_bed", short_of_memory)
+    assert run_main(out) == 2
+    err = capsys.readouterr().err
+    k = re.search(r"error: record (\d+) met an error of the machine, not of its bed "
+                  r"\(MemoryError: cannot allocate 8 GB", err)
+    assert k and "run the same command again" in err and not out.exists()
+    parts = sorted(glob.glob(os.path.join(parts_dir(out), "rec_*.npz")))
+    assert len(parts) >= 2 and all(read_part(p) for p in parts)
+    assert not any(p.endswith(f"rec_{int(k.group(1)):08d}.npz") for p in parts)   # unwritten
+    monkeypatch.undo()
+    assert run_main(out) == 0
+    assert_identical(out, reference[0])
+
+
+def test_which_errors_are_the_machines(monkeypatch):
+    import amfe.dataset.labels as labels
+    from amfe.dataset.record import MachineFault, _reason
+
+    class PetscError(RuntimeError):
+        def __init__(self, ierr):
+            self.ierr = ierr
+    for exc, machine in ((MemoryError("x"), True), (BrokenPipeError(32, "pipe"), True),
+                         (OSError(28, "no space"), True), (PetscError(55), True),
+                         (PetscError(73), False), (ValueError("x"), False),
+                         (AmfeError("a* past the limit"), False)):
+        assert isinstance(_reason(exc), MachineFault) == machine, exc
+    table = {"attrs": {"dataset_seed": 5, "paths": ["t.h5"]}}
+    monkeypatch.setattr(labels, "regenerate",
+                        lambda *a: ({"seed": 11}, None, MachineFault("MemoryError: x")))
+    got, why = labels.rebuild_record(3, table, None, None, None)
+    assert got is None and why.startswith("record 3 (bed seed 11) of t.h5 met an error of the "
+                                          "machine, not of its bed (MemoryError: x)")
+
+
 def test_dataset_full_disk_simulated(tmp_path, monkeypatch, capsys, reference):
     """The disk fills after 3 part files: one line, the 3 kept; the rerun finishes the file."""
     out = tmp_path / "d.h5"

@@ -38,7 +38,10 @@ which group takes the record, except that with k > 1 the solve's round-off
 Failures. Any exception from generation, image or solve (AmfeError, PETSc's
 errors, anything derived from Exception) makes the record failed, with the
 reason ("message" for AmfeError, "Type: message" otherwise); it is written like
-any record and not retried. The ranks of a group agree on the outcome after
+any record and not retried. An error of the machine instead (MemoryError,
+OSError, PETSc out of memory: :class:`amfe.dataset.record.MachineFault`) is
+not the bed's: that record is not written, and the run stops as on a full
+disk, so the same command computes it again. The ranks of a group agree on the outcome after
 each phase (an allgather of the error, if any), so a failure seen by one rank
 is a failure for all of them. Generation is deterministic, and homogenize_bed
 raises AmfeError alike on every rank, so the group stays in step.
@@ -290,6 +293,13 @@ def _work(job, group, window, todo, parts):
             rec = make_record(todo[pos], params["seed"], job.sc, group, pixelate=job.pixelate,
                               solve=params)
         if group.rank != 0:
+            continue
+        if rec.get("machine_fault"):     # not the bed's fault: unwritten, so a rerun retries it
+            error = (f"record {todo[pos]} met an error of the machine, not of its bed "
+                     f"({rec['machine_fault']}); it is not recorded as failed, and the records "
+                     f"finished so far are kept in {parts}: fix the cause and run the same "
+                     "command again")
+            window.stop()
             continue
         try:
             write_part(parts, rec, params)

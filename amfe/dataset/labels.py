@@ -33,7 +33,7 @@ from amfe.dataset.datacheck import check_dataset
 from amfe.dataset.images import IMAGING_VERSION
 from amfe.dataset.parts import LABEL_RULE_VERSION, STATUS_FAILED, STATUS_OK
 from amfe.dataset.plan import MAX_COUNT
-from amfe.dataset.record import regenerate
+from amfe.dataset.record import MachineFault, regenerate
 from amfe.errors import AmfeError, _list_items
 from amfe.io.atomic import atomic_write_h5
 from amfe.io.h5damage import damaged
@@ -323,8 +323,11 @@ def rebuild_record(k, table, sc, group, pixelate):
     does not regenerate (another generator), or its images fail now.
     """
     rec, bed, err = regenerate(k, int(table["attrs"]["dataset_seed"]), sc, group, pixelate)
-    digest, want = (bed_digest(bed) if bed is not None else ""), table["bed_digest"][k]
     where = f"record {k} (bed seed {rec['seed']}) of {', '.join(table['attrs']['paths'])}"
+    if isinstance(err, MachineFault):
+        return None, (f"{where} met an error of the machine, not of its bed ({err}): fix the "
+                      "cause and run the same command again")
+    digest, want = (bed_digest(bed) if bed is not None else ""), table["bed_digest"][k]
     if digest != want:
         return None, (f"{where} does not regenerate: its bed's digest is {digest or 'none'}, the "
                       f"table's {want or 'none'}; the tables are refused (the bed generator "

@@ -22,9 +22,24 @@ from amfe.solvers.driver import homogenize_bed
 from amfe.solvers.ksp import DEFAULT_RTOL
 from amfe.vocab import LABEL_NAMES
 
+#: PETSc's error code for memory it could not get (PETSC_ERR_MEM).
+_PETSC_ERR_MEM = 55
+
+
+class MachineFault(str):
+    """The reason of an error of the machine, not of the bed: memory, a file or pipe (OSError),
+    PETSc's out-of-memory. A record that meets one is not written as failed (a failed record is
+    kept and never retried): the run stops as on a full disk, and the same command computes the
+    record again (amfe.dataset.driver)."""
+
+
+def _is_machine_fault(exc):
+    return isinstance(exc, (MemoryError, OSError)) or getattr(exc, "ierr", None) == _PETSC_ERR_MEM
+
 
 def _reason(exc):
-    """A failed record's reason: the AmfeError's message, else "Type: message (at file:line)"."""
+    """A failed record's reason: the AmfeError's message, else "Type: message (at file:line)";
+    a :class:`MachineFault` for an error of the machine."""
     if isinstance(exc, AmfeError):
         msg = str(exc) or "AmfeError"
     else:
@@ -32,7 +47,7 @@ def _reason(exc):
         tb = traceback.extract_tb(exc.__traceback__)
         if tb:
             msg += f" (at {os.path.basename(tb[-1].filename)}:{tb[-1].lineno} in {tb[-1].name})"
-    return msg[:1000]
+    return MachineFault(msg[:1000]) if _is_machine_fault(exc) else msg[:1000]
 
 
 def _agree(group, err):
@@ -54,7 +69,8 @@ def make_record(k, dataset_seed, scale, group, pixelate=None, solve=None):
 
     Every rank of ``group`` calls it with the same arguments; the record is
     complete on the group's rank 0 (the others hold no image). Never raises
-    for a bad bed or a failed solve: the record says status failed and why.
+    for a bad bed or a failed solve: the record says status failed and why,
+    and holds "machine_fault" (its reason) where the error was the machine's.
     """
 
     rec, bed, err = regenerate(k, dataset_seed, scale, group, pixelate)
@@ -68,7 +84,9 @@ def make_record(k, dataset_seed, scale, group, pixelate=None, solve=None):
         rec["seconds"][2] = time.perf_counter() - t2
         err = _agree(group, err)
     if err is not None:
-        rec["status"], rec["reason"] = STATUS_FAILED, err
+        rec["status"], rec["reason"] = STATUS_FAILED, str(err)
+        if isinstance(err, MachineFault):
+            rec["machine_fault"] = err
         return rec
     props = res["properties"]
     rec.update(status=STATUS_OK, reason="",
