@@ -72,11 +72,13 @@ def record_spec(spec):
     return path, keep
 
 
-def join_members(parts, data, block):
+def join_members(parts, data, block, agree=None):
     """(states, histories, seeds, seconds, the last part's ``block``) of the checkpoints
     ``parts``, members trained apart (``--members K`` in each) on ``data`` (the ``--data``
-    list); ``block``: the checkpoint's key holding its training record ("anybed", "thick").
-    SystemExit for a part trained on other data."""
+    list); ``block``: the checkpoint's key holding its training record ("anybed", "thick");
+    ``agree``: {key: value} of that record every part must hold as the joining command gives
+    it (train_thick's augment, which decides how the joined network reads a bed). SystemExit
+    for a part trained on other data or otherwise."""
     from amfe.training.checkpoint import load_checkpoint
     states, histories, seeds, seconds, record = [], [], [], 0.0, None
     for part in parts:
@@ -84,6 +86,10 @@ def join_members(parts, data, block):
         record = c[block]
         if record["data"] != list(data):
             raise SystemExit(f"error: {part} was trained on {record['data']}, not --data")
+        for key, want in (agree or {}).items():
+            if record.get(key) != want:
+                raise SystemExit(f"error: {part} was trained with --{key} {record.get(key)}, "
+                                 f"not --{key} {want}")
         states += c["members"]
         histories += c["history"]
         seeds += c["member_seeds"]

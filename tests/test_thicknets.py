@@ -133,3 +133,19 @@ def test_training_leaves_out_a_bed_with_a_non_positive_constant(monkeypatch, cap
     y[:, 0] = 0.0
     with pytest.raises(SystemExit, match="every bed has a non-positive constant"):
         tt.read_sets(["set.h5"])
+
+
+def test_members_trained_under_another_augmentation_are_not_joined(monkeypatch):
+    """The joined network's ``augment`` decides whether it reads a bed both ways up, so a part
+    trained otherwise than the joining command says is refused, not relabelled."""
+    import amfe.training.checkpoint as checkpoint
+    from run.common import join_members
+    part = {"thick": {"data": ["L5.h5"], "augment": "d4z", "seconds": 1.0},
+            "members": [{}], "history": [[]], "member_seeds": [0]}
+    monkeypatch.setattr(checkpoint, "load_checkpoint", lambda path: part)
+    states, _, seeds, seconds, _ = join_members(["p0.pt", "p1.pt"], ["L5.h5"], "thick",
+                                                agree={"augment": "d4z"})
+    assert len(states) == 2 and seconds == 2.0
+    with pytest.raises(SystemExit, match="p0.pt was trained with --augment d4z, not --augment "
+                                         "flips"):
+        join_members(["p0.pt"], ["L5.h5"], "thick", agree={"augment": "flips"})

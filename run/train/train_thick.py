@@ -133,7 +133,8 @@ def main():
     z = ((t - mean) / std).astype(np.float32)
     print(f"{len(x)} beds of {layers} layers, input {x.shape[1:]}", flush=True)
     t0 = time.perf_counter()
-    states, histories, seeds, seconds, _ = join_members(args.join or [], args.data, "thick")
+    states, histories, seeds, seconds, _ = join_members(args.join or [], args.data, "thick",
+                                                       agree={"augment": args.augment})
     for k in [] if args.join else args.members:
         state, hist = train_member(x, z, layers, args, k, (mean, std))
         states.append(state)
