@@ -66,13 +66,14 @@ def check_thick(sur, layers):
 def thick_members(models, fill, bonds, nu, psi):
     """(members, n, 6) outputs at 210 GPa of the network of the beds' thickness, or None where
     that thickness has none. models: {"thick": {layers: Surrogate}, ...}."""
-    sur = (models.get("thick") or {}).get(int(np.shape(fill)[1]))
+    layers = int(np.shape(fill)[1])
+    sur = (models.get("thick") or {}).get(layers)
     if sur is None:
         return None
     x = thick_inputs(fill, bonds, nu, psi)
     out = sur.run_members(x)
     if (sur.ckpt.get("thick") or {}).get("augment") == BOTH_WAYS_UP:
-        flipped = np.ascontiguousarray(x[:, upside_down(fill.shape[1], x.shape[1])])
+        flipped = np.ascontiguousarray(x[:, upside_down(layers, x.shape[1])])
         out = (out + sur.run_members(flipped)) / 2
     return out
 
