@@ -39,6 +39,9 @@ BAD = 0.10
 #: Risk bins of the intervals, as quantiles of the calibration risk (the last bin is the
 #: flagged share when the flag's share is 1 - its edge).
 BIN_EDGES = (0.5,)
+#: The calibration risk's quantiles that the flag file keeps (every percent), from which
+#: another flagged share's threshold is read (:func:`threshold_for`).
+RISK_TABLE = np.linspace(0.0, 1.0, 101)
 
 
 def features(fill, bonds, mean, spread, bond_scale):
@@ -120,7 +123,8 @@ def fit(X, data, bond_scale, flag_share=0.19, lam=0.1, coverage=0.9):
              "lam": lam, "mu": mu.tolist(), "sd": sd.tolist(), "w": w.tolist(),
              "w_skip": w_skip.tolist(), "threshold": threshold,
              "bin_edges": [float(np.quantile(score, q)) for q in BIN_EDGES] + [threshold],
-             "n": int(len(X)), "bad_share": float(bad.mean())}
+             "n": int(len(X)), "bad_share": float(bad.mean()),
+             "risk_quantiles": [float(np.quantile(score, q)) for q in RISK_TABLE]}
     bins = bins_of(model, X)
     model["bins"] = [calibrate(pred[bins == b], labels[bins == b], list(LABEL_NAMES),
                                spread[bins == b], coverage) for b in range(n_bins(model))]
@@ -130,6 +134,31 @@ def fit(X, data, bond_scale, flag_share=0.19, lam=0.1, coverage=0.9):
 def risk(model, X):
     """(n,) risk scores (the logit of "a constant more than 10 % off") of features X."""
     return _design(X, np.asarray(model["mu"]), np.asarray(model["sd"])) @ np.asarray(model["w"])
+
+
+def check_share(share):
+    """``share`` as a float, if a number strictly between 0 and 1; else AmfeError."""
+    if isinstance(share, bool) or not isinstance(share, (int, float, np.floating)) \
+            or not 0.0 < float(share) < 1.0:
+        raise AmfeError(f"the flagged share must be a number between 0 and 1 (exclusive), "
+                        f"got {share!r}")
+    return float(share)
+
+
+def threshold_for(model, share=None):
+    """The risk above which a bed is flagged: the file's threshold (``share`` None), or the
+    one that ``share`` (0 < share < 1) of the calibration beds exceed, read off the file's
+    table of the calibration risk's percentiles (linear between them; exact at whole
+    percents). A larger share flags more beds, each of lower risk: the held-out figures of
+    each share are in docs/surrogate.md, "The flag"."""
+    if share is None:
+        return float(model["threshold"])
+    share = check_share(share)
+    table = model.get("risk_quantiles")
+    if table is None:
+        raise AmfeError("this flag model has no table of its calibration risk, so it flags "
+                        "only its own share; recalibrate it (run/train/calibrate_flag.py)")
+    return float(np.interp(1.0 - share, RISK_TABLE, table))
 
 
 def n_bins(model):
@@ -159,16 +188,19 @@ def load_flag(path):
     return model
 
 
-def bed_risk(model, fill, bonds, mean, spread):
-    """One bed's flag: {risk (the logit), threshold, flagged, bin, calibration (its bin's
-    conformal calibration)}; fill, bonds (layers, H, W), mean, spread (6,) at the model's E."""
+def bed_risk(model, fill, bonds, mean, spread, share=None):
+    """One bed's flag: {risk (the logit), threshold, flag_share, flagged, bin, calibration
+    (its bin's conformal calibration)}; fill, bonds (layers, H, W), mean, spread (6,) at the
+    model's E; share: the calibration beds' share to flag (None: the file's,
+    :func:`threshold_for`). The interval's bin is the file's whatever the share."""
     X = features(fill[None], bonds[None], np.asarray(mean)[None], np.asarray(spread)[None],
                  model["bond_scale"])
     score = float(risk(model, X)[0])
     b = int(bins_of(model, X)[0])
-    return {"risk": score, "threshold": float(model["threshold"]),
-            "flagged": bool(score > model["threshold"]), "bin": b,
-            "calibration": model["bins"][b]}
+    threshold = threshold_for(model, share)
+    return {"risk": score, "threshold": threshold,
+            "flag_share": float(model["flag_share"] if share is None else share),
+            "flagged": bool(score > threshold), "bin": b, "calibration": model["bins"][b]}
 
 
 def shipped_flag(checkpoint_path, models_dir, shipped):

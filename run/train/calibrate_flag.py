@@ -18,7 +18,7 @@ import torch
 from scipy.stats import binom
 
 from amfe.training.data import dataset_info, read_rows
-from amfe.training.flagrisk import bad_beds, bins_of, features, fit, risk
+from amfe.training.flagrisk import bad_beds, bins_of, features, fit, risk, threshold_for
 from amfe.training.predict import Surrogate
 from amfe.vocab import LABEL_NAMES
 from run.common import ROOT, md_table, parser, write_json
@@ -34,6 +34,11 @@ def predicted(sur, path):
     n_fill = sur.n_fill
     return (images[:, :n_fill], images[:, n_fill:], res["mean"], res["spread"], labels,
             skipped)
+
+
+#: The flagged shares (of the calibration beds; ``amfe predict --flag-share``) whose held-out
+#: figures the report gives.
+SHARES = (0.19, 0.25, 0.30, 0.35, 0.40)
 
 
 def band(n, p=0.9, level=0.99):
@@ -71,10 +76,17 @@ def evaluate(model, data):
                       "recall": float(bad[f].sum() / max(bad.sum(), 1)),
                       "precision": float(bad[f].sum() / max(f.sum(), 1)),
                       "bad_unflagged": float((bad & ~f).mean())})
+    points = {}   # what amfe predict --flag-share S gives: the threshold from calibration
+    for share in SHARES:
+        f = score > threshold_for(model, share)
+        points[f"{share:.2f}"] = {
+            "flagged": float(f.mean()), "recall": float(bad[f].sum() / max(bad.sum(), 1)),
+            "bad_unflagged": float((bad & ~f).mean()),
+            "bad_among_unflagged": float((bad & ~f).sum() / max((~f).sum(), 1))}
     return {"n": int(len(bad)), "bad": float(bad.mean()), "flagged": float(flagged.mean()),
             "recall": float(bad[flagged].sum() / max(bad.sum(), 1)),
             "bad_unflagged": float((bad & ~flagged).mean()), "coverage": groups,
-            "curve": curve}
+            "curve": curve, "operating_points": points}
 
 
 def main():
@@ -109,6 +121,14 @@ def main():
                        for g in ("skipped pieces", "no skipped pieces")])
     print(md_table(["test set", "beds", "bad (%)", "flagged (%)", "recall",
                     "bad and unflagged (%)", "coverage in band: skipped", "not skipped"], rows))
+    print("\nThe flagged share chosen (--flag-share; its threshold from the calibration beds): "
+          "flagged % / recall / bad and unflagged % / bad among the unflagged %")
+    print(md_table(["test set"] + [f"share {s:.2f}" for s in SHARES], [
+        [path.rsplit("/", 1)[-1]] + [
+            "{:.1f} / {:.2f} / {:.1f} / {:.1f}".format(
+                100 * q["flagged"], q["recall"], 100 * q["bad_unflagged"],
+                100 * q["bad_among_unflagged"])
+            for q in r["operating_points"].values()] for path, r in report.items()]))
     for path, r in report.items():
         for g, c in r["coverage"].items():
             print(f"  {path.rsplit('/', 1)[-1]} {g}: " + ", ".join(
