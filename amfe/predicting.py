@@ -25,7 +25,8 @@ def predict(beds: "object | str | os.PathLike | list", *, fallback: bool = False
             stiffness: bool = False, model: "str | os.PathLike | None" = None,
             threshold: float | None = None, check: bool = False,
             petsc_args: tuple = (), material: "dict | object | None" = None,
-            springs: str | None = None) -> "Prediction | list[Prediction]":
+            springs: str | None = None,
+            flag_share: float | None = None) -> "Prediction | list[Prediction]":
     """Predict each bed's elastic constants with the shipped model for its size and material.
 
     beds: a bed file's path, a :class:`~amfe.model.bed.Bed`, or a list of them.
@@ -36,7 +37,9 @@ def predict(beds: "object | str | os.PathLike | list", *, fallback: bool = False
     E [Pa], nu, psi for every bed, instead of its file's (as ``amfe predict --E --nu --psi``;
     it picks the route and is what a fallback solves); springs: "continuum" picks the shipped
     model of continuum-spring labels (0.6 mm beds; as ``amfe predict --springs``), "paper"
-    the paper springs' (None: the paper's, or ``model``'s own). Returns a
+    the paper springs' (None: the paper's, or ``model``'s own); flag_share: the share of its
+    calibration beds that the 0.6 mm model's risk flag flags (as ``amfe predict
+    --flag-share``; None: the file's 0.19; docs/surrogate.md, "The flag"). Returns a
     :class:`~amfe.training.prediction.Prediction` for one bed, a list for a list; a bed that
     cannot be predicted gets source "failed" and its ``error`` (never an exception).
     """
@@ -50,10 +53,19 @@ def predict(beds: "object | str | os.PathLike | list", *, fallback: bool = False
                            stiffness=stiffness, fallback=fallback, check=check,
                            threshold=threshold, petsc_args=list(petsc_args),
                            material=_given(material), material_source="argument",
-                           springs=check_springs(springs, stiffness))
+                           springs=check_springs(springs, stiffness),
+                           flag_share=_share(flag_share))
     records, _ = predict_records(args, items, {}, time.perf_counter())
     out = [Prediction(record) for record, _ in records]
     return out[0] if one else out
+
+
+def _share(value):
+    """``flag_share`` checked: None or a number strictly between 0 and 1."""
+    if value is None:
+        return None
+    from amfe.training.flagrisk import check_share
+    return check_share(value)
 
 
 def _given(material):

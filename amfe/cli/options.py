@@ -53,6 +53,24 @@ nonnegative_float = _checked(float, 0.0)          # thresholds, weight decay
 positive_float = _checked(float, 0.0, above=True)  # learning rates, widths
 
 
+def open_fraction(text):
+    """A number strictly between 0 and 1 (a share)."""
+    value = _number(text, float)
+    if not 0.0 < value < 1.0:
+        raise argparse.ArgumentTypeError(f"must be between 0 and 1 (exclusive), got {text}")
+    return value
+
+
+def add_flag_share_arg(p):
+    """--flag-share: the operating point of the 0.6 mm model's risk flag (predict, sweep)."""
+    p.add_argument("--flag-share", type=open_fraction, metavar="S",
+                   help="the share of its calibration beds that the 0.6 mm model's risk flag "
+                        "flags (default 0.19): a larger share flags more beds and leaves fewer "
+                        "bad ones unflagged (held out: 0.30 flags about 29 %% and leaves "
+                        "1.4-1.9 %% of the beds more than 10 %% off and unflagged; "
+                        "docs/surrogate.md, \"The flag\"); other beds' flag is their interval's")
+
+
 def finite_float(text):
     """A finite float (not nan, inf)."""
     return _number(text, float)

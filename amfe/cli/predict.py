@@ -32,7 +32,13 @@ import os
 import sys
 import time
 
-from amfe.cli.options import add_material_args, given_material, nonnegative_float, thread_count
+from amfe.cli.options import (
+    add_flag_share_arg,
+    add_material_args,
+    given_material,
+    nonnegative_float,
+    thread_count,
+)
 from amfe.cli.predict_common import check_springs
 from amfe.cli.predict_core import NINE, SIX, flag_reasons, interval_of  # noqa: F401 (re-exported)
 from amfe.errors import AmfeError
@@ -68,10 +74,14 @@ def register(sub):
     p.add_argument("--check", action="store_true",
                    help="also run the PETSc solve; print and store both and their difference")
     p.add_argument("--fallback", action="store_true",
-                   help="run the PETSc solve instead when the ensemble spread flags the bed")
+                   help="run the PETSc solve instead when the bed is flagged (by its risk on 0.6 "
+                        "mm beds, else its interval or the ensemble's spread) or cannot be "
+                        "predicted")
     p.add_argument("--threshold", type=nonnegative_float,
-                   help="flag threshold on the spread score, a finite number >= 0 (default: the "
-                        "model's, calibrated on its validation beds)")
+                   help="flag threshold on the ensemble's spread score, a finite number >= 0 "
+                        "(default: the model's, calibrated on its validation beds; a 0.6 mm bed "
+                        "is flagged by its risk instead, unless this is given)")
+    add_flag_share_arg(p)
     p.add_argument("--threads", type=thread_count,
                    help="CPU threads of a model that runs in torch (a full-stiffness model, "
                    "another architecture; default: torch's); the shipped six-constant models "
@@ -212,7 +222,8 @@ def summary(out, output=None):
     if out.get("risk"):
         r = out["risk"]
         lines.append(f"risk of a constant more than 10 % off: {r['risk']:.3g} (logit; flagged "
-                     f"above {r['threshold']:.3g}), interval bin {r['bin']}")
+                     f"above {r['threshold']:.3g}, which {100 * r['flag_share']:.3g} % of the "
+                     f"calibration beds exceed), interval bin {r['bin']}")
     lines += [f"note: {note}" for note in out.get("notes") or ()]
     reasons = out.get("flag_reasons", [])
     if "non-finite" in reasons:

@@ -93,7 +93,13 @@ class Models:
 
 def route_record(args, models, item, times, t_start):
     """(record, rank) of a bed predicted by its route (item: (path, Bed, seconds to read))."""
-    from amfe.cli.predict_common import finish, finite_or_none, given_notes, solve_for
+    from amfe.cli.predict_common import (
+        finish,
+        finite_or_none,
+        flag_share_note,
+        given_notes,
+        solve_for,
+    )
     from amfe.training.anypredict import predict_any_bed
     from amfe.training.anystack import STEEL_LAYERS
     from amfe.training.conformal import interval_block
@@ -113,7 +119,8 @@ def route_record(args, models, item, times, t_start):
     solver, rank = solve_for(args, bed, reasons, times)
     props = finite_or_none(dict(zip(SIX, map(float, mean))))
     notes = [n for n in (note,) if n] + [f"predicted by the {got['route']} route "
-                                         "(docs/surrogate.md, \"Any bed\")"] + given_notes(args)
+                                         "(docs/surrogate.md, \"Any bed\")"] + given_notes(args) \
+        + flag_share_note(args)
     if got["stacked"]:
         notes.append(f"anybed's stack for {got['layers']} layers"
                      + (", with the bed's 3-layer windows" if got["layers"] >= 4 else "")

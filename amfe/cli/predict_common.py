@@ -70,6 +70,14 @@ def given_notes(args):
             + ", ".join(f"{k} {v:.6g}" for k, v in given.items()) + " (for the bed file's)"]
 
 
+def flag_share_note(args):
+    """The record's note where --flag-share was given but the bed's flag is not a risk's."""
+    if getattr(args, "flag_share", None) is None:
+        return []
+    return [f"flag share {args.flag_share:g} not used: it sets the 0.6 mm model's risk flag, "
+            "and this bed is flagged by its interval or the ensemble's spread"]
+
+
 def finish(out, item, times, t_start):
     """The record with its header, predict block and timings."""
     path, bed = item

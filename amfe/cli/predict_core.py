@@ -18,6 +18,7 @@ from amfe.cli.predict_any import Models, needs_route, route_record
 from amfe.cli.predict_common import (
     finish,
     finite_or_none,
+    flag_share_note,
     given_notes,
     solve_bed,
     solve_for,
@@ -203,7 +204,8 @@ def _one_bed(args, sur, threshold, item, prediction, times, t_start, extra):
 
     score = float(res["score"][0])
     reasons = flag_reasons(res, threshold, sur.n_members)
-    risk = _risk(sur, bed, res, image, extra["factor"]) if "non-finite" not in reasons else None
+    risk = (_risk(sur, bed, res, image, (extra["factor"], getattr(args, "flag_share", None)))
+            if "non-finite" not in reasons else None)
     if risk is not None:   # the one flag (issue 46): the risk, its bin's intervals
         reasons = (["risk"] if risk["flagged"] else []) + [
             r for r in reasons if r == "non-finite" or (r == "spread" and args.threshold)]
@@ -211,6 +213,7 @@ def _one_bed(args, sur, threshold, item, prediction, times, t_start, extra):
                      "sizes": {"risk bin": risk.pop("calibration")}}
         bars = interval_of(sur, bed, res, extra["factor"], conformal)
     else:
+        extra = {**extra, "notes": [*extra["notes"], *flag_share_note(args)]}
         bars = interval_of(sur, bed, res, extra["factor"]) if "non-finite" not in reasons \
             else None
         if bars is not None and bars["interval_flag"]:
@@ -291,9 +294,11 @@ def interval_of(sur, bed, res, factor=1.0, conformal=None):
     return scale_intervals(interval_block(row, names, conformal, size, spread), factor)
 
 
-def _risk(sur, bed, res, image, factor):
+def _risk(sur, bed, res, image, scaling):
     """The bed's risk block (amfe.training.flagrisk.bed_risk, with the bin's "coverage") when
-    ``sur`` is a shipped model with a flag model and the bed is of its size, else None."""
+    ``sur`` is a shipped model with a flag model and the bed is of its size, else None.
+    scaling: (E_bed / E_model, the share to flag: --flag-share, None for the file's)."""
+    factor, share = scaling
     from amfe.training.flagrisk import bed_risk, shipped_flag
     from amfe.training.shipped import SHIPPED, models_dir
     model = shipped_flag(sur.path, models_dir(), SHIPPED)
@@ -303,7 +308,7 @@ def _risk(sur, bed, res, image, factor):
     bonds = res["bond_image"][0] / factor   # the bed's bond image, at the model's E
     mean = res["mean"][0].copy()
     mean[:3] /= factor
-    return {**bed_risk(model, image, bonds, mean, res["spread"][0]),
+    return {**bed_risk(model, image, bonds, mean, res["spread"][0], share),
             "coverage": model["coverage"]}
 
 

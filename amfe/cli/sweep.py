@@ -13,6 +13,7 @@ and a plot (sweep_<constant>.png). Lengths take a unit (0.1mm, 100um) or are mm.
 import sys
 
 from amfe.cli.interrupt import launcher_rank
+from amfe.cli.options import add_flag_share_arg
 from amfe.errors import AmfeError
 from amfe.io.units import length
 from amfe.model.continuum_springs import SPRING_CHOICES
@@ -52,6 +53,7 @@ def register(sub):
                    help="the bond springs (as amfe homogenize --springs; default paper); with "
                         "--method surrogate, continuum takes the continuum springs' model "
                         "(0.6 mm beds)")
+    add_flag_share_arg(p)
     p.add_argument("--plot", default="Ex", metavar="CONSTANT",
                    help="the constant plotted (default Ex; also solid_fraction)")
     p.add_argument("--x", default=None, metavar="NAME", help="the plot's x parameter")
@@ -74,7 +76,7 @@ def spec_of(args):
     kw.setdefault("seeds", seeds_of(4))
     if args.size is not None:
         kw["size"] = tuple(v * 1e-3 for v in args.size)
-    for name in ("method", "solver", "rtol", "ranks_per_bed", "springs"):
+    for name in ("method", "solver", "rtol", "ranks_per_bed", "springs", "flag_share"):
         if getattr(args, name) is not None:
             kw[name] = getattr(args, name)
     if args.fallback:

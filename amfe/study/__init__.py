@@ -20,19 +20,21 @@ def sweep(grid_axes: dict, seeds: "int | list" = 4, *,
           rtol: float | None = None, output: str | os.PathLike | None = None,
           comm: object = None,
           base: dict | None = None, progress: bool = False,
-          springs: str = "paper") -> SweepTable:
+          springs: str = "paper", flag_share: float | None = None) -> SweepTable:
     """The constants of beds over the full grid of ``grid_axes`` {parameter: [values]} (SI:
     lengths in m) times ``seeds`` (a count, 0..N-1, or a list), as a :class:`SweepTable`.
 
     size (3,) [m]: the beds' box; method "solver" or "surrogate" (``fallback``: flagged
     beds solved); ``output``: a directory to keep the rows and tables in (a rerun resumes
     it); None: a temporary one; springs: "paper" or "continuum" (as ``amfe.homogenize``;
-    with the surrogate, the continuum springs' model). Under mpirun every rank calls it;
+    with the surrogate, the continuum springs' model); flag_share: the surrogate's flagged
+    share (as ``amfe predict --flag-share``). Under mpirun every rank calls it;
     each solves its share of the beds (one rank a bed) and every rank gets the table.
     """
     spec = SweepSpec(points=grid(list(grid_axes.items())), seeds=seeds_of(seeds),
                      size=tuple(float(s) for s in size), method=method, fallback=fallback,
-                     solver=solver, rtol=rtol, base=dict(base or {}), springs=springs)
+                     solver=solver, rtol=rtol, base=dict(base or {}), springs=springs,
+                     flag_share=flag_share)
     from mpi4py import MPI
     world = comm if comm is not None else MPI.COMM_WORLD
     if output is None:   # rank 0's temporary directory, shared by the ranks of one host

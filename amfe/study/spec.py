@@ -38,7 +38,9 @@ class SweepSpec:
     seeds: tuple of int bed seeds; size (3,) [m]: the beds' box; method:
     "solver" (amfe.homogenize) or "surrogate" (the shipped model, ``fallback``:
     its flagged beds solved); solver, rtol, ranks_per_bed: the solve's; springs: the bond
-    springs, "paper" or "continuum" (the solves', and the surrogate's model of them).
+    springs, "paper" or "continuum" (the solves', and the surrogate's model of them);
+    flag_share: the share of its calibration beds that the 0.6 mm model's risk flag flags
+    (None: its own, 0.19; as ``amfe predict --flag-share``).
     """
 
     points: tuple
@@ -51,6 +53,7 @@ class SweepSpec:
     ranks_per_bed: int = 1
     base: dict = field(default_factory=dict)
     springs: str = "paper"
+    flag_share: float = None
 
     def __post_init__(self):
         if not self.points:
@@ -77,6 +80,15 @@ class SweepSpec:
         if self.springs not in SPRING_CHOICES:
             raise AmfeError(f"sweep: springs must be one of {', '.join(SPRING_CHOICES)}, got "
                             f"{self.springs!r}")
+        if self.flag_share is not None:
+            if self.method != "surrogate":
+                raise AmfeError("sweep: a flag share sets the surrogate's flag; it needs "
+                                "--method surrogate")
+            if isinstance(self.flag_share, bool) \
+                    or not isinstance(self.flag_share, (int, float)) \
+                    or not 0.0 < self.flag_share < 1.0:
+                raise AmfeError(f"sweep: the flag share must be a number between 0 and 1 "
+                                f"(exclusive), got {self.flag_share!r}")
         if not (isinstance(self.ranks_per_bed, int) and self.ranks_per_bed >= 1):
             raise AmfeError(f"sweep: ranks per bed must be a positive integer, got "
                             f"{self.ranks_per_bed!r}")
@@ -99,6 +111,8 @@ class SweepSpec:
                "seeds": list(self.seeds), "size": list(self.size)}
         if self.springs == "paper":   # a sweep from before --springs keeps its fingerprint
             del out["springs"]
+        if self.flag_share is None:   # and one from before --flag-share
+            del out["flag_share"]
         return out
 
     def fingerprint(self):
@@ -153,7 +167,7 @@ def read_spec_file(path):
 
     [grid] NAME = [values] gives the full grid; [[point]] tables a list of
     points instead; seeds = N (0..N-1) or [list]; size = [x, y, z]; method,
-    fallback, solver, rtol, ranks_per_bed, springs; [base] NAME = value. Lengths are
+    fallback, solver, rtol, ranks_per_bed, springs, flag_share; [base] NAME = value. Lengths are
     strings with a unit ("0.1mm") or numbers in mm.
     """
     try:
@@ -164,7 +178,7 @@ def read_spec_file(path):
     except (OSError, tomllib.TOMLDecodeError) as exc:
         raise AmfeError(f"sweep: cannot read {path} as TOML: {exc}") from None
     unknown = set(data) - {"grid", "point", "seeds", "size", "method", "fallback", "solver",
-                           "rtol", "ranks_per_bed", "base", "springs"}
+                           "rtol", "ranks_per_bed", "base", "springs", "flag_share"}
     if unknown:
         raise AmfeError(f"sweep: {path}: unknown keys {sorted(unknown)}")
     if ("grid" in data) == ("point" in data):
@@ -179,7 +193,8 @@ def read_spec_file(path):
         out["size"] = tuple(read_value("track_width", v) for v in data["size"])
     if "base" in data:
         out["base"] = {n: read_value(n, v) for n, v in data["base"].items()}
-    for key in ("method", "fallback", "solver", "rtol", "ranks_per_bed", "springs"):
+    for key in ("method", "fallback", "solver", "rtol", "ranks_per_bed", "springs",
+                "flag_share"):
         if key in data:
             out[key] = data[key]
     return out
