@@ -66,7 +66,7 @@ def _member_lines(ck, data, common, extra, model=MODEL):
              for k, (s, p) in enumerate(zip(ck["member_seeds"], parts))]
     test = ["--test", ck["metrics"]["test"]["path"]] if "test" in ck["metrics"] else []
     tta = ["--tta", ck["tta"]] if ck.get("tta", "none") != "none" else []
-    lines.append(shlex.join([".venv/bin/python", "run/train/merge_members.py", *parts, "--data", data,
+    lines.append(shlex.join([".venv/bin/python", "-m", "run.train.merge_members", *parts, "--data", data,
                              *test, *tta, "-o", model]))
     return lines
 
