@@ -109,6 +109,10 @@ def test_the_share_moves_the_flag_and_nothing_else(small_bed):
     assert json.dumps(_untimed(cli), sort_keys=True) == \
         json.dumps(_untimed(flagged.to_dict()), sort_keys=True)
     assert f"{100 * below:.3g} % of the calibration beds exceed" in out
+    # an unflagged bed is "not flagged", never "in distribution": the risk claims no more
+    code, out, err = run_main(["predict", bed, "--flag-share", repr(above)])
+    assert code == 0, err
+    assert "not flagged: its risk is below" in out and "in distribution" not in out
 
 
 def test_a_bad_share_stops_before_any_work(small_bed):

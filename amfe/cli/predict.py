@@ -238,6 +238,10 @@ def summary(out, output=None):
                       "held-out beds of such a combination (solve it to trust it: --fallback)")
     elif out["flagged"]:
         lines.append("FLAGGED: unlike the training beds")
+    elif out.get("risk"):   # "in distribution" would claim more than the risk says
+        lines.append("not flagged: its risk is below the flag's threshold, though a few such "
+                     "beds are more than 10 % off (their share at each --flag-share: "
+                     "docs/surrogate.md, \"The flag\")")
     else:
         lines.append("in distribution")
     if out["source"] == "solver":
