@@ -66,8 +66,8 @@ def add_flag_share_arg(p):
     p.add_argument("--flag-share", type=open_fraction, metavar="S",
                    help="the share of its calibration beds that the 0.6 mm model's risk flag "
                         "flags (default 0.19): a larger share flags more beds and leaves fewer "
-                        "bad ones unflagged (held out: 0.30 flags about 29 %% and leaves "
-                        "1.4-1.9 %% of the beds more than 10 %% off and unflagged; "
+                        "bad ones unflagged (held out: 0.30 flags about 29-30 %% and leaves "
+                        "0.9-1.4 %% of the beds more than 10 %% off and unflagged; "
                         "docs/surrogate.md, \"The flag\"); other beds' flag is their interval's")
 
 

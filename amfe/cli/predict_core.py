@@ -204,7 +204,7 @@ def _one_bed(args, sur, threshold, item, prediction, times, t_start, extra):
 
     score = float(res["score"][0])
     reasons = flag_reasons(res, threshold, sur.n_members)
-    risk = (_risk(sur, bed, res, image, (extra["factor"], getattr(args, "flag_share", None)))
+    risk = (_risk(sur, bed, res, image, extra["factor"], getattr(args, "flag_share", None))
             if "non-finite" not in reasons else None)
     if risk is not None:   # the one flag (issue 46): the risk, its bin's intervals
         reasons = (["risk"] if risk["flagged"] else []) + [
@@ -294,11 +294,11 @@ def interval_of(sur, bed, res, factor=1.0, conformal=None):
     return scale_intervals(interval_block(row, names, conformal, size, spread), factor)
 
 
-def _risk(sur, bed, res, image, scaling):
+def _risk(sur, bed, res, image, factor, share=None):
     """The bed's risk block (amfe.training.flagrisk.bed_risk, with the bin's "coverage") when
     ``sur`` is a shipped model with a flag model and the bed is of its size, else None.
-    scaling: (E_bed / E_model, the share to flag: --flag-share, None for the file's)."""
-    factor, share = scaling
+    factor: E_bed / E_model; share: the calibration beds' share to flag (--flag-share; None:
+    the flag file's)."""
     from amfe.training.flagrisk import bed_risk, shipped_flag
     from amfe.training.shipped import SHIPPED, models_dir
     model = shipped_flag(sur.path, models_dir(), SHIPPED)

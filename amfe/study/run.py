@@ -260,7 +260,7 @@ class _Worker:
             # torch and the model only for a surrogate sweep, not on a solver one's start-up
             from amfe.study.surrogate import predict_rows
             for i, part in zip(ok, predict_rows(self.surrogates, [beds[i] for i in ok],
-                                                (self.spec.springs, self.spec.flag_share))):
+                                                self.spec.springs, self.spec.flag_share)):
                 rows[i].update(part)
         for i in ok:
             if self.spec.method == "surrogate" and not (rows[i]["flagged"]

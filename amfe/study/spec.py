@@ -84,11 +84,13 @@ class SweepSpec:
             if self.method != "surrogate":
                 raise AmfeError("sweep: a flag share sets the surrogate's flag; it needs "
                                 "--method surrogate")
-            if isinstance(self.flag_share, bool) \
-                    or not isinstance(self.flag_share, (int, float)) \
-                    or not 0.0 < self.flag_share < 1.0:
-                raise AmfeError(f"sweep: the flag share must be a number between 0 and 1 "
-                                f"(exclusive), got {self.flag_share!r}")
+            # scipy's import only when a share is given
+            from amfe.training.flagrisk import check_share
+
+            try:
+                check_share(self.flag_share)
+            except AmfeError as exc:
+                raise AmfeError(f"sweep: {exc}") from None
         if not (isinstance(self.ranks_per_bed, int) and self.ranks_per_bed >= 1):
             raise AmfeError(f"sweep: ranks per bed must be a positive integer, got "
                             f"{self.ranks_per_bed!r}")

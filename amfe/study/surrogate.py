@@ -19,13 +19,11 @@ _ARGS = SimpleNamespace(model=None, stiffness=False, fallback=False, check=False
                         threshold=None, petsc_args=[])
 
 
-def predict_rows(cache, beds, choice=("paper", None)):
+def predict_rows(cache, beds, springs="paper", flag_share=None):
     """[{constants, source, flagged, flag_reasons, route, <name>_lo/_hi, solid_fraction}] of
-    ``beds``; ``cache``: kept between calls (the loaded models); choice: (springs, flag
-    share); springs "continuum" takes the continuum springs' model (a bed it does not cover
-    gets a failed row, which a fallback sweep solves); the flag share as amfe predict's
-    --flag-share (None: the model's)."""
-    springs, flag_share = choice
+    ``beds``; ``cache``: kept between calls (the loaded models); springs: "continuum" takes
+    the continuum springs' model (a bed it does not cover gets a failed row, which a
+    fallback sweep solves); flag_share: as amfe predict's --flag-share (None: the model's)."""
     if not cache:
         warm()   # the compiled imaging for every bed of the sweep: 10x faster on small ones
     args = SimpleNamespace(**vars(_ARGS), springs=None if springs == "paper" else springs,

@@ -70,23 +70,23 @@ def evaluate(model, data):
                         "band": [lo, hi], "inside": bool(np.all((cov >= lo) & (cov <= hi)))}
     curve = []
     for share in np.linspace(0.0, 0.5, 26):
-        t = np.quantile(score, 1 - share) if share > 0 else np.inf
-        f = score > t
-        curve.append({"flagged": float(f.mean()),
-                      "recall": float(bad[f].sum() / max(bad.sum(), 1)),
-                      "precision": float(bad[f].sum() / max(f.sum(), 1)),
-                      "bad_unflagged": float((bad & ~f).mean())})
+        f = score > (np.quantile(score, 1 - share) if share > 0 else np.inf)
+        curve.append({**_caught(f, bad), "precision": float(bad[f].sum() / max(f.sum(), 1))})
     points = {}   # what amfe predict --flag-share S gives: the threshold from calibration
     for share in SHARES:
         f = score > threshold_for(model, share)
         points[f"{share:.2f}"] = {
-            "flagged": float(f.mean()), "recall": float(bad[f].sum() / max(bad.sum(), 1)),
-            "bad_unflagged": float((bad & ~f).mean()),
-            "bad_among_unflagged": float((bad & ~f).sum() / max((~f).sum(), 1))}
-    return {"n": int(len(bad)), "bad": float(bad.mean()), "flagged": float(flagged.mean()),
+            **_caught(f, bad), "bad_among_unflagged": float((bad & ~f).sum() / max((~f).sum(), 1))}
+    return {"n": int(len(bad)), "bad": float(bad.mean()), **_caught(flagged, bad),
+            "coverage": groups, "curve": curve, "operating_points": points}
+
+
+def _caught(flagged, bad):
+    """{flagged, recall, bad_unflagged}: the shares of beds flagged and of bad beds flagged,
+    and the share of beds bad and unflagged, of (n,) bool masks."""
+    return {"flagged": float(flagged.mean()),
             "recall": float(bad[flagged].sum() / max(bad.sum(), 1)),
-            "bad_unflagged": float((bad & ~flagged).mean()), "coverage": groups,
-            "curve": curve, "operating_points": points}
+            "bad_unflagged": float((bad & ~flagged).mean())}
 
 
 def main():
