@@ -141,3 +141,43 @@ def test_compiled_bonds_of_a_far_flung_bed_go_the_numpy_way():
     ref = find_bonds(c, r)
     fast = _find_bonds(c, r, "compiled")
     assert len(ref) == 2 and np.array_equal(ref.i, fast.i) and np.array_equal(ref.j, fast.j)
+
+
+def test_compiled_bond_finder_equals_find_pairs_on_polydisperse_spheres(monkeypatch):
+    # lognormal radii (cells of 2 max R hold many small spheres), every pair of neighbouring
+    # cells visited once, sorted in O(M): find_pairs' bonds and contact_geometry's lengths,
+    # every bit; a capacity too small for the bonds is doubled until they fit
+    from amfe.dataset import _jit_pairs
+    from amfe.model.bonds import find_pairs
+    rng = np.random.default_rng(8)
+    r = rng.lognormal(np.log(10e-6), 0.35, size=3000)
+    c = rng.uniform(0.0, 0.4e-3, size=(3000, 3)) * [1.0, 1.0, 0.5]
+    i, j = find_pairs(c, r)
+    d = c[j] - c[i]   # contact_geometry's lengths, its expression (random spheres nest, which
+    ref_length = np.sqrt(np.einsum("ij,ij->i", d, d))   # it refuses)
+    assert _jit_pairs.einsum_order() is not None and i.size > 2000
+    calls = []
+    real = _jit_pairs.bonded_pairs
+
+    def counted(*args):
+        calls.append(args[-1])
+        return real(*args)
+
+    monkeypatch.setattr(_jit_pairs, "bonded_pairs", counted)
+    for cap_of in (lambda n: 8 * n + 64, lambda n: 7):
+        calls.clear()
+        monkeypatch.setattr(_jit_pairs, "_first_cap", cap_of)
+        fi, fj, length = _jit_pairs.bonds(c, r)
+        assert np.array_equal(fi, i) and np.array_equal(fj, j)
+        assert np.array_equal(length, ref_length)
+    assert calls[0] == 7 and calls[-1] >= i.size and len(calls) > 3   # grown by doubling
+
+
+def test_einsum_order_is_numpys():
+    # the order the kernel sums d.d in is the one numpy's einsum uses here, on other vectors
+    from amfe.dataset._jit_pairs import einsum_order
+    d = np.random.default_rng(3).uniform(-1, 1, size=(5000, 3)) * [1.0, 1e-3, 1e3]
+    s = d * d
+    sums = ((s[:, 0] + s[:, 1]) + s[:, 2], (s[:, 0] + s[:, 2]) + s[:, 1],
+            s[:, 0] + (s[:, 1] + s[:, 2]))
+    assert np.array_equal(sums[einsum_order()], np.einsum("ij,ij->i", d, d))

@@ -22,7 +22,7 @@ import numpy as np
 from amfe.dataset.images import DEFAULT_CELL, DEFAULT_LAYER_THICKNESS, image_box
 from amfe.dataset.pixelkernel import use_kernel
 from amfe.errors import AmfeError
-from amfe.model.bonds import COINCIDENT, bond_springs, bonded_among, contact_geometry, find_bonds
+from amfe.model.bonds import COINCIDENT, bond_springs, contact_geometry, find_bonds
 from amfe.model.springs import A_STAR_MARGIN, critical_a_star, spring_model
 
 _KERNEL_FROM = 20_000   # particles from which engine "auto" finds the bonds compiled
@@ -35,18 +35,16 @@ def _find_bonds(centers, radii, engine):
     """:func:`amfe.model.bonds.find_bonds` of the particles: the same bonds in the same order.
 
     With the compiled kernel (engine as in amfe.dataset.pixelkernel.use_kernel) a
-    cell list proposes the pairs already sorted, and bonded_among and
-    contact_geometry, find_pairs' own tests, decide and measure them; a bed
-    with coincident centres (or too sparse for the cell table) goes the numpy
+    cell list finds find_pairs' bonds, sorted, and contact_geometry measures them; a
+    bed with coincident centres (or too sparse for the cell table) goes the numpy
     way, which names them.
     """
     centers, radii = np.asarray(centers, float), np.asarray(radii, float)
     if use_kernel(engine, radii.size >= _KERNEL_FROM) and radii.size:
-        from amfe.dataset._jit import candidate_pairs
-        i, j, ok = candidate_pairs(np.ascontiguousarray(centers), np.ascontiguousarray(radii),
-                                   2.0 * COINCIDENT)
-        if ok:
-            return contact_geometry(centers, radii, *bonded_among(centers, radii, i, j))
+        from amfe.dataset._jit_pairs import bonds
+        found = bonds(np.ascontiguousarray(centers), np.ascontiguousarray(radii))
+        if found is not None:
+            return contact_geometry(centers, radii, *found[:2])
     return find_bonds(centers, radii)
 
 
@@ -55,19 +53,17 @@ def _compiled_sums(centers, radii, material, box, springs="paper"):
     None where they step aside (coincident centres, a bed too sparse, a bond that the numpy
     path refuses). box = (lo, hi, cell, n) as in amfe.dataset._jit.bond_sums_for; springs:
     the spring model (amfe.model.springs.SPRING_MODELS) whose k_n the kernel is compiled with."""
-    from amfe.dataset._jit import bond_sums_for, candidate_pairs
+    from amfe.dataset._jit import bond_sums_for
+    from amfe.dataset._jit_pairs import bonds
     c, r = np.ascontiguousarray(centers, np.float64), np.ascontiguousarray(radii, np.float64)
-    i, j, ok = candidate_pairs(c, r, 2.0 * COINCIDENT)
-    if not ok:
+    found = bonds(c, r)   # find_pairs' bonds and contact_geometry's lengths, bit for bit
+    if found is None:
         return None
-    i, j = bonded_among(c, r, i, j)
-    branch = c[j] - c[i]                               # contact_geometry's lengths, its way
-    length = np.sqrt(np.einsum("ij,ij->i", branch, branch))
     model = spring_model(springs)
     consts = (tuple(float(v) for v in model.coefficients(material)),
               critical_a_star(material.nu, material.psi) - A_STAR_MARGIN, COINCIDENT)
     sums = np.zeros(int(np.prod(box[3])))
-    ok = bond_sums_for(springs)(c, r, (i, j, length), consts,
+    ok = bond_sums_for(springs)(c, r, found, consts,
                    tuple(np.ascontiguousarray(v) for v in box), sums)
     return sums if ok else None
 

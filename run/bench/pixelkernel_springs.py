@@ -22,9 +22,10 @@ import time
 import numpy as np
 from numba import njit
 
-from amfe.dataset._jit import bond_sums_for, candidate_pairs
+from amfe.dataset._jit import bond_sums_for
+from amfe.dataset._jit_pairs import bonds
 from amfe.dataset.images import DEFAULT_CELL, image_box
-from amfe.model.bonds import COINCIDENT, bonded_among
+from amfe.model.bonds import COINCIDENT
 from amfe.model.scales import bed_for
 from amfe.model.springs import A_STAR_MARGIN, critical_a_star, paper_coefficients
 from run.common import parser
@@ -73,11 +74,7 @@ def inputs(scale, seed):
     bed = bed_for(scale, seed)
     c = np.ascontiguousarray(bed.centers, np.float64)
     r = np.ascontiguousarray(bed.radii, np.float64)
-    i, j, ok = candidate_pairs(c, r, 2.0 * COINCIDENT)
-    assert ok
-    i, j = bonded_among(c, r, i, j)
-    branch = c[j] - c[i]
-    length = np.sqrt(np.einsum("ij,ij->i", branch, branch))
+    i, j, length = bonds(c, r)
     lo, hi = (np.asarray(v, np.float64) for v in image_box(bed))
     cell = np.array([DEFAULT_CELL[0], DEFAULT_CELL[1], bed.attrs["layer_thickness"]])
     n = np.maximum(np.ceil((hi - lo) / cell - 1e-9).astype(np.int64), 1)
