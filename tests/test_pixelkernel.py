@@ -1,5 +1,7 @@
 """The compiled imaging kernels (amfe.dataset.pixelkernel, amfe.dataset._jit) give the numpy
 path's images bit for bit: the same imaging, so data sets rebuild identically whichever runs."""
+import sys
+
 import numpy as np
 import pytest
 
@@ -147,12 +149,14 @@ def test_compiled_bond_finder_equals_find_pairs_on_polydisperse_spheres(monkeypa
     # lognormal radii (cells of 2 max R hold many small spheres), every pair of neighbouring
     # cells visited once, sorted in O(M): find_pairs' bonds and contact_geometry's lengths,
     # every bit; a capacity too small for the bonds is doubled until they fit
-    from amfe.dataset import _jit_pairs
+    from amfe.model import _jit_pairs
     from amfe.model.bonds import find_pairs
     rng = np.random.default_rng(8)
     r = rng.lognormal(np.log(10e-6), 0.35, size=3000)
     c = rng.uniform(0.0, 0.4e-3, size=(3000, 3)) * [1.0, 1.0, 0.5]
-    i, j = find_pairs(c, r)
+    with monkeypatch.context() as m:   # the KD-tree's pairs (find_pairs takes a loaded kernel)
+        m.delitem(sys.modules, "amfe.model._jit_pairs")
+        i, j = find_pairs(c, r)
     d = c[j] - c[i]   # contact_geometry's lengths, its expression (random spheres nest, which
     ref_length = np.sqrt(np.einsum("ij,ij->i", d, d))   # it refuses)
     assert _jit_pairs.einsum_order() is not None and i.size > 2000
@@ -171,11 +175,34 @@ def test_compiled_bond_finder_equals_find_pairs_on_polydisperse_spheres(monkeypa
         assert np.array_equal(fi, i) and np.array_equal(fj, j)
         assert np.array_equal(length, ref_length)
     assert calls[0] == 7 and calls[-1] >= i.size and len(calls) > 3   # grown by doubling
+    assert all(np.array_equal(a, b) for a, b in zip(find_pairs(c, r), (i, j)))   # and its own
+
+
+def test_find_pairs_takes_the_loaded_kernel_with_the_same_pairs_and_errors(monkeypatch):
+    # a process that has loaded the kernels (amfe sweep, amfe predict of many beds) finds the
+    # bonds of its beds with them: the same pairs, the same error for coincident centres
+    from amfe.model import _jit_pairs
+    from amfe.model.bonds import find_pairs
+    bed = generate_bed((0.3e-3, 0.3e-3, 0.2e-3), seed=9)
+    c = np.vstack([bed.centers, bed.centers[5]])
+    r = np.append(bed.radii, bed.radii[5])
+    calls, real = [], _jit_pairs.bonds
+    monkeypatch.setattr(_jit_pairs, "bonds", lambda *a: calls.append(1) or real(*a))
+    fast = find_pairs(bed.centers, bed.radii)
+    with pytest.raises(AmfeError) as fast_error:
+        find_pairs(c, r)
+    assert len(calls) == 2
+    monkeypatch.delitem(sys.modules, "amfe.model._jit_pairs")
+    ref = find_pairs(bed.centers, bed.radii)
+    with pytest.raises(AmfeError) as ref_error:
+        find_pairs(c, r)
+    assert ref[0].size > 1000 and all(np.array_equal(a, b) for a, b in zip(ref, fast))
+    assert "coincident" in str(ref_error.value) and str(fast_error.value) == str(ref_error.value)
 
 
 def test_einsum_order_is_numpys():
     # the order the kernel sums d.d in is the one numpy's einsum uses here, on other vectors
-    from amfe.dataset._jit_pairs import einsum_order
+    from amfe.model._jit_pairs import einsum_order
     d = np.random.default_rng(3).uniform(-1, 1, size=(5000, 3)) * [1.0, 1e-3, 1e3]
     s = d * d
     sums = ((s[:, 0] + s[:, 1]) + s[:, 2], (s[:, 0] + s[:, 2]) + s[:, 1],

@@ -41,7 +41,7 @@ def _find_bonds(centers, radii, engine):
     """
     centers, radii = np.asarray(centers, float), np.asarray(radii, float)
     if use_kernel(engine, radii.size >= _KERNEL_FROM) and radii.size:
-        from amfe.dataset._jit_pairs import bonds
+        from amfe.model._jit_pairs import bonds
         found = bonds(np.ascontiguousarray(centers), np.ascontiguousarray(radii))
         if found is not None:
             return contact_geometry(centers, radii, *found[:2])
@@ -54,7 +54,7 @@ def _compiled_sums(centers, radii, material, box, springs="paper"):
     path refuses). box = (lo, hi, cell, n) as in amfe.dataset._jit.bond_sums_for; springs:
     the spring model (amfe.model.springs.SPRING_MODELS) whose k_n the kernel is compiled with."""
     from amfe.dataset._jit import bond_sums_for
-    from amfe.dataset._jit_pairs import bonds
+    from amfe.model._jit_pairs import bonds
     c, r = np.ascontiguousarray(centers, np.float64), np.ascontiguousarray(radii, np.float64)
     found = bonds(c, r)   # find_pairs' bonds and contact_geometry's lengths, bit for bit
     if found is None:

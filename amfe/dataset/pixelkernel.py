@@ -49,11 +49,12 @@ def _loaded():
 
 
 def warm():
-    """Load the compiled kernel now (about 0.3 s from numba's cache), where numba imports, so
-    that "auto" takes it for every later bed, small ones too: for a process that images many
-    beds. True when it is loaded."""
+    """Load the compiled kernels now (about 0.3 s from numba's cache), where numba imports, so
+    that "auto" takes them for every later bed, small ones too, and amfe.model.bonds.find_pairs
+    finds bonds with them: for a process that makes and images many beds. True when loaded."""
     if available():
         import amfe.dataset._jit  # noqa: F401  (compiled once, cached)
+        import amfe.model._jit_pairs  # noqa: F401  (find_pairs takes it once loaded)
     return _loaded()
 
 

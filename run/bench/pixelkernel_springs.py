@@ -23,7 +23,7 @@ import numpy as np
 from numba import njit
 
 from amfe.dataset._jit import bond_sums_for
-from amfe.dataset._jit_pairs import bonds
+from amfe.model._jit_pairs import bonds
 from amfe.dataset.images import DEFAULT_CELL, image_box
 from amfe.model.bonds import COINCIDENT
 from amfe.model.scales import bed_for

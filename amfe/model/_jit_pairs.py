@@ -1,7 +1,9 @@
-"""The compiled bond finder of imaging (amfe.dataset.bondimage), imported only when it runs.
+"""The compiled bond finder: find_pairs' bonds, bit for bit, in O(N + M) compiled loops.
 
-A module of its own, like amfe.dataset._jit, so that numba's on-disk cache keeps its
-machine code between processes.
+Imported only by a process that asks for compiled kernels (a bond image of a large bed,
+amfe.dataset.pixelkernel.warm in a process that images many beds); once it is loaded,
+amfe.model.bonds.find_pairs takes it too. A module of its own, like amfe.dataset._jit,
+so that numba's on-disk cache keeps its machine code between processes.
 """
 from functools import cache
 
