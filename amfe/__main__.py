@@ -1,6 +1,6 @@
 """`python -m amfe ...` is the `amfe` command."""
 import sys
 
-from amfe.cli import main
+from amfe.cli import entry
 
-sys.exit(main())
+sys.exit(entry())

@@ -7,7 +7,8 @@ root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$root"
 
 # libopenblas0-pthread: an optimised BLAS for MUMPS and scipy (Debian installs the reference one).
-pkgs="petsc-dev python3-petsc4py python3-mpi4py openmpi-bin python3-h5py python3-scipy python3-matplotlib python3-venv python3-pip libopenblas0-pthread"
+# gcc, libc6-dev: amfe's C kernels, built on first use (amfe/model/native.py).
+pkgs="petsc-dev python3-petsc4py python3-mpi4py openmpi-bin python3-h5py python3-scipy python3-matplotlib python3-venv python3-pip libopenblas0-pthread gcc libc6-dev"
 missing=""
 for p in $pkgs; do
     dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing="$missing $p"

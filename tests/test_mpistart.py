@@ -34,9 +34,11 @@ def test_the_users_choice_stands(given):
 def test_ranks_on_one_host_start_with_ob1_and_talk():
     """Under mpirun -n 3 on this host (oversubscribed), `import amfe` asks for ob1 over
     shared memory before MPI starts, and the ranks still exchange data (an allreduce)."""
-    code = ("import os, amfe; from mpi4py import MPI; "
-            "print(os.environ['OMPI_MCA_pml'], os.environ['OMPI_MCA_btl'], "
-            "MPI.COMM_WORLD.allreduce(MPI.COMM_WORLD.rank))")
+    # one write a rank, newline included: print's pieces (and its newline, written apart on
+    # an unbuffered stdout) could interleave between the ranks
+    code = ("import os, sys, amfe; from mpi4py import MPI; "
+            "sys.stdout.write(' '.join([os.environ['OMPI_MCA_pml'], os.environ['OMPI_MCA_btl'], "
+            "str(MPI.COMM_WORLD.allreduce(MPI.COMM_WORLD.rank))]) + chr(10)); sys.stdout.flush()")
     proc = subprocess.run(["mpirun", "-n", "3", sys.executable, "-c", code], cwd=ROOT,
                           env={k: v for k, v in MPI_ENV.items()
                                if k not in ("OMPI_MCA_pml", "OMPI_MCA_btl")},

@@ -31,7 +31,6 @@ import amfe.version
 from amfe.dataset.bondimage import bond_image
 from amfe.dataset.images import pixelate
 from amfe.errors import AmfeError
-from amfe.io.bedfile import read_bed
 from amfe.model.carrying import rule1_factor
 from amfe.training.checkpoint import (
     backend_for,
@@ -289,6 +288,8 @@ def _check_shipped_size(bed, path):
 
 def _read(item):
     if isinstance(item, (str, os.PathLike)):
+        from amfe.io.bedfile import read_bed  # h5py (0.02 s) only for a bed read from a file
+
         return read_bed(item)
     return item
 

@@ -112,9 +112,13 @@ def _read(item, path, given=None):
     """(path, Bed, seconds to read it) of a bed path or a Bed; ``given``: material values
     (dict of E, nu, psi) that replace the bed's, so that its route, its prediction and a
     fallback solve all read them."""
-    from amfe.io.bedfile import read_bed
     t = time.perf_counter()
-    bed = read_bed(item) if path is not None else item
+    if path is not None:
+        from amfe.io.bedfile import read_bed  # h5py (0.02 s): not for a Bed given as such
+
+        bed = read_bed(item)
+    else:
+        bed = item
     if given:
         material = resolve_material(bed.attrs, given)[0]
         bed = type(bed)(bed.centers, bed.radii, {

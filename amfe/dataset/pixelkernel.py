@@ -1,9 +1,11 @@
-"""Compiled (numba) imaging: pixelate_spheres' union volumes, bit for bit its numpy path.
+"""Compiled imaging: pixelate_spheres' union volumes, bit for bit its numpy path.
 
 The numpy path of amfe.dataset.images generates every (sphere, sample line)
 chord as array elements and sorts them all by one int64 key (6 s for a
 3 x 3 x 0.3 mm bed of 260 000 particles, most of it in the sort and the
-temporaries). This kernel does the same arithmetic one chord at a time:
+temporaries). The compiled kernels do the same arithmetic one chord at a time
+(amfe/dataset/fill.c, and its numba twin amfe.dataset._jit for a machine without
+a C compiler):
 
 * per strip of sample rows (the numpy path's strips, so the sums run in its
   order), each sphere's chords are found row by row, scanning out from the
@@ -20,20 +22,34 @@ temporaries). This kernel does the same arithmetic one chord at a time:
 
 Every float operation is the numpy path's, in its order, so the images are
 identical bit for bit (tests/test_pixelkernel.py); it is the same imaging
-(IMAGING_VERSION unchanged). numba is imported only when a caller asks for
-this kernel (:func:`available`).
+(IMAGING_VERSION unchanged). The C kernel (amfe.model.native: built once per
+machine, loaded in about a millisecond) takes every bed where it builds; numba
+is imported only where it does not, or for the bond image's springs of a large
+bed (amfe.dataset.bondimage).
 """
+import ctypes
 import sys
+from functools import cache
+from pathlib import Path
 
 import numpy as np
 
 from amfe.errors import AmfeError
+from amfe.model.native import library
+
+_I64 = np.ctypeslib.ndpointer(np.int64, flags="C_CONTIGUOUS")
+_F64 = np.ctypeslib.ndpointer(np.float64, flags="C_CONTIGUOUS")
 
 _AVAILABLE = None
 
 
 def available():
-    """True when numba imports (the kernel can run); asked once per process."""
+    """True when a compiled union kernel can run: the C one builds, or numba imports."""
+    return _c_fill() is not None or _numba()
+
+
+def _numba():
+    """True when numba imports (its kernels can run); asked once per process."""
     global _AVAILABLE
     if _AVAILABLE is None:
         try:
@@ -49,30 +65,60 @@ def _loaded():
 
 
 def warm():
-    """Load the compiled kernels now (about 0.3 s from numba's cache), where numba imports, so
-    that "auto" takes them for every later bed, small ones too, and amfe.model.bonds.find_pairs
-    finds bonds with them: for a process that makes and images many beds. True when loaded."""
-    if available():
+    """Load the compiled kernels now, so that "auto" takes them for every later bed, small ones
+    too: for a process that makes and images many beds. With the C kernel (it needs no start)
+    nothing is loaded; else numba's (about 0.3 s from its cache). True when a kernel runs."""
+    if _c_fill() is not None:
+        return True
+    if _numba():
         import amfe.dataset._jit  # noqa: F401  (compiled once, cached)
-        import amfe.model._jit_pairs  # noqa: F401  (find_pairs takes it once loaded)
     return _loaded()
 
 
-def use_kernel(engine, large):
-    """Whether pixelate_spheres images with this kernel (the same bits as its numpy path).
+@cache
+def _c_fill():
+    """The C union kernel (amfe/dataset/fill.c), or None where it does not build."""
+    lib = library(Path(__file__).with_name("fill.c"))
+    if lib is None:
+        return None
+    fn = lib.amfe_union_rows
+    fn.restype = ctypes.c_int
+    i64, f64 = ctypes.c_int64, ctypes.c_double
+    fn.argtypes = [i64, _F64, _F64, _I64, i64, _F64, _F64, _I64, f64, i64, _F64, _F64, _I64,
+                   i64, _F64, f64, f64, f64, f64, f64, i64, i64, i64, _F64]
+    return fn
 
-    engine: "numpy", "compiled" (AmfeError without numba) or "auto": the kernel
-    when numba imports and the bed is ``large`` (there it beats numba's import
-    and cache load, about 0.5 s) or the kernel is loaded already (:func:`warm`:
-    a small bed then images 10x faster, 0.011 s against 0.11 s at 0.6 mm).
+
+def use_kernel(engine, large):
+    """Whether pixelate_spheres images with a compiled kernel (the same bits as its numpy path).
+
+    engine: "numpy", "compiled" (AmfeError without a C compiler or numba) or "auto": the
+    C kernel where it builds; else numba's when it imports and the bed is ``large`` (there
+    it beats numba's import and cache load, about 0.5 s) or it is loaded already
+    (:func:`warm`: a small bed then images 10x faster, 0.011 s against 0.11 s at 0.6 mm).
     """
     if engine not in ("auto", "numpy", "compiled"):
         raise AmfeError(f"engine must be 'auto', 'numpy' or 'compiled', got {engine!r}")
-    if engine == "numpy" or (engine == "auto" and not large and not _loaded()):
+    if engine == "numpy":
         return False
-    if engine == "compiled" and not available():
-        raise AmfeError("engine 'compiled' needs numba (pip install numba)")
-    return available()
+    if _c_fill() is not None:
+        return True
+    if engine == "auto" and not large and not _loaded():
+        return False
+    if engine == "compiled" and not _numba():
+        raise AmfeError("engine 'compiled' needs a C compiler (cc; run/setup.sh installs gcc) "
+                        "or numba (pip install numba)")
+    return _numba()
+
+
+def use_numba(engine, large):
+    """Whether the bond image sums its springs with numba (amfe.dataset._jit.bond_sums_for):
+    numba's rule of :func:`use_kernel` (a large bed, or numba loaded already), C aside."""
+    if engine not in ("auto", "numpy", "compiled"):
+        raise AmfeError(f"engine must be 'auto', 'numpy' or 'compiled', got {engine!r}")
+    if engine == "numpy" or not (engine == "compiled" or large or _loaded()):
+        return False
+    return _numba()
 
 
 def union_volumes(c, r, grid, rows, q_levels, image):
@@ -83,11 +129,23 @@ def union_volumes(c, r, grid, rows, q_levels, image):
     rows: sample rows per strip (the numpy path's); q_levels: quantisation
     levels per layer (its _Q_LEVELS).
     """
-    from amfe.dataset._jit import union_rows  # imports numba (compiled once, cached)
     order = np.argsort(c[:, 1], kind="stable")
     c, r = np.ascontiguousarray(c[order]), np.ascontiguousarray(r[order])
     ax, ay, t = grid.ax, grid.ay, float(grid.t)
-    z = (np.ascontiguousarray(grid.z_edges, np.float64), t, float(grid.z_lo), float(grid.z_hi),
-         float(q_levels / t), float(t / q_levels))
+    z_edges = np.ascontiguousarray(grid.z_edges, np.float64)
+    z = (z_edges, t, float(grid.z_lo), float(grid.z_hi), float(q_levels / t),
+         float(t / q_levels))
+    fn = _c_fill()
+    if fn is not None:
+        j0 = np.searchsorted(ax.mid, c[:, 0]).astype(np.int64)   # first column at/right of x_c
+        xs = [np.ascontiguousarray(v) for v in (ax.mid, ax.w, ax.cell_of)]
+        ys = [np.ascontiguousarray(v) for v in (ay.mid, ay.w, ay.cell_of)]
+        xs[2], ys[2] = xs[2].astype(np.int64), ys[2].astype(np.int64)
+        status = fn(r.size, c, r, j0, xs[0].size, *xs, float(ax.h), ys[0].size, *ys,
+                    z_edges.size - 1, *z, int(rows), int(ay.n_cells), int(ax.n_cells), image)
+        if status != 0:
+            raise MemoryError("the imaging kernel ran out of memory")
+        return
+    from amfe.dataset._jit import union_rows  # imports numba (compiled once, cached)
     union_rows(c, r, (ax.mid, ax.w, ax.cell_of, float(ax.h)), (ay.mid, ay.w, ay.cell_of), z,
                (int(rows), int(ay.n_cells), int(ax.n_cells)), image)

@@ -65,9 +65,11 @@ def plot(table, path, y="Ex", x=None, hue=None):
 
 
 def preload():
-    """Import what :func:`plot` needs (matplotlib's Figure and Agg canvas, and the PNG writer
-    PIL loads at the first save): under mpirun rank 0 does it before its first bed, while
-    the other ranks take more of the beds (amfe.study.run), not after the last."""
+    """Import what the sweep's end needs (matplotlib's Figure and Agg canvas, the PNG writer
+    PIL loads at the first save, and h5py for sweep.h5): under mpirun rank 0 does it before
+    its first bed, while the other ranks take more of the beds (amfe.study.run), not after
+    the last."""
+    import h5py  # noqa: F401  (amfe.study.table.write_tables)
     from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: F401
     from matplotlib.figure import Figure  # noqa: F401
 

@@ -87,7 +87,8 @@ def large(seed, repeat):
     (_, f0, b0, _, _), (_, f1, b1, cf1, cb1) = rows
     print(f"speed-up: fill {f0 / f1:.1f}x, bonds {b0 / b1:.1f}x, "
           f"imaging {(f0 + b0) / (f1 + b1):.1f}x; images equal bit for bit: {same}")
-    print(f"first compiled call in this process (numba import, cache load or compile): "
+    print(f"first compiled call in this process (the C kernels' load or build, numba's import "
+          f"and cache load for the springs): "
           f"{first:.2f} s")
     inputs = np.concatenate(images["compiled"], axis=0)
     tn, what = network_seconds(model, inputs, repeat)

@@ -23,7 +23,7 @@ import numpy as np
 from numba import njit
 
 from amfe.dataset._jit import bond_sums_for
-from amfe.model._jit_pairs import bonds
+from amfe.model.pairkernel import bonds
 from amfe.dataset.images import DEFAULT_CELL, image_box
 from amfe.model.bonds import COINCIDENT
 from amfe.model.scales import bed_for
@@ -74,7 +74,7 @@ def inputs(scale, seed):
     bed = bed_for(scale, seed)
     c = np.ascontiguousarray(bed.centers, np.float64)
     r = np.ascontiguousarray(bed.radii, np.float64)
-    i, j, length = bonds(c, r)
+    i, j, length = bonds(c, r, 2.0 * COINCIDENT)
     lo, hi = (np.asarray(v, np.float64) for v in image_box(bed))
     cell = np.array([DEFAULT_CELL[0], DEFAULT_CELL[1], bed.attrs["layer_thickness"]])
     n = np.maximum(np.ceil((hi - lo) / cell - 1e-9).astype(np.int64), 1)

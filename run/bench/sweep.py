@@ -8,7 +8,6 @@ the solver's rows and `amfe homogenize` of three of the same beds on one rank.
 
     python run/bench/sweep.py [--ranks 2] [--out /tmp/amfe-bench-sweep]
 """
-import argparse
 import csv
 import json
 import os
@@ -17,7 +16,8 @@ import subprocess
 import sys
 import time
 from decimal import Decimal
-from run.common import parser
+
+from run.common import ROOT, parser
 
 GRID = ["--grid", "hatch_spacing=0.1,0.12,0.15", "--grid", "track_width=0.05,0.08,0.1",
         "--seeds", "4", "--no-progress"]
@@ -46,6 +46,10 @@ def main():
     ap.add_argument("--out", default="/tmp/amfe-bench-sweep")
     args = ap.parse_args()
     shutil.rmtree(args.out, ignore_errors=True)
+    # amfe's bytecode written first, as an installation has it after its first run (a
+    # machine with PYTHONDONTWRITEBYTECODE set would compile edited modules in every process)
+    subprocess.run([sys.executable, "-m", "compileall", "-q", *(os.path.join(ROOT, d) for d in
+                    ("amfe", "solvers", "training"))], check=True, capture_output=True)
     runs = {}
     for name, extra in (("solver", []), ("surrogate", ["--method", "surrogate"]),
                         ("fallback", ["--method", "surrogate", "--fallback"])):

@@ -5,11 +5,12 @@
 Times, in one process, the pieces a rank of `amfe sweep --method surrogate` spends its
 time on for issue 48's grid (run/bench/sweep.py: hatch spacing 0.1, 0.12, 0.15 mm x
 track width 0.05, 0.08, 0.1 mm, seeds 0-3, `small` beds), ``--beds`` of them (18: a
-rank's share of the 36 on 2 ranks): the imports (numpy and mpi4py; amfe's sweep modules
-with numba's kernels; the predict path), generating the beds, the first prediction
-(the compiled kernels' load, the models), the others (images, networks, flag,
-intervals), writing the rows, and matplotlib's import. Numbers for docs/benchmarks.md,
-"Parameter sweeps"; the whole sweep's wall time against the solver's is run/bench/sweep.py.
+rank's share of the 36 on 2 ranks): the imports (numpy and mpi4py; amfe's sweep
+modules; the predict path), generating the beds (their bonds by the C bond finder,
+as a sweep's ranks find them), the first prediction (the models' load), the others
+(images, networks, flag, intervals), writing the rows, and matplotlib's import.
+Numbers for docs/benchmarks.md, "Parameter sweeps"; the whole sweep's wall time against
+the solver's is run/bench/sweep.py.
 """
 import os
 import sys
@@ -64,7 +65,8 @@ def main(argv=None):
     print(f"imports: numpy and mpi4py {t_mpi:.3f} s, amfe's sweep modules {t_amfe:.3f} s, "
           f"the predict path {t_predict:.3f} s, matplotlib's Figure {t_plot:.3f} s")
     print(f"{n} beds made: {t_beds:.3f} s ({1e3 * t_beds / n:.1f} ms a bed)")
-    print(f"first 2 predicted (kernels' and models' load): {t_first:.3f} s")
+    print(f"first 2 predicted (the models' load): {t_first:.3f} s; numba imported: "
+          f"{'numba' in sys.modules}")
     print(f"{n - 2} more predicted: {t_rest:.3f} s ({1e3 * t_rest / (n - 2):.1f} ms a bed); "
           f"their rows written: {t_rows:.3f} s")
     print(f"torch imported: {'torch' in sys.modules}")
