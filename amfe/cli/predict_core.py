@@ -29,8 +29,9 @@ from amfe.model.material import resolve_material
 from amfe.vocab import LABEL_NAMES as SIX
 
 NINE = SIX + ("G_yz", "G_xz", "G_xy")
-#: From this many beds a call loads the compiled imaging kernels first (numba's cache, about
-#: 0.3 s), which image a small bed in 0.013 s against numpy's 0.13 s, with the same bits.
+#: From this many beds a call loads numba's imaging kernels first (its cache, about 0.3 s)
+#: where the C ones do not build (those image every bed, and need no start): a small bed
+#: in 0.013 s against numpy's 0.13 s, with the same bits.
 WARM_FROM = 3
 
 
@@ -44,7 +45,7 @@ def predict_records(args, items, times, t_start, cache=None):
     from amfe.training.prediction import scale_moduli
     from amfe.training.shipped import shipped_model_for
 
-    if len(items) >= WARM_FROM:   # the compiled imaging: 0.3 s once, then 10x faster a bed
+    if len(items) >= WARM_FROM:   # numba's imaging (no C): 0.3 s once, then 10x faster a bed
         from amfe.dataset.pixelkernel import warm
         warm()
     records, beds, chosen = [None] * len(items), [None] * len(items), [None] * len(items)

@@ -28,7 +28,6 @@ import numpy as np
 
 from amfe.dataset.density import solid_fraction
 from amfe.dataset.lock import DatasetLock, _alive, read_lock, this_process
-from amfe.dataset.pixelkernel import warm
 from amfe.errors import AmfeError
 from amfe.io.atomic import write_json
 from amfe.io.console import LOGGER
@@ -241,8 +240,6 @@ class _Worker:
         """The rows of beds ``ks``; a bed that cannot be made or solved is a row with its error
         (no constants), not the end of the sweep. seconds: the bed's share of the batch."""
         t0 = time.perf_counter()
-        if self.spec.method == "surrogate":   # before the beds: find_pairs takes the kernels too
-            warm()
         rows, beds = [], []
         for k in ks:
             point, seed = self.spec.bed(k)

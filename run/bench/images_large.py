@@ -96,6 +96,6 @@ def large(seed, repeat):
     total, cpu = f1 + b1 + tn, cf1 + cb1 + CPU[-1]
     verdict = {True: "met", False: "MISSED"}
     print(f"imaging + network (compiled): {total:.3f} s wall, {cpu:.3f} s CPU; gate 1 s: "
-          f"{verdict[total < 1]} (wall), {verdict[cpu < 1]} (CPU); goal 0.1 s: "
-          f"{verdict[total < 0.1]} (wall)")
+          f"{verdict[total < 1]} (wall), {verdict[cpu < 1]} (CPU); issue 46's 0.2 s: "
+          f"{verdict[total < 0.2]} (wall); goal 0.1 s: {verdict[total < 0.1]} (wall)")
     return 0 if same else 1
