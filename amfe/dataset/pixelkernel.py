@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from amfe.errors import AmfeError
-from amfe.model.native import library
+from amfe.model.native import function
 
 _I64 = np.ctypeslib.ndpointer(np.int64, flags="C_CONTIGUOUS")
 _F64 = np.ctypeslib.ndpointer(np.float64, flags="C_CONTIGUOUS")
@@ -78,15 +78,10 @@ def warm():
 @cache
 def _c_fill():
     """The C union kernel (amfe/dataset/fill.c), or None where it does not build."""
-    lib = library(Path(__file__).with_name("fill.c"))
-    if lib is None:
-        return None
-    fn = lib.amfe_union_rows
-    fn.restype = ctypes.c_int
     i64, f64 = ctypes.c_int64, ctypes.c_double
-    fn.argtypes = [i64, _F64, _F64, _I64, i64, _F64, _F64, _I64, f64, i64, _F64, _F64, _I64,
-                   i64, _F64, f64, f64, f64, f64, f64, i64, i64, i64, _F64]
-    return fn
+    return function(Path(__file__).with_name("fill.c"), "amfe_union_rows", ctypes.c_int,
+                    [i64, _F64, _F64, _I64, i64, _F64, _F64, _I64, f64, i64, _F64, _F64, _I64,
+                     i64, _F64, f64, f64, f64, f64, f64, i64, i64, i64, _F64])
 
 
 def use_kernel(engine, large):

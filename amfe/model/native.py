@@ -82,3 +82,14 @@ def library(source):
         except OSError:
             continue
     return None
+
+
+def function(source, name, restype, argtypes):
+    """The C function ``name`` of the C file ``source`` with its ctypes signature, or None
+    where :func:`library` cannot build it."""
+    lib = library(source)
+    if lib is None:
+        return None
+    fn = getattr(lib, name)
+    fn.restype, fn.argtypes = restype, list(argtypes)
+    return fn

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from amfe.model.native import library
+from amfe.model.native import function
 
 _I64 = np.ctypeslib.ndpointer(np.int64, flags="C_CONTIGUOUS")
 _F64 = np.ctypeslib.ndpointer(np.float64, flags="C_CONTIGUOUS")
@@ -18,14 +18,9 @@ _F64 = np.ctypeslib.ndpointer(np.float64, flags="C_CONTIGUOUS")
 
 @cache
 def _kernel():
-    lib = library(Path(__file__).with_name("pairs.c"))
-    if lib is None:
-        return None
-    fn = lib.amfe_bonded_pairs
-    fn.restype = ctypes.c_int64
-    fn.argtypes = [ctypes.c_int64, _F64, _F64, ctypes.c_double, ctypes.c_int, ctypes.c_int64,
-                   _I64, _I64, _F64]
-    return fn
+    i64 = ctypes.c_int64
+    return function(Path(__file__).with_name("pairs.c"), "amfe_bonded_pairs", i64,
+                    [i64, _F64, _F64, ctypes.c_double, ctypes.c_int, i64, _I64, _I64, _F64])
 
 
 def available():
