@@ -34,10 +34,11 @@ NO_CAP_FIX = ("Reduce the particle overlaps: a bond image (amfe predict's input,
 
 
 def _compiled_sums(centers, radii, material, box, springs="paper"):
-    """The bond image's per-cell sums of k_n L^2 (flat, float64) by the compiled kernels, or
-    None where they step aside (coincident centres, a bed too sparse, a bond that the numpy
-    path refuses). box = (lo, hi, cell, n) as in amfe.dataset._jit.bond_sums_for; springs:
-    the spring model (amfe.model.springs.SPRING_MODELS) whose k_n the kernel is compiled with."""
+    """The bond image's per-cell sums of k_n L^2 (flat, float64) by numba's kernel, or None
+    where it steps aside (a bond that the numpy path refuses, which names it). The bonds
+    and lengths are the C bond finder's, else find_pairs' KD-tree's (which names coincident
+    centres). box = (lo, hi, cell, n) as in amfe.dataset._jit.bond_sums_for; springs: the
+    spring model (amfe.model.springs.SPRING_MODELS) whose k_n the kernel is compiled with."""
     from amfe.dataset._jit import bond_sums_for
     c, r = np.ascontiguousarray(centers, np.float64), np.ascontiguousarray(radii, np.float64)
     # find_pairs' bonds and contact_geometry's lengths, bit for bit, by the C bond finder

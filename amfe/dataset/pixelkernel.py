@@ -35,10 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from amfe.errors import AmfeError
-from amfe.model.native import function
-
-_I64 = np.ctypeslib.ndpointer(np.int64, flags="C_CONTIGUOUS")
-_F64 = np.ctypeslib.ndpointer(np.float64, flags="C_CONTIGUOUS")
+from amfe.model.native import F64, I64, function
 
 _AVAILABLE = None
 
@@ -80,8 +77,13 @@ def _c_fill():
     """The C union kernel (amfe/dataset/fill.c), or None where it does not build."""
     i64, f64 = ctypes.c_int64, ctypes.c_double
     return function(Path(__file__).with_name("fill.c"), "amfe_union_rows", ctypes.c_int,
-                    [i64, _F64, _F64, _I64, i64, _F64, _F64, _I64, f64, i64, _F64, _F64, _I64,
-                     i64, _F64, f64, f64, f64, f64, f64, i64, i64, i64, _F64])
+                    [i64, F64, F64, I64, i64, F64, F64, I64, f64, i64, F64, F64, I64,
+                     i64, F64, f64, f64, f64, f64, f64, i64, i64, i64, F64])
+
+
+def _check_engine(engine):
+    if engine not in ("auto", "numpy", "compiled"):
+        raise AmfeError(f"engine must be 'auto', 'numpy' or 'compiled', got {engine!r}")
 
 
 def use_kernel(engine, large):
@@ -92,8 +94,7 @@ def use_kernel(engine, large):
     it beats numba's import and cache load, about 0.5 s) or it is loaded already
     (:func:`warm`: a small bed then images 10x faster, 0.011 s against 0.11 s at 0.6 mm).
     """
-    if engine not in ("auto", "numpy", "compiled"):
-        raise AmfeError(f"engine must be 'auto', 'numpy' or 'compiled', got {engine!r}")
+    _check_engine(engine)
     if engine == "numpy":
         return False
     if _c_fill() is not None:
@@ -109,8 +110,7 @@ def use_kernel(engine, large):
 def use_numba(engine, large):
     """Whether the bond image sums its springs with numba (amfe.dataset._jit.bond_sums_for):
     numba's rule of :func:`use_kernel` (a large bed, or numba loaded already), C aside."""
-    if engine not in ("auto", "numpy", "compiled"):
-        raise AmfeError(f"engine must be 'auto', 'numpy' or 'compiled', got {engine!r}")
+    _check_engine(engine)
     if engine == "numpy" or not (engine == "compiled" or large or _loaded()):
         return False
     return _numba()

@@ -15,8 +15,8 @@ Floating point: ``-O2 -ffp-contract=off`` and no fast-math, so every operation i
 IEEE one the numpy path does, in its order (no fused multiply-adds): the kernels give
 the numpy path's results bit for bit (tests/test_pixelkernel.py). ``-fno-math-errno``
 lets sqrt be one instruction (the kernels take no root of a negative number): 13 % off
-the union kernel's time. Where no compiler
-works, :func:`library` returns None and the callers take numba or numpy.
+the union kernel's time. Where no compiler works, :func:`library` returns None and the
+callers take numba or numpy.
 """
 import ctypes
 import hashlib
@@ -27,6 +27,11 @@ import tempfile
 from functools import cache
 from pathlib import Path
 
+import numpy as np
+
+#: ctypes argument types of the kernels' arrays (C-contiguous int64 and float64).
+I64 = np.ctypeslib.ndpointer(np.int64, flags="C_CONTIGUOUS")
+F64 = np.ctypeslib.ndpointer(np.float64, flags="C_CONTIGUOUS")
 FLAGS = ("-O2", "-fPIC", "-shared", "-std=c99", "-ffp-contract=off", "-fno-fast-math",
          "-fno-math-errno")
 

@@ -10,17 +10,14 @@ from pathlib import Path
 
 import numpy as np
 
-from amfe.model.native import function
-
-_I64 = np.ctypeslib.ndpointer(np.int64, flags="C_CONTIGUOUS")
-_F64 = np.ctypeslib.ndpointer(np.float64, flags="C_CONTIGUOUS")
+from amfe.model.native import F64, I64, function
 
 
 @cache
 def _kernel():
     i64 = ctypes.c_int64
     return function(Path(__file__).with_name("pairs.c"), "amfe_bonded_pairs", i64,
-                    [i64, _F64, _F64, ctypes.c_double, ctypes.c_int, i64, _I64, _I64, _F64])
+                    [i64, F64, F64, ctypes.c_double, ctypes.c_int, i64, I64, I64, F64])
 
 
 def available():
@@ -63,10 +60,10 @@ def bonds(centers, radii, near):
     centers (N, 3) [m], radii (N,) [m].
     """
     fn, order = _kernel(), einsum_order()
+    if fn is None or order is None or not np.size(radii):
+        return None
     c = np.ascontiguousarray(centers, np.float64)
     r = np.ascontiguousarray(radii, np.float64)
-    if fn is None or order is None or not r.size:
-        return None
     cap = _first_cap(r.size)
     while True:
         i, j, length = np.empty(cap, np.int64), np.empty(cap, np.int64), np.empty(cap)

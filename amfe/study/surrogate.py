@@ -25,7 +25,7 @@ def predict_rows(cache, beds, springs="paper", flag_share=None):
     the continuum springs' model (a bed it does not cover gets a failed row, which a
     fallback sweep solves); flag_share: as amfe predict's --flag-share (None: the model's)."""
     if not cache:
-        warm()   # the compiled imaging for every bed of the sweep: 10x faster on small ones
+        warm()   # numba's imaging where no C kernel builds: 10x faster on small beds
     args = SimpleNamespace(**vars(_ARGS), springs=None if springs == "paper" else springs,
                            flag_share=flag_share)
     records, _ = predict_records(args, beds, {}, time.perf_counter(), cache)
