@@ -5,14 +5,19 @@
    the same arithmetic one chord at a time, and the same float operations in the same
    order, so the images are identical bit for bit (tests/test_pixelkernel.py):
 
-   * row by row of samples, each sphere within max(R) of the row gives its chords by
-     scanning out from the sample column nearest its centre while (R^2 - dx^2) - dy^2 > 0
-     (the covered columns of a row are one run), cut at the layer faces and quantised as
-     the numpy path quantises them;
+   * the spheres are bucketed by the sample row at or above their centre (a counting
+     sort), and each sphere's first layer and first sample column are found once;
+   * row by row of samples, each sphere of the nearby buckets with dy^2 < R^2 gives its
+     chords by scanning out from the sample column nearest its centre while
+     (R^2 - dx^2) - dy^2 > 0 (the covered columns of a row are one run), cut at the layer
+     faces and quantised as the numpy path quantises them;
    * a counting sort by (layer, column) groups a row's chords by sample line, each line's
      few chords are sorted by (start, end), and the union's running maximum gives the
      covered length, added to the strip's pixel sums in np.bincount's order;
    * each strip is added to the image when it ends, as the numpy path adds it.
+
+   A line's chords are sorted by their keys, so the order in which the spheres are visited
+   does not change a bit of the image.
 */
 #include <math.h>
 #include <stdint.h>
@@ -52,7 +57,8 @@ typedef struct {
 
 static int64_t layer_of(double s, const ZGrid *z)
 {
-    int64_t l = (int64_t)floor((s - z->edges[0]) / z->t);
+    double q = (s - z->edges[0]) / z->t;   /* >= 0 but for a sphere below the box */
+    int64_t l = q >= 0.0 ? (int64_t)q : (int64_t)floor(q);
     if (l < 0) l = 0;
     return l < z->layers - 1 ? l : z->layers - 1;
 }
@@ -60,21 +66,41 @@ static int64_t layer_of(double s, const ZGrid *z)
 static double dmax(double a, double b) { return b > a ? b : a; }
 static double dmin(double a, double b) { return b < a ? b : a; }
 
-/* The chords of spheres [k0, k1) through the sample lines at y: group = layer * nx +
+/* One sphere as the rows read it: centre [m], R^2 [m^2], its first sample column at or
+   right of cx, the layer of its lowest point in the box, and whether its centre lies in
+   that layer too (then every chord starts in it). */
+typedef struct {
+    double cx, cy, zc, rr;
+    int64_t j0, l_lo, sure;
+} Sphere;
+
+/* The first index i of the increasing samples mid (n,) with mid[i] >= v (n if none:
+   numpy's searchsorted), started from the guess of a regular spacing h. */
+static int64_t first_at_or_above(const double *mid, int64_t n, double h, double v)
+{
+    double g = ceil((v - mid[0]) / h);
+    int64_t i = g <= 0.0 ? 0 : (g >= (double)n ? n : (int64_t)g);
+    while (i > 0 && mid[i - 1] >= v) i--;
+    while (i < n && mid[i] < v) i++;
+    return i;
+}
+
+/* The chords of spheres sp[k0, k1) through the sample lines at y: group = layer * nx +
    column, key = qs << 17 | qe; returns their count. */
-static int64_t row_chords(const double *c, const double *r, int64_t k0, int64_t k1, double y,
-                          const double *xmid, int64_t nx, const int64_t *j0, const ZGrid *z,
-                          int64_t *group, int64_t *key)
+static int64_t row_chords(const Sphere *sp, int64_t k0, int64_t k1, double y,
+                          const double *xmid, int64_t nx, const ZGrid *z, int64_t *group,
+                          int64_t *key)
 {
     int64_t m = 0, top_layer = z->layers - 1;
     for (int64_t k = k0; k < k1; k++) {
-        double dy = y - c[3 * k + 1], dy2 = dy * dy, rr = r[k] * r[k];
+        const Sphere *q = sp + k;
+        double dy = y - q->cy, dy2 = dy * dy, rr = q->rr;
         if (dy2 >= rr) continue;
-        double cx = c[3 * k], zc = c[3 * k + 2];
-        int64_t l_lo = layer_of(dmax(zc - sqrt(rr), z->lo), z);
-        int sure = l_lo == layer_of(dmax(zc, z->lo), z);
+        double cx = q->cx, zc = q->zc;
+        int64_t l_lo = q->l_lo;
+        int sure = (int)q->sure;
         for (int step = 1; step >= -1; step -= 2) {
-            int64_t ix = step == 1 ? j0[k] : j0[k] - 1;
+            int64_t ix = step == 1 ? q->j0 : q->j0 - 1;
             while (ix >= 0 && ix < nx) {
                 double dx = xmid[ix] - cx, half2 = (rr - dx * dx) - dy2;
                 if (!(half2 > 0.0)) break;
@@ -103,11 +129,13 @@ static int64_t row_chords(const double *c, const double *r, int64_t k0, int64_t 
     return m;
 }
 
-/* Merge a row's m chords by line and add each line's covered length [m] x weights[g]
-   [m^2] to part[pix[g]], lines in group order. start, fill: (groups + 1,) scratch. */
-static void row_lines(const int64_t *group, const int64_t *key, int64_t m, int64_t n_groups,
-                      int64_t *start, int64_t *fill, int64_t *keys, const double *weights,
-                      const int64_t *pix, double quantum, double *part)
+/* Merge a row's m chords by line and add each line's covered length [m] x its weight
+   yw * xw[ix] [m^2] to part[layer * HW + prow + xcell[ix]], lines in group order (group =
+   layer * nx + ix). start, fill: (groups + 1,) scratch. */
+static void row_lines(const int64_t *group, const int64_t *key, int64_t m, int64_t nx,
+                      int64_t n_groups, int64_t *start, int64_t *fill, int64_t *keys,
+                      double yw, const double *xw, const int64_t *xcell, int64_t prow,
+                      int64_t HW, double quantum, double *part)
 {
     const int64_t mask = ((int64_t)1 << Q_BITS) - 1;
     memset(start, 0, (size_t)(n_groups + 1) * sizeof(int64_t));
@@ -128,23 +156,24 @@ static void row_lines(const int64_t *group, const int64_t *key, int64_t m, int64
             line += (double)covered * quantum;
             if (qe > reach) reach = qe;
         }
-        line *= weights[g];
-        part[pix[g]] += line;
+        int64_t layer = g / nx, ix = g - layer * nx;
+        double weight = yw * xw[ix];
+        line *= weight;
+        part[layer * HW + prow + xcell[ix]] += line;
     }
 }
 
-/* Add the union volume [m^3] of spheres c (n, 3), r (n,), sorted by c[:, 1], to image
+/* Add the union volume [m^3] of spheres c (n, 3), r (n,) (any order) to image
    (layers * H * W,). x samples: xmid, xw, xcell (nx,), spacing xh [m]; y samples: ymid,
-   yw, ycell (ny,); j0 (n,): each sphere's first column with its sample at or right of its
-   centre; z: edges (layers + 1,), thickness t, the box's z_lo, z_hi [m], scale (levels
-   per metre) and quantum [m]; rows: sample rows per strip. Returns 0, or -3 when memory
-   runs out. */
-int amfe_union_rows(int64_t n, const double *c, const double *r, const int64_t *j0,
-                    int64_t nx, const double *xmid, const double *xw, const int64_t *xcell,
-                    double xh, int64_t ny, const double *ymid, const double *yw,
-                    const int64_t *ycell, int64_t layers, const double *z_edges, double t,
-                    double z_lo, double z_hi, double scale, double quantum, int64_t rows,
-                    int64_t H, int64_t W, double *image)
+   yw, ycell (ny,), spacing yh [m] (both regular but for the last sample, cut at the box);
+   z: edges (layers + 1,), thickness t, the box's z_lo, z_hi [m], scale (levels per metre)
+   and quantum [m]; rows: sample rows per strip. Returns 0, or -3 when memory runs out. */
+int amfe_union_rows(int64_t n, const double *c, const double *r, int64_t nx,
+                    const double *xmid, const double *xw, const int64_t *xcell, double xh,
+                    int64_t ny, const double *ymid, const double *yw, const int64_t *ycell,
+                    double yh, int64_t layers, const double *z_edges, double t, double z_lo,
+                    double z_hi, double scale, double quantum, int64_t rows, int64_t H,
+                    int64_t W, double *image)
 {
     ZGrid z = {z_edges, layers, t, z_lo, z_hi, scale};
     int64_t n_groups = layers * nx, size = layers * H * W, cap = 1 << 16;
@@ -153,28 +182,51 @@ int amfe_union_rows(int64_t n, const double *c, const double *r, const int64_t *
     int64_t *keys = malloc((size_t)cap * sizeof(int64_t));
     int64_t *start = malloc((size_t)(n_groups + 1) * sizeof(int64_t));
     int64_t *fill = malloc((size_t)(n_groups + 1) * sizeof(int64_t));
-    double *weights = malloc((size_t)n_groups * sizeof(double));
-    int64_t *pix = malloc((size_t)n_groups * sizeof(int64_t));
     double *part = calloc((size_t)size, sizeof(double));
+    int64_t *bucket = malloc((size_t)(n > 0 ? n : 1) * sizeof(int64_t));
+    int64_t *first = calloc((size_t)(ny + 2), sizeof(int64_t));   /* bucket b: [first[b], first[b + 1]) */
+    int64_t *bound = malloc((size_t)(n + 1) * sizeof(int64_t));   /* chords of spheres [0, k) at most */
+    Sphere *sp = malloc((size_t)(n > 0 ? n : 1) * sizeof(Sphere));
     int status = 0;
-    if (!group || !key || !keys || !start || !fill || !weights || !pix || !part) {
+    if (!group || !key || !keys || !start || !fill || !part || !bucket || !first || !bound
+        || !sp) {
         status = -3;
         goto done;
     }
     double rmax = 0.0;
     for (int64_t k = 0; k < n; k++)
         if (k == 0 || r[k] > rmax) rmax = r[k];
-    double reach_y = 1.01 * rmax;
-    int64_t lo = 0, hi = 0;
+    for (int64_t k = 0; k < n; k++) {
+        bucket[k] = first_at_or_above(ymid, ny, yh, c[3 * k + 1]);
+        first[bucket[k] + 1]++;
+    }
+    for (int64_t b = 0; b <= ny; b++) first[b + 1] += first[b];
+    for (int64_t k = 0; k < n; k++) {   /* stable: the spheres of a bucket keep their order */
+        Sphere *q = sp + first[bucket[k]]++;
+        double rr = r[k] * r[k], zc = c[3 * k + 2];
+        q->cx = c[3 * k];
+        q->cy = c[3 * k + 1];
+        q->zc = zc;
+        q->rr = rr;
+        q->j0 = first_at_or_above(xmid, nx, xh, c[3 * k]);
+        q->l_lo = layer_of(dmax(zc - sqrt(rr), z.lo), &z);
+        q->sure = q->l_lo == layer_of(dmax(zc, z.lo), &z);
+    }
+    for (int64_t b = ny; b > 0; b--) first[b] = first[b - 1];   /* undo the scatter's shift */
+    first[0] = 0;
+    bound[0] = 0;
+    for (int64_t k = 0; k < n; k++) {   /* columns x layers a sphere's chords can span */
+        double rk = sqrt(sp[k].rr);
+        bound[k + 1] = bound[k] + (int64_t)ceil(dmin(2.0 * rk / xh + 3.0, (double)nx)
+                                                 * dmin(2.0 * rk / t + 2.0, (double)layers));
+    }
+    /* A sphere reaching row iy (|y - cy| < R <= rmax) lies in a bucket within reach rows. */
+    int64_t reach = (int64_t)ceil(rmax / yh) + 2;
     for (int64_t iy = 0; iy < ny; iy++) {
-        double y = ymid[iy];
-        while (lo < n && c[3 * lo + 1] < y - reach_y) lo++;
-        while (hi < n && c[3 * hi + 1] <= y + reach_y) hi++;
-        double bound = 0.0;   /* chords the spheres can give this row: columns x layers */
-        for (int64_t k = lo; k < hi; k++)
-            bound += dmin(2.0 * r[k] / xh + 3.0, (double)nx)
-                     * dmin(2.0 * r[k] / t + 2.0, (double)layers);
-        int64_t need = (int64_t)bound;
+        int64_t b0 = iy - reach > 0 ? iy - reach : 0;
+        int64_t b1 = iy + reach + 1 < ny ? iy + reach + 1 : ny;   /* buckets [b0, b1] */
+        int64_t k0 = first[b0], k1 = first[b1 + 1];
+        int64_t need = bound[k1] - bound[k0];
         if (need > cap) {
             cap = need;
             free(group);
@@ -188,16 +240,10 @@ int amfe_union_rows(int64_t n, const double *c, const double *r, const int64_t *
                 goto done;
             }
         }
-        int64_t m = row_chords(c, r, lo, hi, y, xmid, nx, j0, &z, group, key);
-        if (m) {
-            for (int64_t layer = 0; layer < layers; layer++)
-                for (int64_t ix = 0; ix < nx; ix++) {
-                    int64_t g = layer * nx + ix;
-                    weights[g] = yw[iy] * xw[ix];
-                    pix[g] = (layer * H + ycell[iy]) * W + xcell[ix];
-                }
-            row_lines(group, key, m, n_groups, start, fill, keys, weights, pix, quantum, part);
-        }
+        int64_t m = row_chords(sp, k0, k1, ymid[iy], xmid, nx, &z, group, key);
+        if (m)
+            row_lines(group, key, m, nx, n_groups, start, fill, keys, yw[iy], xw, xcell,
+                      ycell[iy] * W, H * W, quantum, part);
         if ((iy + 1) % rows == 0 || iy == ny - 1) {
             for (int64_t p = 0; p < size; p++) {
                 image[p] += part[p];
@@ -211,8 +257,10 @@ done:
     free(keys);
     free(start);
     free(fill);
-    free(weights);
-    free(pix);
     free(part);
+    free(bucket);
+    free(first);
+    free(bound);
+    free(sp);
     return status;
 }

@@ -77,7 +77,7 @@ def _c_fill():
     """The C union kernel (amfe/dataset/fill.c), or None where it does not build."""
     i64, f64 = ctypes.c_int64, ctypes.c_double
     return function(Path(__file__).with_name("fill.c"), "amfe_union_rows", ctypes.c_int,
-                    [i64, F64, F64, I64, i64, F64, F64, I64, f64, i64, F64, F64, I64,
+                    [i64, F64, F64, i64, F64, F64, I64, f64, i64, F64, F64, I64, f64,
                      i64, F64, f64, f64, f64, f64, f64, i64, i64, i64, F64])
 
 
@@ -124,23 +124,22 @@ def union_volumes(c, r, grid, rows, q_levels, image):
     rows: sample rows per strip (the numpy path's); q_levels: quantisation
     levels per layer (its _Q_LEVELS).
     """
-    order = np.argsort(c[:, 1], kind="stable")
-    c, r = np.ascontiguousarray(c[order]), np.ascontiguousarray(r[order])
     ax, ay, t = grid.ax, grid.ay, float(grid.t)
     z_edges = np.ascontiguousarray(grid.z_edges, np.float64)
     z = (z_edges, t, float(grid.z_lo), float(grid.z_hi), float(q_levels / t),
          float(t / q_levels))
     fn = _c_fill()
-    if fn is not None:
-        j0 = np.searchsorted(ax.mid, c[:, 0]).astype(np.int64)   # first column at/right of x_c
-        xs = [np.ascontiguousarray(v) for v in (ax.mid, ax.w, ax.cell_of)]
-        ys = [np.ascontiguousarray(v) for v in (ay.mid, ay.w, ay.cell_of)]
-        xs[2], ys[2] = xs[2].astype(np.int64), ys[2].astype(np.int64)
-        status = fn(r.size, c, r, j0, xs[0].size, *xs, float(ax.h), ys[0].size, *ys,
+    if fn is not None:   # buckets the spheres by row itself (fill.c)
+        c, r = np.ascontiguousarray(c, np.float64), np.ascontiguousarray(r, np.float64)
+        xs = [np.ascontiguousarray(v) for v in (ax.mid, ax.w, ax.cell_of.astype(np.int64))]
+        ys = [np.ascontiguousarray(v) for v in (ay.mid, ay.w, ay.cell_of.astype(np.int64))]
+        status = fn(r.size, c, r, xs[0].size, *xs, float(ax.h), ys[0].size, *ys, float(ay.h),
                     z_edges.size - 1, *z, int(rows), int(ay.n_cells), int(ax.n_cells), image)
         if status != 0:
             raise MemoryError("the imaging kernel ran out of memory")
         return
+    order = np.argsort(c[:, 1], kind="stable")
+    c, r = np.ascontiguousarray(c[order]), np.ascontiguousarray(r[order])
     from amfe.dataset._jit import union_rows  # imports numba (compiled once, cached)
     union_rows(c, r, (ax.mid, ax.w, ax.cell_of, float(ax.h)), (ay.mid, ay.w, ay.cell_of), z,
                (int(rows), int(ay.n_cells), int(ax.n_cells)), image)
