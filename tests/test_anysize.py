@@ -6,7 +6,16 @@ from test_training import _tiny_bed
 
 from amfe.errors import AmfeError
 from amfe.training.anysize import AnySizeNet, predict_any_size, size_features
-from amfe.training.imagebox import bed_size, cropped_box, image_any_size, whole_cells
+from amfe.training.imagebox import (
+    COARSE_FILL_SHIFT,
+    bed_size,
+    cropped_box,
+    fill_shift,
+    image_any_size,
+    sample_spacing,
+    sampling_note,
+    whole_cells,
+)
 
 CELL = (30e-6, 30e-6)
 PX = {"image_cell": CELL, "layer_thickness": 0.1e-3, "image_spacing": 2.5e-6}
@@ -79,3 +88,18 @@ def test_any_size_prediction_on_two_sizes(tiny_bed):
 def test_size_features_are_millimetres():
     np.testing.assert_allclose(size_features([(0.6e-3, 1.2e-3, 0.3e-3)]).numpy(), [[0.6, 1.2]],
                                rtol=1e-6)
+
+
+def test_large_beds_are_sampled_at_twice_the_spacing():
+    """Over a million sample lines at the training's 2.5 um (12 a 0.03 mm cell side), a bed
+    is sampled at 5 um: a 3 or 4 mm bed, not a 2 mm one nor the size rule's 2.5 mm bed cropped
+    to 83 whole cells (996^2 lines); the record's note and the fill check follow."""
+    cell, h = (30e-6, 30e-6), 2.5e-6
+    for side, want in ((0.6e-3, h), (1.2e-3, h), (2e-3, h), (83 * 30e-6, h), (3e-3, 2 * h),
+                       (4e-3, 2 * h), (84 * 30e-6, 2 * h)):
+        box = (side, side, 0.3e-3)
+        assert sample_spacing(box, cell, h) == want, side
+        assert (sampling_note(box, cell, h) is None) == (want == h)
+        assert fill_shift(box, cell, h) == (0.0 if want == h else COARSE_FILL_SHIFT)
+    assert sample_spacing((6e-3, 0.15e-3, 0.3e-3), cell, h) == h    # a long strip: 144 000 lines
+    assert "5 um" in sampling_note((3e-3, 3e-3, 0.3e-3), cell, h)

@@ -371,6 +371,23 @@ def test_fill_check_flags_other_enlargements(ensemble, synth):
     assert ensemble["fill_range"]["lo"] <= ensemble["fill_range"]["hi"]
 
 
+def test_fill_shift_moves_only_the_fill_check(ensemble, synth):
+    """A coarser sampling's shift is taken off the statistic before the range check; the
+    constants do not see it (amfe.training.imagebox.fill_shift)."""
+    from amfe.training.predict import calibrate_fill
+    images = read_rows(synth)[0][:4]
+    rng = calibrate_fill(images, 0.0, 100.0)
+    sur = Surrogate(dict(ensemble, spread=None, fill_range=rng))
+    plain = sur.predict(images)
+    assert not plain["flagged"].any()
+    shift = np.array([0.0, 0.0, 2.0, -2.0])   # far out of the range either way for beds 2, 3
+    moved = sur.predict(images, fill_shift=shift)
+    assert np.array_equal(moved["fill"], plain["fill"] - shift)
+    assert moved["fill_out"].tolist() == [False, False, True, True]
+    assert moved["flagged"].tolist() == [False, False, True, True]
+    assert np.array_equal(moved["mean"], plain["mean"])
+
+
 # ---------------------------------------------------------------- the bond-stiffness input
 
 def test_bond_inputs_are_stacked_after_the_fill(tmp_path, synth):

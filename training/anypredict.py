@@ -36,7 +36,7 @@ from amfe.training.anystack import (
 )
 from amfe.training.conformal import DEFAULT_COVERAGE, DEFAULT_FLAG_HALF_WIDTH, size_key
 from amfe.training.ensemble import relative_spread
-from amfe.training.imagebox import HEIGHT_TOL, cropped_box
+from amfe.training.imagebox import HEIGHT_TOL, cropped_box, sample_spacing
 from amfe.training.shipped import models_dir
 from amfe.training.sizerule import inverse_size, size_weights
 from amfe.training.thicknets import created_stamps, thick_members
@@ -204,7 +204,7 @@ def bed_images(bed, size):
                         "(solve it: amfe homogenize)")
     box = cropped_box((size[0], size[1], layers * LAYER), CELL)
     fill = pixelate(bed, cell=CELL, layer_thickness=LAYER, box=((0.0, 0.0, 0.0), box),
-                    spacing=SPACING)
+                    spacing=sample_spacing(box, CELL, SPACING))
     bonds = bond_image(bed, cell=CELL, layer_thickness=LAYER, box=((0.0, 0.0, 0.0), box))
     return np.asarray(fill, np.float32), np.asarray(bonds, np.float32), box
 

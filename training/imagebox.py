@@ -25,6 +25,20 @@ WHOLE_CELL_TOL = 1e-6
 # A bed's height may differ from the model's layers x layer thickness by this many layers.
 HEIGHT_TOL = 0.05
 
+#: A bed whose image would take more in-plane sample lines than this at the training's
+#: spacing is sampled at twice that spacing (docs/surrogate.md, "Large beds: the imaging's
+#: sampling"): a 3 mm bed has 1.44 M lines at 2.5 um (the exact union took 0.16 s of one
+#: core) and 0.36 M at 5 um (0.05 s). On 150 held-out 3 mm beds that moved the predicted
+#: constants by 0.014-0.039 % on average (at most 0.29 %), against the model's own
+#: 1.6-2.9 % mean error, which moved by at most 0.007 points.
+MAX_SAMPLE_LINES = 1_000_000
+
+#: How much higher the fill check's statistic (the 99th percentile of a bed's pixels,
+#: amfe.training.predict.fill_statistic) reads at twice the spacing: the sampling's noise
+#: widens the pixels' spread. Measured on the 200 calibration beds of the paper scale
+#: (seed 23): +0.0046, sd 0.0013 (docs/surrogate.md, "Large beds").
+COARSE_FILL_SHIFT = 0.0046
+
 
 def bed_size(bed, layers, layer_thickness):
     """The size (x, y, z) [m] a bed is imaged at: its recorded size, else the origin to its
@@ -54,10 +68,39 @@ def cropped_box(size, cell):
             whole_cells(size[1], cell[1]) * float(cell[1]), float(size[2]))
 
 
+def sample_spacing(box, cell, spacing):
+    """The in-plane sample spacing [m] a prediction images ``box`` (x, y[, z]) [m] with:
+    the training's ``spacing`` [m], or twice it where that would take more than
+    :data:`MAX_SAMPLE_LINES` sample lines (cells (x, y) [m], ceil(cell / spacing) lines a
+    cell side, as amfe.dataset.images.pixelate samples)."""
+    lines = 1
+    for a in (0, 1):
+        cells = max(1, math.ceil(float(box[a]) / float(cell[a]) - WHOLE_CELL_TOL))
+        lines *= cells * max(1, math.ceil(float(cell[a]) / float(spacing) - WHOLE_CELL_TOL))
+    return 2.0 * float(spacing) if lines > MAX_SAMPLE_LINES else float(spacing)
+
+
+def fill_shift(box, cell, spacing):
+    """:data:`COARSE_FILL_SHIFT` where :func:`sample_spacing` samples ``box`` coarser than
+    ``spacing``, else 0.0."""
+    return COARSE_FILL_SHIFT if sample_spacing(box, cell, spacing) != float(spacing) else 0.0
+
+
+def sampling_note(box, cell, spacing):
+    """The record's note on a coarser sampling (:func:`sample_spacing`), or None."""
+    used = sample_spacing(box, cell, spacing)
+    if used == float(spacing):
+        return None
+    return (f"imaged at {used * 1e6:g} um in-plane sampling, twice the training's "
+            f"{float(spacing) * 1e6:g} um: a bed of over {MAX_SAMPLE_LINES:,} sample lines "
+            "(docs/surrogate.md, \"Large beds\")")
+
+
 def image_any_size(bed, size, cell, layer_thickness, spacing):
-    """(image (layers, H, W) float32, cropped size (x, y, z) [m]) of ``bed``, by whole cells."""
+    """(image (layers, H, W) float32, cropped size (x, y, z) [m]) of ``bed``, by whole cells,
+    sampled at :func:`sample_spacing` of the training's ``spacing`` [m]."""
 
     box = cropped_box(size, cell)
     image = pixelate(bed, cell=tuple(cell[:2]), layer_thickness=float(layer_thickness),
-                     box=((0.0, 0.0, 0.0), box), spacing=float(spacing))
+                     box=((0.0, 0.0, 0.0), box), spacing=sample_spacing(box, cell, spacing))
     return np.asarray(image, np.float32), box

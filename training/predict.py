@@ -42,6 +42,7 @@ from amfe.training.checkpoint import (
     numpy_members,
 )
 from amfe.training.ensemble import symmetries, tta_mode
+from amfe.training.imagebox import fill_shift, sample_spacing
 from amfe.training.inputs import DEFAULT_INPUTS, check_inputs, image_array
 from amfe.training.npnet import predict_raw as predict_numpy
 from amfe.training.shipped import models_dir, shipped_model_for, unrecorded_size
@@ -176,7 +177,7 @@ class Surrogate:
         return out
 
     def predict(self, images: "np.ndarray | str | os.PathLike | object | list",
-                batch_size: int | None = None) -> dict:
+                batch_size: int | None = None, fill_shift: "float | np.ndarray" = 0.0) -> dict:
         """Predict the six constants of beds or of their images.
 
         ``images``: a :class:`~amfe.model.bed.Bed`, a bed file's path, a list of
@@ -185,7 +186,9 @@ class Surrogate:
         (n, 6) relative, score (n,), fill (n,), fill_out (n,) bool, nonfinite
         (n,) bool, flagged (n,) bool}, the six in label order (Ex, Ey, Ez [Pa],
         nu_yz, nu_xz, nu_xy); flagged = spread over the threshold, fill_out, or
-        a member's prediction not finite (NaN, inf).
+        a member's prediction not finite (NaN, inf). ``fill_shift`` (scalar or (n,)): how
+        much higher the fill statistic reads at the images' sampling than at the training's
+        (:meth:`fill_shift_of`; beds get theirs), subtracted before the range check.
         """
         if _is_bed(images):
             bed = _read(images)
@@ -195,10 +198,13 @@ class Surrogate:
             if not all(_is_bed(b) for b in images):
                 raise AmfeError("predict takes a bed, a bed file, a list of those, or an image "
                                 "array; got a list mixing beds with other things")
-            images = np.stack([self.inputs_of(_read(b))[0] for b in images])
+            beds = [_read(b) for b in images]
+            images = np.stack([self.inputs_of(b)[0] for b in beds])
+            fill_shift = np.array([self.fill_shift_of(b) for b in beds])
         res = summarize(self, images, batch_size)   # a stiffness head: also C, nine constants
         x = np.asarray(images)
-        res["fill"] = fill_statistic((x[None] if x.ndim == 3 else x)[:, :self.n_fill])
+        res["fill"] = fill_statistic((x[None] if x.ndim == 3 else x)[:, :self.n_fill]) \
+            - fill_shift
         if self.fill_range:
             res["fill_out"] = ((res["fill"] < self.fill_range["lo"])
                                | (res["fill"] > self.fill_range["hi"]))
@@ -206,6 +212,12 @@ class Surrogate:
             res["fill_out"] = np.zeros(len(res["fill"]), bool)
         res["flagged"] = res["flagged"] | res["fill_out"]
         return res
+
+    def fill_shift_of(self, bed: object) -> float:
+        """How much higher the fill statistic reads on ``bed``'s image than at the training's
+        sampling (amfe.training.imagebox.fill_shift: 0 but for a bed imaged coarser)."""
+        px = self.ckpt["pixelation"]
+        return fill_shift(_image_size(bed, self.ckpt), px["image_cell"], px["image_spacing"])
 
     def inputs_of(self, bed: object) -> tuple:
         """The network input of ``bed``, imaged as the training data was.
@@ -237,7 +249,8 @@ class Surrogate:
         made = [self.inputs_of(bed) for bed in beds]
         t = time.perf_counter()
         x = np.stack([x for x, _, _ in made])
-        res = self._with_bonds(self.predict(x), x)
+        shifts = np.array([self.fill_shift_of(bed) for bed in beds])
+        res = self._with_bonds(self.predict(x, fill_shift=shifts), x)
         if self.label_rule < 2:
             for k, bed in enumerate(beds):
                 res["mean"][k, :3] *= rule1_factor(bed.centers, bed.radii, bed.attrs.get("size"))
@@ -255,7 +268,8 @@ class Surrogate:
         """
         x, image, times = self.inputs_of(bed)
         t2 = time.perf_counter()
-        res = self._with_bonds(self.predict(x[None]), x[None])
+        res = self._with_bonds(self.predict(x[None], fill_shift=self.fill_shift_of(bed)),
+                               x[None])
         if self.label_rule < 2:   # rule-1 moduli -> rule 2; spread is relative, unchanged
             res["mean"][:, :3] *= rule1_factor(bed.centers, bed.radii, bed.attrs.get("size"))
         times["predict"] = time.perf_counter() - t2
@@ -295,7 +309,8 @@ def _read(item):
 
 
 def pixelate_like_training(bed, ckpt, path="the model"):
-    """The image of ``bed`` made exactly as the training data's (cells, layers, sample spacing).
+    """The image of ``bed`` made as the training data's (cells, layers, sample spacing; a bed
+    of over a million sample lines at twice the spacing: amfe.training.imagebox.sample_spacing).
 
     The box is [0, the bed's recorded size] when it records one (generated
     beds), else [0, the training beds' size]. AmfeError if the image's shape
@@ -311,8 +326,8 @@ def pixelate_like_training(bed, ckpt, path="the model"):
     n_kinds = len(check_inputs(ckpt.get("inputs", DEFAULT_INPUTS)))
     _check_grid(size, px, n_kinds, ckpt, path)
     image = pixelate(bed, cell=tuple(px["image_cell"][:2]),
-                     layer_thickness=float(px["layer_thickness"]),
-                     box=((0.0, 0.0, 0.0), size), spacing=float(px["image_spacing"]))
+                     layer_thickness=float(px["layer_thickness"]), box=((0.0, 0.0, 0.0), size),
+                     spacing=sample_spacing(size, px["image_cell"], px["image_spacing"]))
     shape = (image.shape[0] * n_kinds, *image.shape[1:])
     check_image_shape(ckpt, shape, f"the bed's image ({_mm(size)} mm)", path, bed=True)
     return np.asarray(image, np.float32)

@@ -100,9 +100,10 @@ def route_record(args, models, item, times, t_start):
         given_notes,
         solve_for,
     )
-    from amfe.training.anypredict import predict_any_bed
+    from amfe.training.anypredict import CELL, SPACING, predict_any_bed
     from amfe.training.anystack import STEEL_LAYERS
     from amfe.training.conformal import interval_block
+    from amfe.training.imagebox import sampling_note
     from amfe.training.thicknets import THICK_FILES
     path, bed, t_read = item
     size, material, note = bed_kind(bed)
@@ -118,9 +119,9 @@ def route_record(args, models, item, times, t_start):
              "pixelate": got["times"]["imaging"], "predict": got["times"]["predict"]}
     solver, rank = solve_for(args, bed, reasons, times)
     props = finite_or_none(dict(zip(SIX, map(float, mean))))
-    notes = [n for n in (note,) if n] + [f"predicted by the {got['route']} route "
-                                         "(docs/surrogate.md, \"Any bed\")"] + given_notes(args) \
-        + flag_share_note(args)
+    notes = [n for n in (note, sampling_note(got["box"], CELL, SPACING)) if n] \
+        + [f"predicted by the {got['route']} route (docs/surrogate.md, \"Any bed\")"] \
+        + given_notes(args) + flag_share_note(args)
     if got["stacked"]:
         notes.append(f"anybed's stack for {got['layers']} layers"
                      + (", with the bed's 3-layer windows" if got["layers"] >= 4 else "")

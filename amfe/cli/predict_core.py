@@ -157,13 +157,18 @@ def _continuum_scope(bed):
 
 
 def _notes(bed, factor, sur):
-    """What the record says about how the bed was read: no recorded size, E scaling."""
+    """What the record says about how the bed was read: no recorded size, a coarser
+    sampling, E scaling."""
+    from amfe.training.imagebox import sampling_note
     from amfe.training.predict import _image_size
     notes = []
+    size, px = _image_size(bed, sur.ckpt), sur.ckpt["pixelation"]
     if bed.attrs.get("size") is None:
-        size = _image_size(bed, sur.ckpt)
         notes.append(f"the bed file records no size: imaged on its spheres' bounding box, "
                      f"{size[0] * 1e3:g} x {size[1] * 1e3:g} mm (whole cells)")
+    sampling = sampling_note(size, px["image_cell"], px["image_spacing"])
+    if sampling:
+        notes.append(sampling)
     if factor != 1.0:
         notes.append(f"the bed's E differs from the model's material only in E: moduli scaled "
                      f"by E_bed / E_model = {factor:.6g} (exact, docs/model.md)")

@@ -21,9 +21,13 @@ on one core) times the prediction's imaging of a 3 x 3 x 0.3 mm bed of the
 `paper` scale (`amfe pack --scale paper --seed S`) on the shipped model's
 grid, both images (fill and bonds) by the numpy path (the old code) and by
 the compiled kernels (engine "compiled", amfe.dataset.pixelkernel) in the
-same run, checks that they are equal bit for bit, and times the network on a
-3 mm input: the shipped model if it takes one, else an AnySizeNet
-(training/anysize.py, 6 layers in) on a random 6 x 100 x 100 tensor.
+same run, checks that they are equal bit for bit, then the fill image at the
+sampling amfe predict uses for a bed this large (twice the training's spacing:
+amfe.training.imagebox.sample_spacing), and times the network on a 3 mm input:
+the shipped model if it takes one, else an AnySizeNet (training/anysize.py, 6
+layers in) on a random 6 x 100 x 100 tensor. Issue 46's gate (0.2 s) is read
+on the imaging as amfe predict runs it, and the total at the training's own
+sampling is printed beside it.
 """
 import os
 

@@ -90,12 +90,23 @@ def large(seed, repeat):
     print(f"first compiled call in this process (the C kernels' load or build, numba's import "
           f"and cache load for the springs): "
           f"{first:.2f} s")
-    inputs = np.concatenate(images["compiled"], axis=0)
+    from amfe.training.imagebox import sample_spacing
+    used = sample_spacing(box[1], kw["cell"], spacing)
+    tc, coarse = best_of(repeat, lambda: pixelate(bed, box=box, spacing=used, **kw))
+    cc = CPU[-1]
+    moved = float(np.max(np.abs(coarse - images["compiled"][0])))
+    print(f"fill image as amfe predict makes it (amfe.training.imagebox.sample_spacing: "
+          f"{used * 1e6:g} um, the training's {spacing * 1e6:g} um): {tc:.3f} s "
+          f"(largest pixel change {moved:.4f} of a cell volume)")
+    inputs = np.concatenate([coarse, images["compiled"][1]], axis=0)
     tn, what = network_seconds(model, inputs, repeat)
     print(f"network: {tn * 1e3:.1f} ms ({what})")
-    total, cpu = f1 + b1 + tn, cf1 + cb1 + CPU[-1]
+    exact = f1 + b1 + tn
+    print(f"imaging + network at the training's sampling: {exact:.3f} s wall")
+    total, cpu = tc + b1 + tn, cc + cb1 + CPU[-1]
     verdict = {True: "met", False: "MISSED"}
-    print(f"imaging + network (compiled): {total:.3f} s wall, {cpu:.3f} s CPU; gate 1 s: "
+    print(f"imaging + network as amfe predict runs it: {total:.3f} s wall, {cpu:.3f} s CPU; "
+          f"gate 1 s: "
           f"{verdict[total < 1]} (wall), {verdict[cpu < 1]} (CPU); issue 46's 0.2 s: "
           f"{verdict[total < 0.2]} (wall); goal 0.1 s: {verdict[total < 0.1]} (wall)")
     return 0 if same else 1

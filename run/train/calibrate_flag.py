@@ -10,7 +10,7 @@ precision-recall curve, and the intervals' coverage on the beds with skipped
 scan pieces and on the others, each against its binomial band.
 
     python -m run.train.calibrate_flag --calibration s8.h5 s9.h5 s16.h5 --test s17.h5 \
-        -o amfe/models/flag_small.json --json flag_report.json
+        -o amfe/models/flag_small.json --json flag_report.json [--model MODEL.pt]
 """
 import h5py
 import numpy as np
@@ -97,9 +97,11 @@ def main():
     p.add_argument("--lam", type=float, default=0.1)
     p.add_argument("-o", "--output", default=None, help="the flag model (JSON) to write")
     p.add_argument("--json", default=None, help="the test figures (JSON)")
+    p.add_argument("--model", default=f"{ROOT}/amfe/models/multiscale_small.pt",
+                   help="the small model whose flag is fitted (default: the shipped one)")
     args = p.parse_args()
     torch.set_num_threads(1)
-    sur = Surrogate.load(f"{ROOT}/amfe/models/multiscale_small.pt")
+    sur = Surrogate.load(args.model)
     parts = [predicted(sur, path) for path in args.calibration]
     fill, bonds, mean, spread, labels, skipped = (np.concatenate([q[k] for q in parts])
                                                   for k in range(6))
