@@ -6,11 +6,10 @@ from test_training import _tiny_bed
 
 from amfe.errors import AmfeError
 from amfe.training.anysize import AnySizeNet, predict_any_size, size_features
+from amfe.training.fillcheck import COARSE_FILL_SHIFT, fill_shift
 from amfe.training.imagebox import (
-    COARSE_FILL_SHIFT,
     bed_size,
     cropped_box,
-    fill_shift,
     image_any_size,
     sample_spacing,
     sampling_note,

@@ -351,7 +351,7 @@ def test_train_and_predict_check_cli(tmp_path):
 
 def test_fill_check_flags_other_enlargements(ensemble, synth):
     """A bed whose fullest cells are fuller (or emptier) than every training bed's is flagged."""
-    from amfe.training.predict import calibrate_fill, fill_statistic
+    from amfe.training.fillcheck import calibrate_fill, fill_statistic
     images = read_rows(synth)[0]
     f = fill_statistic(images)
     # the statistic is the 99th percentile of each bed's pixels (independent numpy call)
@@ -374,7 +374,7 @@ def test_fill_check_flags_other_enlargements(ensemble, synth):
 def test_fill_shift_moves_only_the_fill_check(ensemble, synth):
     """A coarser sampling's shift is taken off the statistic before the range check; the
     constants do not see it (amfe.training.imagebox.fill_shift)."""
-    from amfe.training.predict import calibrate_fill
+    from amfe.training.fillcheck import calibrate_fill
     images = read_rows(synth)[0][:4]
     rng = calibrate_fill(images, 0.0, 100.0)
     sur = Surrogate(dict(ensemble, spread=None, fill_range=rng))
@@ -422,7 +422,7 @@ def test_bond_model_round_trip_and_refuses_fill_only_images(tmp_path):
     assert np.array_equal(sur.member_outputs(x), Surrogate(ck).member_outputs(x))
     # the fill check reads the fill layers only
     assert np.allclose(sur.predict(x)["fill"], Surrogate(ck).predict(x)["fill"])
-    from amfe.training.predict import fill_statistic
+    from amfe.training.fillcheck import fill_statistic
     assert np.allclose(sur.predict(x)["fill"], fill_statistic(x[:, :3]))
     with pytest.raises(AmfeError, match=r"3x20x20.*6x20x20"):
         sur.predict(x[:, :3])

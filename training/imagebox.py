@@ -33,11 +33,6 @@ HEIGHT_TOL = 0.05
 #: 1.6-2.9 % mean error, which moved by at most 0.007 points.
 MAX_SAMPLE_LINES = 1_000_000
 
-#: How much higher the fill check's statistic (the 99th percentile of a bed's pixels,
-#: amfe.training.predict.fill_statistic) reads at twice the spacing: the sampling's noise
-#: widens the pixels' spread. Measured on the 200 calibration beds of the paper scale
-#: (seed 23): +0.0046, sd 0.0013 (docs/surrogate.md, "Large beds").
-COARSE_FILL_SHIFT = 0.0046
 
 
 def bed_size(bed, layers, layer_thickness):
@@ -78,12 +73,6 @@ def sample_spacing(box, cell, spacing):
         cells = max(1, math.ceil(float(box[a]) / float(cell[a]) - WHOLE_CELL_TOL))
         lines *= cells * max(1, math.ceil(float(cell[a]) / float(spacing) - WHOLE_CELL_TOL))
     return 2.0 * float(spacing) if lines > MAX_SAMPLE_LINES else float(spacing)
-
-
-def fill_shift(box, cell, spacing):
-    """:data:`COARSE_FILL_SHIFT` where :func:`sample_spacing` samples ``box`` coarser than
-    ``spacing``, else 0.0."""
-    return COARSE_FILL_SHIFT if sample_spacing(box, cell, spacing) != float(spacing) else 0.0
 
 
 def sampling_note(box, cell, spacing):

@@ -42,7 +42,8 @@ from amfe.training.checkpoint import (
     numpy_members,
 )
 from amfe.training.ensemble import symmetries, tta_mode
-from amfe.training.imagebox import fill_shift, sample_spacing
+from amfe.training.fillcheck import fill_shift, fill_statistic
+from amfe.training.imagebox import sample_spacing
 from amfe.training.inputs import DEFAULT_INPUTS, check_inputs, image_array
 from amfe.training.npnet import predict_raw as predict_numpy
 from amfe.training.shipped import models_dir, shipped_model_for, unrecorded_size
@@ -57,30 +58,6 @@ TRAIN_HINT = ("train it with the commands of docs/model_card.md (`amfe train` pe
 def default_model_path():
     """The model shipped in the package: amfe/models/multiscale_small.pt (docs/model_card.md)."""
     return Path(amfe.version.__file__).resolve().parent / "models" / DEFAULT_MODEL_NAME
-
-
-FILL_PERCENTILE = 99.0
-
-
-def fill_statistic(images):
-    """The fill of each bed's fullest cells: the 99th percentile of its pixels, (n,) float64.
-
-    images (n, layers, H, W) volume fractions [-] (or one image (layers, H, W)).
-    """
-    x = np.asarray(images, np.float64)
-    if x.ndim == 3:
-        x = x[None]
-    return np.percentile(x.reshape(x.shape[0], -1), FILL_PERCENTILE, axis=1)
-
-
-def calibrate_fill(images, lo=0.5, hi=99.5):
-    """The accepted range of :func:`fill_statistic`: its lo-th and hi-th percentiles, ``images``."""
-    f = fill_statistic(images)
-    return {"lo": float(np.percentile(f, lo)), "hi": float(np.percentile(f, hi)),
-            "percentiles": [float(lo), float(hi)],
-            "definition": f"{FILL_PERCENTILE:g}th percentile of a bed's pixels (fill of its "
-                          "fullest cells, which measures the enlargement); a bed outside "
-                          "[lo, hi], the given percentiles over the training beds, is flagged"}
 
 
 class Surrogate:

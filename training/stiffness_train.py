@@ -38,9 +38,9 @@ from amfe.dataset.parts import label_rule
 from amfe.errors import AmfeError
 from amfe.training import STIFFNESS_HEAD
 from amfe.training.data import dataset_hash, dataset_info, flip_images, read_rows, split_indices
+from amfe.training.fillcheck import calibrate_fill
 from amfe.training.finetune import check_grid, load_init, widened_fill_range
 from amfe.training.nets import build_net, count_parameters
-from amfe.training.predict import calibrate_fill
 from amfe.training.stiffness import (
     EIG_FLOOR,
     N_CHOLESKY,

@@ -1,10 +1,9 @@
 """Training: one network or a seeded ensemble on an amfe data set, into a checkpoint dict.
 
-The paper's recipe (section 7): Adam, batch 100, 80 epochs, MSE of the six
-outputs on normalised targets, an 80/20 train/validation split. Everything is
-seeded: the split by ``split_seed`` (the same for every ensemble member, so
-no member sees the validation beds), a member's initial weights, batch order
-and augmentation by its own seed (``seed + k`` for member k).
+The paper's recipe (section 7): Adam, batch 100, 80 epochs, MSE of the six outputs on normalised
+targets, an 80/20 train/validation split. Everything is seeded: the split by ``split_seed`` (the
+same for every ensemble member, so no member sees the validation beds), a member's initial
+weights, batch order and augmentation by its own seed (``seed + k`` for member k).
 
 Options beyond the paper (all recorded in the checkpoint): log-standardised
 moduli, label-preserving mirror/transpose augmentation, a cosine learning-rate
@@ -38,10 +37,11 @@ from amfe.training.data import (
 )
 from amfe.training.device import device_of, resolve_device
 from amfe.training.ensemble import predict_raw, summarize_members, tta_mode
+from amfe.training.fillcheck import calibrate_fill
 from amfe.training.finetune import check_data, load_init, widened_fill_range
 from amfe.training.metrics import metrics_line, property_metrics, validation_metrics
 from amfe.training.nets import build_net, count_parameters, resolved_args
-from amfe.training.predict import Surrogate, calibrate_fill
+from amfe.training.predict import Surrogate
 from amfe.vocab import LABEL_NAMES
 
 MEMORY_LIMIT = 1 << 30   # train from memory when the selected images take less (bytes)
