@@ -184,8 +184,10 @@ int amfe_union_rows(int64_t n, const double *c, const double *r, int64_t nx,
     int64_t *fill = malloc((size_t)(n_groups + 1) * sizeof(int64_t));
     double *part = calloc((size_t)size, sizeof(double));
     int64_t *bucket = malloc((size_t)(n > 0 ? n : 1) * sizeof(int64_t));
-    int64_t *first = calloc((size_t)(ny + 2), sizeof(int64_t));   /* bucket b: [first[b], first[b + 1]) */
-    int64_t *bound = malloc((size_t)(n + 1) * sizeof(int64_t));   /* chords of spheres [0, k) at most */
+    /* bucket b (the spheres whose first sample row at or above them is b) holds sp[first[b],
+       first[b + 1]); bound[k]: the most chords spheres sp[0, k) can give one row */
+    int64_t *first = calloc((size_t)(ny + 2), sizeof(int64_t));
+    int64_t *bound = malloc((size_t)(n + 1) * sizeof(int64_t));
     Sphere *sp = malloc((size_t)(n > 0 ? n : 1) * sizeof(Sphere));
     int status = 0;
     if (!group || !key || !keys || !start || !fill || !part || !bucket || !first || !bound
