@@ -34,7 +34,6 @@ HEIGHT_TOL = 0.05
 MAX_SAMPLE_LINES = 1_000_000
 
 
-
 def bed_size(bed, layers, layer_thickness):
     """The size (x, y, z) [m] a bed is imaged at: its recorded size, else the origin to its
     spheres' far faces; AmfeError if its height is not ``layers`` layers (within HEIGHT_TOL)."""

@@ -70,9 +70,8 @@ def validate_particles(centers, radii):
     check_shapes(centers.shape, radii.shape)
     if centers.shape[0] == 0:
         raise AmfeError("the bed has no particles")
-    bad = np.flatnonzero(~np.isfinite(centers).all(axis=1)) if not np.isfinite(centers).all() \
-        else ()
-    if len(bad):
+    if not np.isfinite(centers).all():   # the per-particle search only when one is bad
+        bad = np.flatnonzero(~np.isfinite(centers).all(axis=1))
         raise AmfeError(f"{bad.size} particles have non-finite centres: particles "
                         f"{_list_items(bad)}")
     bad = np.flatnonzero(~(np.isfinite(radii) & (radii > 0)))
