@@ -102,3 +102,7 @@ def test_large_beds_are_sampled_at_twice_the_spacing():
         assert fill_shift(box, cell, h) == (0.0 if want == h else COARSE_FILL_SHIFT)
     assert sample_spacing((6e-3, 0.15e-3, 0.3e-3), cell, h) == h    # a long strip: 144 000 lines
     assert "5 um" in sampling_note((3e-3, 3e-3, 0.3e-3), cell, h)
+    # a model trained on another grid keeps its own spacing: the rule was measured on this one
+    assert sample_spacing((4e-3, 4e-3, 0.3e-3), cell, 1.25e-6) == 1.25e-6
+    assert sample_spacing((4e-3, 4e-3, 0.3e-3), (50e-6, 50e-6), h) == h
+    assert fill_shift((4e-3, 4e-3, 0.3e-3), cell, 1.25e-6) == 0.0

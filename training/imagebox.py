@@ -32,6 +32,10 @@ HEIGHT_TOL = 0.05
 #: constants by 0.014-0.039 % on average (at most 0.29 %), against the model's own
 #: 1.6-2.9 % mean error, which moved by at most 0.007 points.
 MAX_SAMPLE_LINES = 1_000_000
+#: The training grid that rule was measured on, (cell side, spacing) [m]: the shipped
+#: models' 0.03 mm cells at 2.5 um. A model trained on another grid is imaged at its own
+#: spacing at every size (the fill check's shift, amfe.training.fillcheck, is this grid's).
+MEASURED_GRID = (30e-6, 2.5e-6)
 
 
 def bed_size(bed, layers, layer_thickness):
@@ -66,7 +70,11 @@ def sample_spacing(box, cell, spacing):
     """The in-plane sample spacing [m] a prediction images ``box`` (x, y[, z]) [m] with:
     the training's ``spacing`` [m], or twice it where that would take more than
     :data:`MAX_SAMPLE_LINES` sample lines (cells (x, y) [m], ceil(cell / spacing) lines a
-    cell side, as amfe.dataset.images.pixelate samples)."""
+    cell side, as amfe.dataset.images.pixelate samples), on :data:`MEASURED_GRID` only."""
+    side, h = MEASURED_GRID
+    if not (math.isclose(float(cell[0]), side) and math.isclose(float(cell[1]), side)
+            and math.isclose(float(spacing), h)):
+        return float(spacing)
     lines = 1
     for a in (0, 1):
         cells = max(1, math.ceil(float(box[a]) / float(cell[a]) - WHOLE_CELL_TOL))
