@@ -1,4 +1,5 @@
-"""The whole-cell imaging rule: the box a bed of any size is imaged in (no torch).
+"""The whole-cell imaging rule: the box a bed of any size is imaged in, and the sample
+spacing a prediction images it at (no torch).
 
 The whole-cell rule (docs/surrogate.md, "Any size"): a bed's image covers
 floor(L / cell) whole cells along x and y from the box's origin (a length
@@ -8,7 +9,8 @@ would read as void. The size the network reads is the cropped one. The
 height must hold the model's layers to within HEIGHT_TOL of a layer (else
 AmfeError). A bed file without a recorded size gets the box from the origin
 (the generator's corner) to its spheres' far faces, max(centre + radius),
-then the same cropping.
+then the same cropping. A bed of over :data:`MAX_SAMPLE_LINES` sample lines is sampled at
+twice the training's spacing (:func:`sample_spacing`; docs/surrogate.md, "Large beds").
 """
 import math
 

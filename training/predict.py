@@ -192,7 +192,7 @@ class Surrogate:
 
     def fill_shift_of(self, bed: object) -> float:
         """How much higher the fill statistic reads on ``bed``'s image than at the training's
-        sampling (amfe.training.imagebox.fill_shift: 0 but for a bed imaged coarser)."""
+        sampling (amfe.training.fillcheck.fill_shift: 0 but for a bed imaged coarser)."""
         px = self.ckpt["pixelation"]
         return fill_shift(_image_size(bed, self.ckpt), px["image_cell"], px["image_spacing"])
 
