@@ -10,15 +10,30 @@ precision-recall curve, and the intervals' coverage on the beds with skipped
 scan pieces and on the others, each against its binomial band.
 
     python -m run.train.calibrate_flag --calibration s8.h5 s9.h5 s16.h5 --test s17.h5 \
-        -o amfe/models/flag_small.json --json flag_report.json [--model MODEL.pt]
+        -o amfe/models/flag_small.json --json flag_report.json [--model MODEL.pt] \
+        [--flagnet amfe/models/flag_small_net.npz]
+
+``--flagnet``: the risk also reads the flag's error network (amfe.training.flagnet,
+run/train/train_flagnet.py), whose file must sit beside ``-o``.
 """
+import os
+
 import h5py
 import numpy as np
 import torch
 from scipy.stats import binom
 
 from amfe.training.data import dataset_info, read_rows
-from amfe.training.flagrisk import bad_beds, bins_of, features, fit, risk, threshold_for
+from amfe.training.flagnet import load_flagnet
+from amfe.training.flagrisk import (
+    bad_beds,
+    bins_of,
+    features,
+    fit,
+    risk,
+    threshold_for,
+    with_flagnet,
+)
 from amfe.training.predict import Surrogate
 from amfe.vocab import LABEL_NAMES
 from run.common import ROOT, md_table, parser, write_json
@@ -47,10 +62,11 @@ def band(n, p=0.9, level=0.99):
     return lo / n, hi / n
 
 
-def evaluate(model, data):
-    """Flag and coverage figures of one test set (``data``: :func:`predicted`'s)."""
+def evaluate(model, data, net=None):
+    """Flag and coverage figures of one test set (``data``: :func:`predicted`'s; ``net``:
+    the flag's error network, None for none)."""
     fill, bonds, mean, spread, labels, skipped = data
-    X = features(fill, bonds, mean, spread, model["bond_scale"])
+    X = with_flagnet(features(fill, bonds, mean, spread, model["bond_scale"]), net, fill, bonds)
     score = risk(model, X)
     flagged, bad = score > model["threshold"], bad_beds(mean, labels)
     bins = bins_of(model, X)
@@ -99,21 +115,33 @@ def main():
     p.add_argument("--json", default=None, help="the test figures (JSON)")
     p.add_argument("--model", default=f"{ROOT}/amfe/models/multiscale_small.pt",
                    help="the small model whose flag is fitted (default: the shipped one)")
+    p.add_argument("--flagnet", default=None, help="the flag's error network (.npz) to read")
+    p.add_argument("--risk-from", choices=("logistic", "flagnet"), default="logistic",
+                   help="the risk: the logistic model, or the error network's logit alone")
     args = p.parse_args()
+    net = load_flagnet(args.flagnet) if args.flagnet else None
+    if net is not None and args.output and os.path.dirname(os.path.abspath(args.flagnet)) \
+            != os.path.dirname(os.path.abspath(args.output)):
+        p.error("--flagnet must sit in the folder of -o (the flag file names it beside itself)")
+    if args.risk_from == "flagnet" and net is None:
+        p.error("--risk-from flagnet needs --flagnet")
     torch.set_num_threads(1)
     sur = Surrogate.load(args.model)
     parts = [predicted(sur, path) for path in args.calibration]
     fill, bonds, mean, spread, labels, skipped = (np.concatenate([q[k] for q in parts])
                                                   for k in range(6))
     bond_scale = float(bonds.mean())
-    model = fit(features(fill, bonds, mean, spread, bond_scale), (mean, labels, spread, skipped),
-                bond_scale, flag_share=args.flag_share, lam=args.lam)
+    X = with_flagnet(features(fill, bonds, mean, spread, bond_scale), net, fill, bonds)
+    model = fit(X, (mean, labels, spread, skipped), bond_scale, flag_share=args.flag_share,
+                lam=args.lam, risk_from=args.risk_from)
     model["calibration"] = [str(p) for p in args.calibration]
+    if net is not None:
+        model["flagnet"] = os.path.basename(args.flagnet)
     if args.output:
         write_json(args.output, model)
     report, rows = {}, []
     for path in args.test:
-        r = evaluate(model, predicted(sur, path))
+        r = evaluate(model, predicted(sur, path), net)
         report[path] = r
         cov = r["coverage"]
         rows.append([path.rsplit("/", 1)[-1], r["n"], f"{100 * r['bad']:.1f}",
