@@ -251,14 +251,15 @@ def summary(out, output=None):
     else:
         lines.append("source: surrogate")
     t = out["timings"]
-    stages = ("load_model", "read_bed", "pixelate", "bonds", "predict", "solve")
+    stages = ("load_model", "read_bed", "pixelate", "bonds", "predict", "flag", "solve")
     parts = [f"{k.replace('_', ' ')} {t[k]:.3g} s" for k in stages if k in t]
     lines.append(f"time {out['seconds']:.3g} s: " + ", ".join(parts))
     if "start_up" in t:
         imaging = t.get("pixelate", 0.0) + t.get("bonds", 0.0)
         lines.append(f"one call: start-up {t['start_up']:.3g} s (Python and the imports), "
                      f"model {t['load_model']:.3g} s, imaging {imaging:.3g} s, "
-                     f"network {t['predict']:.3g} s")
+                     f"network {t['predict']:.3g} s"
+                     + (f", flag {t['flag']:.3g} s" if "flag" in t else ""))
     if output:
         lines.append(f"wrote {output}")
     return "\n".join(lines)
