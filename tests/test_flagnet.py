@@ -132,3 +132,19 @@ def test_a_risk_from_the_network_is_its_logit():
     assert abs((risk(model, X) > model["threshold"]).mean() - 0.2) < 0.01
     with pytest.raises(AmfeError, match="logistic"):
         fit(X, data, 1.0, risk_from="spread")
+
+
+def test_the_shipped_flag_reads_its_network():
+    from amfe.training.checkpoint import load_checkpoint
+    from amfe.training.shipped import models_dir
+    flag = load_flag(models_dir() / "flag_small.json")
+    assert flag["risk_from"] == "flagnet" and flag["flagnet"] == "flag_small_net.npz"
+    ckpt = load_checkpoint(models_dir() / "multiscale_small.pt")
+    assert flag["flagnet_net"].image_shape == tuple(ckpt["image_shape"])
+    assert len(flag["mu"]) == len(flag["w"]) // 2   # intercept, F features and squares
+    # the risk is the network's logit: a bed's risk is exactly that logit
+    x = np.random.default_rng(6).random((1,) + tuple(ckpt["image_shape"])).astype(np.float32)
+    n = ckpt["arch_args"]["n_fill"]
+    one = bed_risk(flag, x[0, :n], x[0, n:], np.array([1e11, 1e11, 1e11, 0.1, 0.1, 0.2]),
+                   np.full(6, 0.02))
+    assert one["risk"] == pytest.approx(float(flag["flagnet_net"].logit(x, 0.1)[0]), rel=1e-6)
