@@ -11,7 +11,7 @@ the encoder at ``--body`` times the head's rate. Writes the members' weights as
 an .npz (amfe.training.flagnet.save_flagnet); calibrate_flag.py --flagnet then
 fits the flag with it.
 
-    python -m run.train.train_flagnet --data S3.h5:52000-61622 S20.h5 S2.h5 \\
+    python -m run.train.train_flagnet --data S3.h5:52000-61622 S20.h5 S2.h5 S25.h5:0-2895 \\
         --seeds 0 1 -o amfe/models/flag_small_net.npz
 """
 import time
@@ -111,11 +111,11 @@ def main():
     p.add_argument("--data", nargs="+", required=True, help="PATH or PATH:LO-HI (record index)")
     p.add_argument("--model", default=f"{ROOT}/amfe/models/multiscale_small.pt")
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
-    p.add_argument("--epochs", type=int, default=20)
+    p.add_argument("--epochs", type=int, default=30)
     p.add_argument("--batch-size", type=int, default=100)
     p.add_argument("--lr", type=float, default=1e-3)
     p.add_argument("--body", type=float, default=0.3, help="the encoder's rate / the head's")
-    p.add_argument("--bce", type=float, default=1.0)
+    p.add_argument("--bce", type=float, default=3.0)
     p.add_argument("-o", "--output", required=True)
     a = p.parse_args()
     torch.set_num_threads(1)
