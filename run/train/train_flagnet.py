@@ -11,7 +11,7 @@ the encoder at ``--body`` times the head's rate. Writes the members' weights as
 an .npz (amfe.training.flagnet.save_flagnet); calibrate_flag.py --flagnet then
 fits the flag with it.
 
-    python -m run.train.train_flagnet --data S3.h5:52000-61622 S20.h5 S2.h5 S25.h5:0-2895 \\
+    python -m run.train.train_flagnet --data S3.h5:52000-61622 S20.h5 S2.h5 S25.h5 \\
         --seeds 0 1 -o amfe/models/flag_small_net.npz
 """
 import time
