@@ -25,14 +25,16 @@ import numpy as np
 
 from amfe.errors import AmfeError
 from amfe.io.atomic import atomic_write
-from amfe.training.npnet import NumpyMultiScale
+from amfe.training.ensemble import symmetries
+from amfe.training.npnet import PASS_IMAGES, NumpyMultiScale, _flip
 
 #: The format of the error network's file.
 FLAGNET_FORMAT, FLAGNET_VERSION = "amfe.flagnet", 1
 #: The unit of the relative error the network's outputs are in.
 SCALE = 0.05
-#: The mirror images averaged: (flip x, flip y).
-VIEWS = ((False, False), (True, True), (True, False), (False, True))
+#: The views averaged: the four mirror images (flip x, flip y, no transpose), as the
+#: small model's test-time averaging ("flips").
+VIEWS = symmetries("flips")
 
 
 def tail_probabilities(mu, logb, bad):
@@ -64,22 +66,22 @@ class FlagNet:
         self.members = [NumpyMultiScale(s, self.image_shape, header["arch_args"])
                         for s in states]
 
-    def outputs(self, images, batch_size=256):
+    def outputs(self, images, batch_size=PASS_IMAGES):
         """(mu, logb), each (n, 6), of images (n, layers, H, W): the members' mean over the
-        four mirror images."""
+        four mirror images, each member's views of a chunk of beds in passes of about
+        ``batch_size`` images (as amfe.training.npnet.predict_raw runs the model's)."""
         x = np.asarray(images, np.float32)
         if x.ndim != 4 or tuple(x.shape[1:]) != self.image_shape:
             raise AmfeError(f"the flag's error network reads images of shape "
                             f"{'x'.join(map(str, self.image_shape))}, got "
                             f"{'x'.join(map(str, x.shape[1:]))}")
+        chunk = max(1, int(batch_size) // len(VIEWS))
         acc = np.zeros((len(x), 12))
-        for net in self.members:
-            for fx, fy in VIEWS:
-                for s in range(0, len(x), batch_size):
-                    xb = x[s:s + batch_size]
-                    xb = xb[..., ::-1] if fx else xb
-                    xb = xb[..., ::-1, :] if fy else xb
-                    acc[s:s + batch_size] += net(np.ascontiguousarray(xb))
+        for s in range(0, len(x), chunk):
+            xb = x[s:s + chunk]
+            views = np.concatenate([_flip(xb, *view) for view in VIEWS])
+            for net in self.members:
+                acc[s:s + chunk] += net(views).reshape(len(VIEWS), len(xb), 12).sum(0)
         acc /= len(self.members) * len(VIEWS)
         return acc[:, :6], np.clip(acc[:, 6:], -5.0, 5.0)
 

@@ -49,6 +49,8 @@ BIN_EDGES = (0.5,)
 #: The calibration risk's quantiles that the flag file keeps (every percent), from which
 #: another flagged share's threshold is read (:func:`threshold_for`).
 RISK_TABLE = np.linspace(0.0, 1.0, 101)
+#: The shipped flag models read so far in this process, by (file, mtime): :func:`shipped_flag`.
+_SHIPPED = {}
 
 
 def features(fill, bonds, mean, spread, bond_scale):
@@ -252,5 +254,3 @@ def shipped_flag(checkpoint_path, models_dir, shipped):
             return _SHIPPED[key]
     return None
 
-
-_SHIPPED = {}

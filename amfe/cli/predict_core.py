@@ -217,9 +217,8 @@ def _one_bed(args, sur, threshold, item, prediction, times, t_start, extra):
     t_flag = time.perf_counter()
     risk = (_risk(sur, bed, res, image, extra["factor"], getattr(args, "flag_share", None))
             if "non-finite" not in reasons else None)
-    if risk is not None:   # the flag's error network reads the images: its own stage
-        times["flag"] = time.perf_counter() - t_flag
     if risk is not None:   # the one flag (issue 46): the risk, its bin's intervals
+        times["flag"] = time.perf_counter() - t_flag   # its error network reads the images
         reasons = (["risk"] if risk["flagged"] else []) + [
             r for r in reasons if r == "non-finite" or (r == "spread" and args.threshold)]
         conformal = {"coverage": risk.pop("coverage"), "names": list(SIX),
