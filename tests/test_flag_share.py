@@ -89,6 +89,12 @@ def test_the_share_moves_the_flag_and_nothing_else(small_bed):
     base = amfe.predict(str(bed)).to_dict()
     r, model = base["risk"], load_flag(models_dir() / "flag_small.json")
     assert r["flag_share"] == model["flag_share"] and r["threshold"] == model["threshold"]
+    # the intervals: its risk bin's quantiles times the scale the risk block records
+    cal = model["bins"][r["bin"]]
+    for k, (lo, hi) in base["intervals"].items():
+        p = base["properties"][k]
+        half = cal["quantile"][k] * abs(p) * (r["interval_scale"][k] + cal["spread_scale"][k])
+        assert (lo, hi) == pytest.approx((p - half, p + half), rel=1e-9)
     # shares whose thresholds lie on either side of this bed's risk
     table = np.array(model["risk_quantiles"])
     below = 1.0 - RISK_TABLE[np.flatnonzero(table < r["risk"] - 1e-9).max()]

@@ -19,6 +19,7 @@ from amfe.training.flagrisk import (
     with_flagnet,
 )
 from amfe.training.multiscale import MultiScaleNet
+from amfe.vocab import LABEL_NAMES
 from run.train import train_flagnet
 
 ARGS = {"n_fill": 3, "channels": [4, 8], "hidden": [8]}
@@ -148,3 +149,59 @@ def test_the_shipped_flag_reads_its_network():
     one = bed_risk(flag, x[0, :n], x[0, n:], np.array([1e11, 1e11, 1e11, 0.1, 0.1, 0.2]),
                    np.full(6, 0.02))
     assert one["risk"] == pytest.approx(float(flag["flagnet_net"].logit(x, 0.1)[0]), rel=1e-6)
+    # its intervals' scale is the network's b of each constant, not the ensemble's spread
+    assert flag["interval_from"] == "flagnet"
+    b = np.exp(flag["flagnet_net"].outputs(x)[1][0]) * SCALE
+    assert np.allclose([one["interval_scale"][k] for k in LABEL_NAMES], b, rtol=1e-6)
+
+
+def _heteroscedastic(rng, n):
+    """Beds whose error scale b (the network's logb, SCALE units) is low for half of them
+    and high for the rest, and a risk column that knows nothing of it."""
+    logb = np.where(rng.random((n, 1)) < 0.5, -1.0, 0.7) * np.ones((1, 6))
+    labels = np.exp(rng.normal(size=(n, 6)) * 0.1) + 1.0
+    mean = labels * (1 + rng.laplace(0.0, np.exp(logb) * SCALE))
+    X = rng.normal(size=(n, 3))
+    return X, (mean, labels, np.full((n, 6), 0.02), X[:, 0] > 0), logb
+
+
+def _coverage(model, X, data, scale):
+    from amfe.training.conformal import intervals
+    from amfe.training.flagrisk import bins_of
+    from amfe.vocab import LABEL_NAMES
+    mean, labels = data[0], data[1]
+    bins, covered = bins_of(model, X), np.zeros(labels.shape, bool)
+    for b, cal in enumerate(model["bins"]):
+        rows = bins == b
+        lo, hi = intervals(mean[rows], list(LABEL_NAMES), cal, scale[rows])
+        covered[rows] = (labels[rows] >= lo) & (labels[rows] <= hi)
+    return covered
+
+
+def test_intervals_scaled_by_the_network_hold_on_each_kind_of_bed():
+    from amfe.training.flagrisk import network_scale
+    rng = np.random.default_rng(7)
+    X, data, logb = _heteroscedastic(rng, 6000)
+    by_net = fit(X, data, 1.0, risk_from="flagnet", logb=logb)
+    by_spread = fit(X, data, 1.0, risk_from="flagnet")
+    assert by_net["interval_from"] == "flagnet" and by_spread["interval_from"] == "spread"
+    Xt, test, logbt = _heteroscedastic(rng, 6000)
+    low = logbt[:, 0] < 0
+    net_cov = _coverage(by_net, Xt, test, network_scale(logbt))
+    spread_cov = _coverage(by_spread, Xt, test, test[2])
+    for rows in (low, ~low):   # the network's scale: 90 % on the quiet and the noisy beds
+        assert np.all(np.abs(net_cov[rows].mean(0) - 0.9) < 0.025)
+    # the spread knows nothing of b: the quiet beds over-covered, the noisy ones under
+    assert np.all(spread_cov[low].mean(0) > 0.97) and np.all(spread_cov[~low].mean(0) < 0.85)
+    # and the network's intervals are narrower on the quiet beds
+    assert network_scale(logbt[low]).mean() < network_scale(logbt[~low]).mean() / 4
+
+
+def test_a_flag_scaling_its_intervals_by_a_network_must_name_it(tmp_path):
+    rng = np.random.default_rng(8)
+    X, data, logb = _heteroscedastic(rng, 400)
+    model = fit(X, data, 1.0, logb=logb)
+    with open(tmp_path / "flag.json", "w") as f:
+        json.dump(model, f)
+    with pytest.raises(AmfeError, match="error network but it names none"):
+        load_flag(tmp_path / "flag.json")

@@ -44,10 +44,12 @@ def _scale(pred, spread, s0):
     return np.abs(pred) * (spread + s0)
 
 
-def calibrate(pred, labels, names, spread=None, coverage=DEFAULT_COVERAGE):
+def calibrate(pred, labels, names, spread=None, coverage=DEFAULT_COVERAGE, offset=True):
     """{n, quantile {name: q}, spread_scale {name: s0}} of one size's held-out beds.
 
     pred, labels (n, k) [Pa, -]; spread (n, k) relative or None; coverage in (0, 1).
+    offset False: s0 = 0, the score |y - p| / (|p| s), for a spread that is itself a scale
+    of the error (the flag's error network's, amfe.training.flagrisk), positive everywhere.
     """
     pred, labels = np.asarray(pred, np.float64), np.asarray(labels, np.float64)
     if pred.shape != labels.shape or pred.ndim != 2 or pred.shape[1] != len(names):
@@ -62,7 +64,7 @@ def calibrate(pred, labels, names, spread=None, coverage=DEFAULT_COVERAGE):
         s0 = np.ones(len(names))
     else:
         s0 = np.median(np.asarray(spread, np.float64), axis=0)
-        s0 = np.where(s0 > 0, s0, 1.0)
+        s0 = np.where(s0 > 0, s0, 1.0) if offset else np.zeros(len(names))
     scores = np.abs(labels - pred) / np.maximum(_scale(pred, spread, s0), np.finfo(float).tiny)
     rank = math.ceil((n + 1) * float(coverage))
     q = np.sort(scores, axis=0)[rank - 1] if rank <= n else np.full(len(names), np.inf)

@@ -17,7 +17,11 @@ quantiles of the calibration risk, and the flag's threshold); each bin has
 its own quantile per constant (amfe.training.conformal.calibrate), so the
 coverage holds within each bin, not only over all beds: a risky bed gets the
 wide interval of the risky beds, and beds with and without skipped pieces
-each get their own.
+each get their own. Within a bin the score is normalised by the ensemble's
+spread (plus its median), or (``interval_from`` "flagnet") by the error network's
+own scale of each constant's error, ``b`` of its Laplace distribution, alone: an
+interval as wide as the network expects this bed's error to be, whose coverage
+holds on each kind of bed the network tells apart (docs/surrogate.md, "The flag").
 
 The model is a small JSON file beside the checkpoint (``flag_<scale>.json``,
 amfe/models/), read by :func:`load_flag`. Version 2 adds the flag's error network
@@ -36,7 +40,7 @@ from scipy import ndimage
 
 from amfe.errors import AmfeError
 from amfe.training.conformal import calibrate
-from amfe.training.flagnet import flagnet_beside
+from amfe.training.flagnet import SCALE, bad_logit, flagnet_beside
 from amfe.vocab import LABEL_NAMES
 
 #: The format of the flag file (version 1: no error network; still read).
@@ -78,20 +82,34 @@ def features(fill, bonds, mean, spread, bond_scale):
     return np.stack(F, axis=1)
 
 
-def with_flagnet(X, net, fill, bonds, bad=BAD):
+def with_flagnet(X, net, fill, bonds, bad=BAD, outputs=None):
     """X (n, F) and, as its last column, the error network ``net``'s logit of a bed being
     bad (amfe.training.flagnet) from the images fill, bonds (n, layers, H, W) at the model's
-    E; X itself when ``net`` is None."""
+    E; X itself when ``net`` is None. outputs: the network's (mu, logb) of these beds, if
+    already at hand (:func:`flagnet_outputs`)."""
     if net is None:
         return X
+    mu, logb = flagnet_outputs(net, fill, bonds) if outputs is None else outputs
+    return np.concatenate([X, bad_logit(mu, logb, bad)[:, None]], axis=1)
+
+
+def flagnet_outputs(net, fill, bonds):
+    """(mu, logb), each (n, 6), of the error network ``net`` on images fill, bonds (n,
+    layers, H, W) at the model's E (amfe.training.flagnet.FlagNet.outputs)."""
     images = np.concatenate([np.asarray(fill, np.float32), np.asarray(bonds, np.float32)], 1)
-    return np.concatenate([X, net.logit(images, bad)[:, None]], axis=1)
+    return net.outputs(images)
 
 
-def model_features(model, fill, bonds, mean, spread):
+def network_scale(logb):
+    """(n, 6) the error network's scale of each constant's relative error, b = exp(logb)
+    in plain relative units (logb in amfe.training.flagnet.SCALE units)."""
+    return np.exp(np.asarray(logb, float)) * SCALE
+
+
+def model_features(model, fill, bonds, mean, spread, outputs=None):
     """The (n, F) features that the flag model ``model`` (:func:`load_flag`'s) reads."""
     X = features(fill, bonds, mean, spread, model["bond_scale"])
-    return with_flagnet(X, model.get("flagnet_net"), fill, bonds, model["bad"])
+    return with_flagnet(X, model.get("flagnet_net"), fill, bonds, model["bad"], outputs)
 
 
 def fill_pieces(img, thr):
@@ -127,13 +145,16 @@ def _logistic(A, target, lam):
     return w
 
 
-def fit(X, data, bond_scale, flag_share=0.19, lam=0.1, coverage=0.9, risk_from="logistic"):
+def fit(X, data, bond_scale, flag_share=0.19, lam=0.1, coverage=0.9, risk_from="logistic",
+        logb=None):
     """The flag model (a dict for the JSON file) from calibration beds.
 
     X (n, F) :func:`features` (with ``bond_scale``); data: (pred, labels, spread (n, 6),
     skipped (n,) bool: the generator skipped scan pieces). flag_share: the share of the
     calibration beds above the threshold; lam: the logistic fits' ridge penalty;
-    coverage: the intervals' nominal coverage.
+    coverage: the intervals' nominal coverage; logb (n, 6): the error network's log scales
+    of these beds (:func:`flagnet_outputs`): given, the intervals' scores are normalised by
+    them alone (``interval_from`` "flagnet"), not by the ensemble's spread plus its median.
     """
     pred, labels, spread, skipped = data
     bad = bad_beds(pred, labels).astype(float)
@@ -147,14 +168,18 @@ def fit(X, data, bond_scale, flag_share=0.19, lam=0.1, coverage=0.9, risk_from="
     threshold = float(np.quantile(score, 1 - flag_share))
     model = {"format": FLAG_FORMAT, "format_version": FLAG_VERSION, "bad": BAD,
              "bond_scale": float(bond_scale), "coverage": coverage, "flag_share": flag_share,
-             "lam": lam, "risk_from": risk_from, "mu": mu.tolist(), "sd": sd.tolist(),
+             "lam": lam, "risk_from": risk_from,
+             "interval_from": "spread" if logb is None else "flagnet",
+             "mu": mu.tolist(), "sd": sd.tolist(),
              "w": w.tolist(), "w_skip": w_skip.tolist(), "threshold": threshold,
              "bin_edges": [float(np.quantile(score, q)) for q in BIN_EDGES] + [threshold],
              "n": int(len(X)), "bad_share": float(bad.mean()),
              "risk_quantiles": [float(np.quantile(score, q)) for q in RISK_TABLE]}
     bins = bins_of(model, X)
+    scale = spread if logb is None else network_scale(logb)
     model["bins"] = [calibrate(pred[bins == b], labels[bins == b], list(LABEL_NAMES),
-                               spread[bins == b], coverage) for b in range(n_bins(model))]
+                               scale[bins == b], coverage, offset=logb is None)
+                     for b in range(n_bins(model))]
     return model
 
 
@@ -218,24 +243,32 @@ def load_flag(path):
                         f"{model.get('format_version')!r})")
     if model.get("flagnet"):
         model["flagnet_net"] = flagnet_beside(path, model["flagnet"])
-    elif model.get("risk_from", "logistic") != "logistic":
-        raise AmfeError(f"{path}: its risk comes from an error network but it names none")
+    elif "flagnet" in (model.get("risk_from"), model.get("interval_from")):
+        raise AmfeError(f"{path}: its risk or intervals come from an error network but it "
+                        f"names none")
     return model
 
 
 def bed_risk(model, fill, bonds, mean, spread, share=None):
     """One bed's flag: {risk (the logit), threshold, flag_share, flagged, bin, calibration
-    (its bin's conformal calibration)}; fill, bonds (layers, H, W), mean, spread (6,) at the
-    model's E; share: the calibration beds' share to flag (None: the file's,
-    :func:`threshold_for`). The interval's bin is the file's whatever the share."""
+    (its bin's conformal calibration), interval_scale {constant: the relative scale its
+    bin's quantiles multiply: the ensemble's spread or the error network's b}}; fill, bonds
+    (layers, H, W), mean, spread (6,) at the model's E; share: the calibration beds' share
+    to flag (None: the file's, :func:`threshold_for`). The interval's bin is the file's
+    whatever the share."""
+    net = model.get("flagnet_net")
+    outputs = None if net is None else flagnet_outputs(net, fill[None], bonds[None])
     X = model_features(model, fill[None], bonds[None], np.asarray(mean)[None],
-                       np.asarray(spread)[None])
+                       np.asarray(spread)[None], outputs)
     score = float(risk(model, X)[0])
     b = int(bins_of(model, X)[0])
     threshold = threshold_for(model, share)
+    scale = network_scale(outputs[1])[0] if model.get("interval_from") == "flagnet" \
+        else np.asarray(spread, float)
     return {"risk": score, "threshold": threshold,
             "flag_share": float(model["flag_share"] if share is None else share),
-            "flagged": bool(score > threshold), "bin": b, "calibration": model["bins"][b]}
+            "flagged": bool(score > threshold), "bin": b, "calibration": model["bins"][b],
+            "interval_scale": {k: float(v) for k, v in zip(LABEL_NAMES, scale)}}
 
 
 def shipped_flag(checkpoint_path, models_dir, shipped):

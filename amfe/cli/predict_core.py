@@ -223,7 +223,8 @@ def _one_bed(args, sur, threshold, item, prediction, times, t_start, extra):
             r for r in reasons if r == "non-finite" or (r == "spread" and args.threshold)]
         conformal = {"coverage": risk.pop("coverage"), "names": list(SIX),
                      "sizes": {"risk bin": risk.pop("calibration")}}
-        bars = interval_of(sur, bed, res, extra["factor"], conformal)
+        bars = interval_of(sur, bed, res, extra["factor"], conformal,
+                           [risk["interval_scale"][k] for k in SIX])
     else:
         extra = {**extra, "notes": [*extra["notes"], *flag_share_note(args)]}
         bars = interval_of(sur, bed, res, extra["factor"]) if "non-finite" not in reasons \
@@ -284,11 +285,13 @@ def _one_bed(args, sur, threshold, item, prediction, times, t_start, extra):
     return finish(out, (path, bed), times, t_start), rank
 
 
-def interval_of(sur, bed, res, factor=1.0, conformal=None):
+def interval_of(sur, bed, res, factor=1.0, conformal=None, scale=None):
     """The bed's interval block (amfe.training.conformal.interval_block) at its imaged size
     (``conformal`` with one entry, "risk bin": that calibration whatever the size);
     ``res``'s moduli scaled by ``factor`` (E_bed / E_model) are unscaled for the model's
-    calibration and the intervals scaled back."""
+    calibration and the intervals scaled back. scale (6,): the relative scale of the six
+    constants' scores (the flag's, amfe.training.flagrisk.bed_risk) instead of the
+    ensemble's spread."""
     from amfe.training.conformal import interval_block, size_key
     from amfe.training.predict import _image_size
     from amfe.training.prediction import scale_intervals
@@ -301,7 +304,8 @@ def interval_of(sur, bed, res, factor=1.0, conformal=None):
         row, names, spread = res["constants9"][0].copy(), NINE, res["spread9"][0]
         row[[0, 1, 2, 6, 7, 8]] /= factor   # a stiffness head calibrated on all nine
     else:
-        row, names, spread = res["mean"][0].copy(), SIX, res["spread"][0]
+        row, names = res["mean"][0].copy(), SIX
+        spread = res["spread"][0] if scale is None else scale
         row[:3] /= factor
     return scale_intervals(interval_block(row, names, conformal, size, spread), factor)
 

@@ -14,7 +14,9 @@ scan pieces and on the others, each against its binomial band.
         [--flagnet amfe/models/flag_small_net.npz]
 
 ``--flagnet``: the risk also reads the flag's error network (amfe.training.flagnet,
-run/train/train_flagnet.py), whose file must sit beside ``-o``.
+run/train/train_flagnet.py), whose file must sit beside ``-o``; ``--intervals-from
+flagnet`` normalises the intervals' scores by its scale of each constant's error
+instead of the ensemble's spread.
 """
 import os
 
@@ -30,6 +32,8 @@ from amfe.training.flagrisk import (
     bins_of,
     features,
     fit,
+    flagnet_outputs,
+    network_scale,
     risk,
     threshold_for,
     with_flagnet,
@@ -66,7 +70,11 @@ def evaluate(model, data, net=None):
     """Flag and coverage figures of one test set (``data``: :func:`predicted`'s; ``net``:
     the flag's error network, None for none)."""
     fill, bonds, mean, spread, labels, skipped = data
-    X = with_flagnet(features(fill, bonds, mean, spread, model["bond_scale"]), net, fill, bonds)
+    outputs = None if net is None else flagnet_outputs(net, fill, bonds)
+    X = with_flagnet(features(fill, bonds, mean, spread, model["bond_scale"]), net, fill, bonds,
+                     outputs=outputs)
+    if model.get("interval_from") == "flagnet":
+        spread = network_scale(outputs[1])
     score = risk(model, X)
     flagged, bad = score > model["threshold"], bad_beds(mean, labels)
     bins = bins_of(model, X)
@@ -118,22 +126,27 @@ def main():
     p.add_argument("--flagnet", default=None, help="the flag's error network (.npz) to read")
     p.add_argument("--risk-from", choices=("logistic", "flagnet"), default="logistic",
                    help="the risk: the logistic model, or the error network's logit alone")
+    p.add_argument("--intervals-from", choices=("spread", "flagnet"), default="spread",
+                   help="the intervals' scale: the ensemble's spread, or the error network's")
     args = p.parse_args()
     net = load_flagnet(args.flagnet) if args.flagnet else None
     if net is not None and args.output and os.path.dirname(os.path.abspath(args.flagnet)) \
             != os.path.dirname(os.path.abspath(args.output)):
         p.error("--flagnet must sit in the folder of -o (the flag file names it beside itself)")
-    if args.risk_from == "flagnet" and net is None:
-        p.error("--risk-from flagnet needs --flagnet")
+    if "flagnet" in (args.risk_from, args.intervals_from) and net is None:
+        p.error("--risk-from flagnet and --intervals-from flagnet need --flagnet")
     torch.set_num_threads(1)
     sur = Surrogate.load(args.model)
     parts = [predicted(sur, path) for path in args.calibration]
     fill, bonds, mean, spread, labels, skipped = (np.concatenate([q[k] for q in parts])
                                                   for k in range(6))
     bond_scale = float(bonds.mean())
-    X = with_flagnet(features(fill, bonds, mean, spread, bond_scale), net, fill, bonds)
+    outputs = None if net is None else flagnet_outputs(net, fill, bonds)
+    X = with_flagnet(features(fill, bonds, mean, spread, bond_scale), net, fill, bonds,
+                     outputs=outputs)
     model = fit(X, (mean, labels, spread, skipped), bond_scale, flag_share=args.flag_share,
-                lam=args.lam, risk_from=args.risk_from)
+                lam=args.lam, risk_from=args.risk_from,
+                logb=outputs[1] if args.intervals_from == "flagnet" else None)
     model["calibration"] = [str(p) for p in args.calibration]
     if net is not None:
         model["flagnet"] = os.path.basename(args.flagnet)
