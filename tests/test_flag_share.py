@@ -12,6 +12,7 @@ import amfe
 from amfe.errors import AmfeError
 from amfe.training.flagrisk import RISK_TABLE, fit, load_flag, risk, threshold_for
 from amfe.training.shipped import models_dir
+from amfe.vocab import LABEL_NAMES
 
 TIMED = ("seconds", "timings")
 
@@ -89,6 +90,11 @@ def test_the_share_moves_the_flag_and_nothing_else(small_bed):
     base = amfe.predict(str(bed)).to_dict()
     r, model = base["risk"], load_flag(models_dir() / "flag_small.json")
     assert r["flag_share"] == model["flag_share"] and r["threshold"] == model["threshold"]
+    # the constants: the model's ensemble corrected by the factors the risk block records
+    from amfe.training.predict import Surrogate
+    raw = Surrogate.load(models_dir() / "multiscale_small.pt").predict(str(bed))["mean"][0]
+    assert [base["properties"][k] for k in LABEL_NAMES] == pytest.approx(
+        [v * r["correction"][k] for v, k in zip(raw, LABEL_NAMES)], rel=1e-9)
     # the intervals: its risk bin's quantiles times the scale the risk block records
     cal = model["bins"][r["bin"]]
     for k, (lo, hi) in base["intervals"].items():
@@ -157,3 +163,19 @@ def test_the_sweep_flags_as_predict_does(tmp_path):
     assert code != 0 and "holds another sweep" in err
     with pytest.raises(AmfeError, match="needs --method surrogate"):
         SweepSpec(points=({"track_width": 1e-4},), seeds=(0,), flag_share=0.3)
+
+
+def test_a_batch_reads_the_error_network_once_and_gives_each_bed_its_own_flag(small_bed):
+    bed, d = small_bed
+    code, _, err = run_main(["pack", "--scale", "small", "--seed", "6", "-o", d / "bed6.h5"])
+    assert code == 0, err
+    alone = [amfe.predict(str(p)).to_dict() for p in (bed, d / "bed6.h5")]
+    batch = [p.to_dict() for p in amfe.predict([str(bed), str(d / "bed6.h5")])]
+    assert alone[0]["risk"]["risk"] != pytest.approx(alone[1]["risk"]["risk"], rel=1e-3)
+    for one, many in zip(alone, batch):   # float32 passes of another batch: to rounding
+        assert many["risk"]["risk"] == pytest.approx(one["risk"]["risk"], rel=1e-5)
+        assert many["risk"]["bin"] == one["risk"]["bin"]
+        for block in ("correction", "interval_scale"):
+            assert many["risk"][block] == pytest.approx(one["risk"][block], rel=1e-5)
+        assert many["properties"] == pytest.approx(one["properties"], rel=1e-5)
+        assert many["timings"]["flag"] > 0

@@ -143,16 +143,21 @@ def test_the_shipped_flag_reads_its_network():
     ckpt = load_checkpoint(models_dir() / "multiscale_small.pt")
     assert flag["flagnet_net"].image_shape == tuple(ckpt["image_shape"])
     assert len(flag["mu"]) == len(flag["w"]) // 2   # intercept, F features and squares
-    # the risk is the network's logit: a bed's risk is exactly that logit
+    # the risk is the network's logit: a bed's risk is exactly that logit (below)
     x = np.random.default_rng(6).random((1,) + tuple(ckpt["image_shape"])).astype(np.float32)
     n = ckpt["arch_args"]["n_fill"]
     one = bed_risk(flag, x[0, :n], x[0, n:], np.array([1e11, 1e11, 1e11, 0.1, 0.1, 0.2]),
                    np.full(6, 0.02))
-    assert one["risk"] == pytest.approx(float(flag["flagnet_net"].logit(x, 0.1)[0]), rel=1e-6)
     # its intervals' scale is the network's b of each constant, not the ensemble's spread
     assert flag["interval_from"] == "flagnet"
     b = np.exp(flag["flagnet_net"].outputs(x)[1][0]) * SCALE
     assert np.allclose([one["interval_scale"][k] for k in LABEL_NAMES], b, rtol=1e-6)
+    # it corrects the constants by the network's mu, and its logit is then the centred one
+    assert flag["corrects"]
+    mu, logb = flag["flagnet_net"].outputs(x)
+    assert np.allclose([one["correction"][k] for k in LABEL_NAMES], 1 / (1 + mu[0] * SCALE),
+                       rtol=1e-6)
+    assert one["risk"] == pytest.approx(float(bad_logit(0 * mu, logb, 0.1)[0]), rel=1e-6)
 
 
 def _heteroscedastic(rng, n):
@@ -205,3 +210,15 @@ def test_a_flag_scaling_its_intervals_by_a_network_must_name_it(tmp_path):
         json.dump(model, f)
     with pytest.raises(AmfeError, match="error network but it names none"):
         load_flag(tmp_path / "flag.json")
+
+
+def test_the_correction_returns_the_label_the_network_expects():
+    from amfe.training.flagrisk import corrected
+    rng = np.random.default_rng(9)
+    labels = np.concatenate([rng.uniform(5e10, 2e11, (50, 3)), rng.uniform(0.05, 0.3, (50, 3))],
+                            axis=1)
+    mu = rng.normal(size=(50, 6)) * 2.0    # SCALE units: up to about 20 % off
+    predicted = labels * (1 + mu * SCALE)  # r = predicted / label - 1 = mu SCALE exactly
+    assert np.allclose(corrected(predicted, mu), labels, rtol=1e-12)
+    # a factor per constant: any E (moduli scaled by E / E_model) corrects alike
+    assert np.allclose(corrected(3.0 * predicted, mu), 3.0 * labels, rtol=1e-12)

@@ -30,7 +30,9 @@ the logit of "some constant more than 10 % off" that it reads off the bed's imag
 is one more feature, and with ``risk_from`` "flagnet" it is the risk itself (the
 logistic model then only guesses skipped pieces for the interval bins): on held-out
 beds it ranks the bad beds better than the logistic on the summaries does with it
-(docs/surrogate.md, "The flag").
+(docs/surrogate.md, "The flag"). With ``corrects`` the network also corrects the
+constants (:func:`corrected`: by its location of each constant's error), and the risk
+is then that of the corrected constants.
 """
 import json
 import os
@@ -82,15 +84,24 @@ def features(fill, bonds, mean, spread, bond_scale):
     return np.stack(F, axis=1)
 
 
-def with_flagnet(X, net, fill, bonds, bad=BAD, outputs=None):
+def with_flagnet(X, net, fill, bonds, bad=BAD, outputs=None, corrects=False):
     """X (n, F) and, as its last column, the error network ``net``'s logit of a bed being
     bad (amfe.training.flagnet) from the images fill, bonds (n, layers, H, W) at the model's
     E; X itself when ``net`` is None. outputs: the network's (mu, logb) of these beds, if
-    already at hand (:func:`flagnet_outputs`)."""
+    already at hand (:func:`flagnet_outputs`); corrects: the logit of the prediction
+    corrected by the network's mu (:func:`corrected`), whose error is centred: mu = 0."""
     if net is None:
         return X
     mu, logb = flagnet_outputs(net, fill, bonds) if outputs is None else outputs
-    return np.concatenate([X, bad_logit(mu, logb, bad)[:, None]], axis=1)
+    logit = bad_logit(np.zeros_like(mu) if corrects else mu, logb, bad)
+    return np.concatenate([X, logit[:, None]], axis=1)
+
+
+def corrected(mean, mu):
+    """(n, 6) the predictions ``mean`` (n, 6) [Pa, -] corrected by the error network's
+    location mu (n, 6) of their relative error r = predicted / label - 1 (SCALE units):
+    mean / (1 + mu SCALE), the label the network expects. Any E: a factor per constant."""
+    return np.asarray(mean, float) / (1.0 + np.asarray(mu, float) * SCALE)
 
 
 def flagnet_outputs(net, fill, bonds):
@@ -109,7 +120,8 @@ def network_scale(logb):
 def model_features(model, fill, bonds, mean, spread, outputs=None):
     """The (n, F) features that the flag model ``model`` (:func:`load_flag`'s) reads."""
     X = features(fill, bonds, mean, spread, model["bond_scale"])
-    return with_flagnet(X, model.get("flagnet_net"), fill, bonds, model["bad"], outputs)
+    return with_flagnet(X, model.get("flagnet_net"), fill, bonds, model["bad"], outputs,
+                        model.get("corrects", False))
 
 
 def fill_pieces(img, thr):
@@ -146,7 +158,7 @@ def _logistic(A, target, lam):
 
 
 def fit(X, data, bond_scale, flag_share=0.19, lam=0.1, coverage=0.9, risk_from="logistic",
-        logb=None):
+        logb=None, corrects=False):
     """The flag model (a dict for the JSON file) from calibration beds.
 
     X (n, F) :func:`features` (with ``bond_scale``); data: (pred, labels, spread (n, 6),
@@ -155,6 +167,8 @@ def fit(X, data, bond_scale, flag_share=0.19, lam=0.1, coverage=0.9, risk_from="
     coverage: the intervals' nominal coverage; logb (n, 6): the error network's log scales
     of these beds (:func:`flagnet_outputs`): given, the intervals' scores are normalised by
     them alone (``interval_from`` "flagnet"), not by the ensemble's spread plus its median.
+    corrects: the predictions are corrected by the error network (:func:`corrected`; pred
+    is then the corrected one, and X's logit the centred one, :func:`with_flagnet`).
     """
     pred, labels, spread, skipped = data
     bad = bad_beds(pred, labels).astype(float)
@@ -170,6 +184,7 @@ def fit(X, data, bond_scale, flag_share=0.19, lam=0.1, coverage=0.9, risk_from="
              "bond_scale": float(bond_scale), "coverage": coverage, "flag_share": flag_share,
              "lam": lam, "risk_from": risk_from,
              "interval_from": "spread" if logb is None else "flagnet",
+             "corrects": bool(corrects),
              "mu": mu.tolist(), "sd": sd.tolist(),
              "w": w.tolist(), "w_skip": w_skip.tolist(), "threshold": threshold,
              "bin_edges": [float(np.quantile(score, q)) for q in BIN_EDGES] + [threshold],
@@ -243,7 +258,8 @@ def load_flag(path):
                         f"{model.get('format_version')!r})")
     if model.get("flagnet"):
         model["flagnet_net"] = flagnet_beside(path, model["flagnet"])
-    elif "flagnet" in (model.get("risk_from"), model.get("interval_from")):
+    elif "flagnet" in (model.get("risk_from"), model.get("interval_from")) \
+            or model.get("corrects"):
         raise AmfeError(f"{path}: its risk or intervals come from an error network but it "
                         f"names none")
     return model
@@ -252,10 +268,11 @@ def load_flag(path):
 def bed_risk(model, fill, bonds, mean, spread, share=None):
     """One bed's flag: {risk (the logit), threshold, flag_share, flagged, bin, calibration
     (its bin's conformal calibration), interval_scale {constant: the relative scale its
-    bin's quantiles multiply: the ensemble's spread or the error network's b}}; fill, bonds
-    (layers, H, W), mean, spread (6,) at the model's E; share: the calibration beds' share
-    to flag (None: the file's, :func:`threshold_for`). The interval's bin is the file's
-    whatever the share."""
+    bin's quantiles multiply: the ensemble's spread or the error network's b}, correction
+    {constant: the factor that corrects the prediction, :func:`corrected`} or None (a flag
+    that does not correct)}; fill, bonds (layers, H, W), mean, spread (6,) at the model's E;
+    share: the calibration beds' share to flag (None: the file's, :func:`threshold_for`).
+    The interval's bin is the file's whatever the share."""
     net = model.get("flagnet_net")
     outputs = None if net is None else flagnet_outputs(net, fill[None], bonds[None])
     X = model_features(model, fill[None], bonds[None], np.asarray(mean)[None],
@@ -268,7 +285,10 @@ def bed_risk(model, fill, bonds, mean, spread, share=None):
     return {"risk": score, "threshold": threshold,
             "flag_share": float(model["flag_share"] if share is None else share),
             "flagged": bool(score > threshold), "bin": b, "calibration": model["bins"][b],
-            "interval_scale": {k: float(v) for k, v in zip(LABEL_NAMES, scale)}}
+            "interval_scale": {k: float(v) for k, v in zip(LABEL_NAMES, scale)},
+            "correction": {k: float(v) for k, v in zip(
+                LABEL_NAMES, corrected(np.ones(6), outputs[0][0]))}
+            if model.get("corrects") else None}
 
 
 def shipped_flag(checkpoint_path, models_dir, shipped):

@@ -219,6 +219,8 @@ def _one_bed(args, sur, threshold, item, prediction, times, t_start, extra):
             if "non-finite" not in reasons else None)
     if risk is not None:   # the one flag (issue 46): the risk, its bin's intervals
         times["flag"] = time.perf_counter() - t_flag   # its error network reads the images
+        if risk["correction"]:   # the constants the error network expects (docs/surrogate.md)
+            res = {**res, "mean": res["mean"] * [risk["correction"][k] for k in SIX]}
         reasons = (["risk"] if risk["flagged"] else []) + [
             r for r in reasons if r == "non-finite" or (r == "spread" and args.threshold)]
         conformal = {"coverage": risk.pop("coverage"), "names": list(SIX),

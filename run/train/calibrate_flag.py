@@ -16,7 +16,9 @@ scan pieces and on the others, each against its binomial band.
 ``--flagnet``: the risk also reads the flag's error network (amfe.training.flagnet,
 run/train/train_flagnet.py), whose file must sit beside ``-o``; ``--intervals-from
 flagnet`` normalises the intervals' scores by its scale of each constant's error
-instead of the ensemble's spread.
+instead of the ensemble's spread; ``--correct`` corrects the predictions by its
+location of each constant's error (amfe.training.flagrisk.corrected), and fits and
+tests the flag and intervals on the corrected predictions.
 """
 import os
 
@@ -30,6 +32,7 @@ from amfe.training.flagnet import load_flagnet
 from amfe.training.flagrisk import (
     bad_beds,
     bins_of,
+    corrected,
     features,
     fit,
     flagnet_outputs,
@@ -72,7 +75,9 @@ def evaluate(model, data, net=None):
     fill, bonds, mean, spread, labels, skipped = data
     outputs = None if net is None else flagnet_outputs(net, fill, bonds)
     X = with_flagnet(features(fill, bonds, mean, spread, model["bond_scale"]), net, fill, bonds,
-                     outputs=outputs)
+                     outputs=outputs, corrects=model.get("corrects", False))
+    if model.get("corrects"):
+        mean = corrected(mean, outputs[0])
     if model.get("interval_from") == "flagnet":
         spread = network_scale(outputs[1])
     score = risk(model, X)
@@ -101,7 +106,9 @@ def evaluate(model, data, net=None):
         f = score > threshold_for(model, share)
         points[f"{share:.2f}"] = {
             **_caught(f, bad), "bad_among_unflagged": float((bad & ~f).sum() / max((~f).sum(), 1))}
-    return {"n": int(len(bad)), "bad": float(bad.mean()), **_caught(flagged, bad),
+    error = dict(zip(LABEL_NAMES, map(float, (np.abs(mean - labels) / np.abs(labels)).mean(0))))
+    return {"n": int(len(bad)), "bad": float(bad.mean()), "mean_error": error,
+            **_caught(flagged, bad),
             "coverage": groups, "curve": curve, "operating_points": points}
 
 
@@ -128,13 +135,15 @@ def main():
                    help="the risk: the logistic model, or the error network's logit alone")
     p.add_argument("--intervals-from", choices=("spread", "flagnet"), default="spread",
                    help="the intervals' scale: the ensemble's spread, or the error network's")
+    p.add_argument("--correct", action="store_true",
+                   help="correct the predictions by the error network's location of their error")
     args = p.parse_args()
     net = load_flagnet(args.flagnet) if args.flagnet else None
     if net is not None and args.output and os.path.dirname(os.path.abspath(args.flagnet)) \
             != os.path.dirname(os.path.abspath(args.output)):
         p.error("--flagnet must sit in the folder of -o (the flag file names it beside itself)")
-    if "flagnet" in (args.risk_from, args.intervals_from) and net is None:
-        p.error("--risk-from flagnet and --intervals-from flagnet need --flagnet")
+    if ("flagnet" in (args.risk_from, args.intervals_from) or args.correct) and net is None:
+        p.error("--risk-from flagnet, --intervals-from flagnet and --correct need --flagnet")
     torch.set_num_threads(1)
     sur = Surrogate.load(args.model)
     parts = [predicted(sur, path) for path in args.calibration]
@@ -143,10 +152,13 @@ def main():
     bond_scale = float(bonds.mean())
     outputs = None if net is None else flagnet_outputs(net, fill, bonds)
     X = with_flagnet(features(fill, bonds, mean, spread, bond_scale), net, fill, bonds,
-                     outputs=outputs)
+                     outputs=outputs, corrects=args.correct)
+    if args.correct:
+        mean = corrected(mean, outputs[0])
     model = fit(X, (mean, labels, spread, skipped), bond_scale, flag_share=args.flag_share,
                 lam=args.lam, risk_from=args.risk_from,
-                logb=outputs[1] if args.intervals_from == "flagnet" else None)
+                logb=outputs[1] if args.intervals_from == "flagnet" else None,
+                corrects=args.correct)
     model["calibration"] = [str(p) for p in args.calibration]
     if net is not None:
         model["flagnet"] = os.path.basename(args.flagnet)
@@ -172,6 +184,10 @@ def main():
                 100 * q["flagged"], q["recall"], 100 * q["bad_unflagged"],
                 100 * q["bad_among_unflagged"])
             for q in r["operating_points"].values()] for path, r in report.items()]))
+    print("\nMean relative error % of the predictions the flag covers (corrected with --correct):")
+    print(md_table(["test set"] + list(LABEL_NAMES), [
+        [path.rsplit("/", 1)[-1]] + [f"{100 * v:.2f}" for v in r["mean_error"].values()]
+        for path, r in report.items()]))
     for path, r in report.items():
         for g, c in r["coverage"].items():
             print(f"  {path.rsplit('/', 1)[-1]} {g}: " + ", ".join(
