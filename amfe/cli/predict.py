@@ -224,6 +224,10 @@ def summary(out, output=None):
         lines.append(f"risk of a constant more than 10 % off: {r['risk']:.3g} (logit; flagged "
                      f"above {r['threshold']:.3g}, which {100 * r['flag_share']:.3g} % of the "
                      f"calibration beds exceed), interval bin {r['bin']}")
+        if r.get("correction"):
+            lines.append("constants corrected by the flag's error network by "
+                         + ", ".join(f"{k} {100 * (v - 1):+.1f} %"
+                                     for k, v in r["correction"].items()))
     lines += [f"note: {note}" for note in out.get("notes") or ()]
     reasons = out.get("flag_reasons", [])
     if "non-finite" in reasons:
