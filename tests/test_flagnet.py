@@ -187,7 +187,7 @@ def test_intervals_scaled_by_the_network_hold_on_each_kind_of_bed():
     from amfe.training.flagrisk import network_scale
     rng = np.random.default_rng(7)
     X, data, logb = _heteroscedastic(rng, 6000)
-    by_net = fit(X, data, 1.0, risk_from="flagnet", logb=logb)
+    by_net = fit(X, data, 1.0, risk_from="flagnet", network={"logb": logb})
     by_spread = fit(X, data, 1.0, risk_from="flagnet")
     assert by_net["interval_from"] == "flagnet" and by_spread["interval_from"] == "spread"
     Xt, test, logbt = _heteroscedastic(rng, 6000)
@@ -205,7 +205,7 @@ def test_intervals_scaled_by_the_network_hold_on_each_kind_of_bed():
 def test_a_flag_scaling_its_intervals_by_a_network_must_name_it(tmp_path):
     rng = np.random.default_rng(8)
     X, data, logb = _heteroscedastic(rng, 400)
-    model = fit(X, data, 1.0, logb=logb)
+    model = fit(X, data, 1.0, network={"logb": logb})
     with open(tmp_path / "flag.json", "w") as f:
         json.dump(model, f)
     with pytest.raises(AmfeError, match="error network but it names none"):

@@ -158,18 +158,20 @@ def _logistic(A, target, lam):
 
 
 def fit(X, data, bond_scale, flag_share=0.19, lam=0.1, coverage=0.9, risk_from="logistic",
-        logb=None, corrects=False):
+        network=None):
     """The flag model (a dict for the JSON file) from calibration beds.
 
     X (n, F) :func:`features` (with ``bond_scale``); data: (pred, labels, spread (n, 6),
     skipped (n,) bool: the generator skipped scan pieces). flag_share: the share of the
     calibration beds above the threshold; lam: the logistic fits' ridge penalty;
-    coverage: the intervals' nominal coverage; logb (n, 6): the error network's log scales
-    of these beds (:func:`flagnet_outputs`): given, the intervals' scores are normalised by
-    them alone (``interval_from`` "flagnet"), not by the ensemble's spread plus its median.
-    corrects: the predictions are corrected by the error network (:func:`corrected`; pred
+    coverage: the intervals' nominal coverage; network: the error network's reading of
+    these beds, {"logb": (n, 6) its log scales (:func:`flagnet_outputs`) or None,
+    "corrects": bool} or None: with logb, the intervals' scores are normalised by its
+    scales alone (``interval_from`` "flagnet"), not by the ensemble's spread plus its
+    median; with "corrects" the predictions are corrected by it (:func:`corrected`: pred
     is then the corrected one, and X's logit the centred one, :func:`with_flagnet`).
     """
+    logb = (network or {}).get("logb")
     pred, labels, spread, skipped = data
     bad = bad_beds(pred, labels).astype(float)
     mu, sd = X.mean(axis=0), X.std(axis=0) + 1e-12
@@ -184,7 +186,7 @@ def fit(X, data, bond_scale, flag_share=0.19, lam=0.1, coverage=0.9, risk_from="
              "bond_scale": float(bond_scale), "coverage": coverage, "flag_share": flag_share,
              "lam": lam, "risk_from": risk_from,
              "interval_from": "spread" if logb is None else "flagnet",
-             "corrects": bool(corrects),
+             "corrects": bool(network and network.get("corrects")),
              "mu": mu.tolist(), "sd": sd.tolist(),
              "w": w.tolist(), "w_skip": w_skip.tolist(), "threshold": threshold,
              "bin_edges": [float(np.quantile(score, q)) for q in BIN_EDGES] + [threshold],

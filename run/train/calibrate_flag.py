@@ -157,8 +157,9 @@ def main():
         mean = corrected(mean, outputs[0])
     model = fit(X, (mean, labels, spread, skipped), bond_scale, flag_share=args.flag_share,
                 lam=args.lam, risk_from=args.risk_from,
-                logb=outputs[1] if args.intervals_from == "flagnet" else None,
-                corrects=args.correct)
+                network=None if net is None else {
+                    "logb": outputs[1] if args.intervals_from == "flagnet" else None,
+                    "corrects": args.correct})
     model["calibration"] = [str(p) for p in args.calibration]
     if net is not None:
         model["flagnet"] = os.path.basename(args.flagnet)
