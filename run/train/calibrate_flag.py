@@ -27,6 +27,7 @@ import numpy as np
 import torch
 from scipy.stats import binom
 
+from amfe.training.conformal import intervals
 from amfe.training.data import dataset_info, read_rows
 from amfe.training.flagnet import load_flagnet
 from amfe.training.flagrisk import (
@@ -69,15 +70,22 @@ def band(n, p=0.9, level=0.99):
     return lo / n, hi / n
 
 
+def flag_inputs(data, net, bond_scale, corrects):
+    """(X, mean, outputs) of :func:`predicted`'s ``data``: the risk features (with the error
+    network ``net``'s logit, when there is one), the predictions (corrected by the network
+    with ``corrects``) and the network's (mu, logb) (None without one)."""
+    fill, bonds, mean, spread = data[:4]
+    outputs = None if net is None else flagnet_outputs(net, fill, bonds)
+    X = with_flagnet(features(fill, bonds, mean, spread, bond_scale), net, fill, bonds,
+                     outputs=outputs, corrects=corrects)
+    return X, corrected(mean, outputs[0]) if corrects else mean, outputs
+
+
 def evaluate(model, data, net=None):
     """Flag and coverage figures of one test set (``data``: :func:`predicted`'s; ``net``:
     the flag's error network, None for none)."""
-    fill, bonds, mean, spread, labels, skipped = data
-    outputs = None if net is None else flagnet_outputs(net, fill, bonds)
-    X = with_flagnet(features(fill, bonds, mean, spread, model["bond_scale"]), net, fill, bonds,
-                     outputs=outputs, corrects=model.get("corrects", False))
-    if model.get("corrects"):
-        mean = corrected(mean, outputs[0])
+    spread, labels, skipped = data[3:]
+    X, mean, outputs = flag_inputs(data, net, model["bond_scale"], model.get("corrects"))
     if model.get("interval_from") == "flagnet":
         spread = network_scale(outputs[1])
     score = risk(model, X)
@@ -86,10 +94,8 @@ def evaluate(model, data, net=None):
     covered = np.zeros(labels.shape, bool)
     for b, cal in enumerate(model["bins"]):
         rows = bins == b
-        q = np.array([cal["quantile"][k] for k in LABEL_NAMES])
-        s0 = np.array([cal["spread_scale"][k] for k in LABEL_NAMES])
-        half = q * np.abs(mean[rows]) * (spread[rows] + s0)
-        covered[rows] = np.abs(labels[rows] - mean[rows]) <= half
+        lo, hi = intervals(mean[rows], list(LABEL_NAMES), cal, spread[rows])
+        covered[rows] = (labels[rows] >= lo) & (labels[rows] <= hi)
     groups = {}
     for name, rows in (("skipped pieces", skipped), ("no skipped pieces", ~skipped),
                        ("all", np.ones(len(bad), bool))):
@@ -150,11 +156,7 @@ def main():
     fill, bonds, mean, spread, labels, skipped = (np.concatenate([q[k] for q in parts])
                                                   for k in range(6))
     bond_scale = float(bonds.mean())
-    outputs = None if net is None else flagnet_outputs(net, fill, bonds)
-    X = with_flagnet(features(fill, bonds, mean, spread, bond_scale), net, fill, bonds,
-                     outputs=outputs, corrects=args.correct)
-    if args.correct:
-        mean = corrected(mean, outputs[0])
+    X, mean, outputs = flag_inputs((fill, bonds, mean, spread), net, bond_scale, args.correct)
     model = fit(X, (mean, labels, spread, skipped), bond_scale, flag_share=args.flag_share,
                 lam=args.lam, risk_from=args.risk_from,
                 network=None if net is None else {
