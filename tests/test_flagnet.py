@@ -222,3 +222,33 @@ def test_the_correction_returns_the_label_the_network_expects():
     assert np.allclose(corrected(predicted, mu), labels, rtol=1e-12)
     # a factor per constant: any E (moduli scaled by E / E_model) corrects alike
     assert np.allclose(corrected(3.0 * predicted, mu), 3.0 * labels, rtol=1e-12)
+
+
+def test_a_bin_with_too_few_calibration_beds_takes_its_risk_bins_quantiles():
+    from amfe.training.conformal import calibrate
+    from amfe.training.flagrisk import bins_of, network_scale
+    rng = np.random.default_rng(10)
+    X, data, logb = _heteroscedastic(rng, 2000)
+    # beds with skipped pieces are exactly the risky ones: the risky bin of the beds that look
+    # whole gets (almost) no calibration beds, too few for a 90 % quantile
+    skipped = X[:, -1] > np.quantile(X[:, -1], 0.75)
+    model = fit(X, (*data[:3], skipped), 1.0, risk_from="flagnet", network={"logb": logb})
+    bins, risk_bins = bins_of(model, X), len(model["bin_edges"]) + 1
+    tiny = [b for b in range(len(model["bins"])) if (bins == b).sum() < 9]   # q needs 9
+    assert tiny
+    for b, cal in enumerate(model["bins"]):
+        assert np.all(np.isfinite(list(cal["quantile"].values())))
+        if b in tiny:
+            rows = bins % risk_bins == b % risk_bins
+            pooled = calibrate(data[0][rows], data[1][rows], list(LABEL_NAMES),
+                               network_scale(logb[rows]), offset=False)
+            assert cal["pooled"] and cal["quantile"] == pooled["quantile"]
+        else:
+            assert "pooled" not in cal
+
+
+def test_the_shipped_flag_gives_every_bin_a_finite_interval():
+    from amfe.training.shipped import models_dir
+    flag = load_flag(models_dir() / "flag_small.json")
+    for cal in flag["bins"]:
+        assert np.all(np.isfinite(list(cal["quantile"].values())))

@@ -14,7 +14,8 @@ bins, by whether the bed looks as if it has skipped scan pieces (a second
 logistic model on the same features, fitted to the generator's record of
 skipped pieces: 88 % right on held-out beds) and by risk (:data:`BIN_EDGES`,
 quantiles of the calibration risk, and the flag's threshold); each bin has
-its own quantile per constant (amfe.training.conformal.calibrate), so the
+its own quantile per constant (amfe.training.conformal.calibrate; a bin with too few
+calibration beds for the coverage takes its risk bin's over both kinds of bed), so the
 coverage holds within each bin, not only over all beds: a risky bed gets the
 wide interval of the risky beds, and beds with and without skipped pieces
 each get their own. Within a bin the score is normalised by the ensemble's
@@ -194,9 +195,20 @@ def fit(X, data, bond_scale, flag_share=0.19, lam=0.1, coverage=0.9, risk_from="
              "risk_quantiles": [float(np.quantile(score, q)) for q in RISK_TABLE]}
     bins = bins_of(model, X)
     scale = spread if logb is None else network_scale(logb)
-    model["bins"] = [calibrate(pred[bins == b], labels[bins == b], list(LABEL_NAMES),
-                               scale[bins == b], coverage, offset=logb is None)
-                     for b in range(n_bins(model))]
+    risk_bins = len(model["bin_edges"]) + 1
+
+    def calibrated(rows):
+        return calibrate(pred[rows], labels[rows], list(LABEL_NAMES), scale[rows], coverage,
+                         offset=logb is None)
+
+    model["bins"] = []
+    for b in range(n_bins(model)):
+        cal = calibrated(bins == b) if np.any(bins == b) else None
+        if cal is None or not np.all(np.isfinite(list(cal["quantile"].values()))):
+            # Too few calibration beds for the coverage (an infinite interval): the bin takes
+            # its risk bin's quantiles over both kinds of bed.
+            cal = {**calibrated(bins % risk_bins == b % risk_bins), "pooled": True}
+        model["bins"].append(cal)
     return model
 
 
